@@ -1,0 +1,132 @@
+"""Coordinates: the published SfM -> lon/lat chain, local metric frames, 2D rigid motions.
+
+Conventions (measured on the data, see ../shared/DATA.md):
+- lon/lat are degrees (EPSG:4326). The published chain maps SfM points to lon/lat with an
+  isotropic scale *in degrees*; we treat the resulting lon/lat as the geographic truth.
+- A scene's metric frame is a transverse Mercator projection centred on the scene
+  (x = east, y = north, metres). Its PROJ string is stored with every map.
+- 2D headings are counter-clockwise angles from +x (east) of the camera's viewing axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pyproj import CRS, Transformer
+
+#: Published Flatlandia constant: one local-map unit is TO_FLATLANDIA / 2 degrees.
+TO_FLATLANDIA = 0.0033780547666424354
+#: The upstream code turns local-map units into its "metres" with this factor.
+PAPER_METRES_PER_UNIT = 215.0
+
+
+@dataclass(frozen=True)
+class MetricFrame:
+    """A local transverse Mercator frame around (lon0, lat0): x east, y north, metres."""
+
+    lon0: float
+    lat0: float
+
+    @property
+    def proj4(self) -> str:
+        return (
+            f"+proj=tmerc +lat_0={self.lat0:.10f} +lon_0={self.lon0:.10f} +k=1 "
+            "+x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs"
+        )
+
+    def _forward(self) -> Transformer:
+        return Transformer.from_crs(CRS.from_epsg(4326), CRS.from_proj4(self.proj4), always_xy=True)
+
+    def _inverse(self) -> Transformer:
+        return Transformer.from_crs(CRS.from_proj4(self.proj4), CRS.from_epsg(4326), always_xy=True)
+
+    def to_xy(self, lonlat: np.ndarray) -> np.ndarray:
+        """(N, 2) lon/lat degrees -> (N, 2) metres."""
+        lonlat = np.asarray(lonlat, dtype=float).reshape(-1, 2)
+        x, y = self._forward().transform(lonlat[:, 0], lonlat[:, 1])
+        return np.column_stack([x, y])
+
+    def to_lonlat(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) metres -> (N, 2) lon/lat degrees."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        lon, lat = self._inverse().transform(xy[:, 0], xy[:, 1])
+        return np.column_stack([lon, lat])
+
+    def metres_per_degree(self) -> tuple[float, float]:
+        """Local scale (metres per degree of lon, metres per degree of lat) at the origin."""
+        eps = 1e-4
+        pts = self.to_xy(np.array([[self.lon0 - eps, self.lat0], [self.lon0 + eps, self.lat0],
+                                   [self.lon0, self.lat0 - eps], [self.lon0, self.lat0 + eps]]))
+        return (float(np.linalg.norm(pts[1] - pts[0]) / (2 * eps)),
+                float(np.linalg.norm(pts[3] - pts[2]) / (2 * eps)))
+
+    def heading_to_metric(self, theta_deg_space: np.ndarray) -> np.ndarray:
+        """Turn a direction angle measured in isotropic lon/lat degrees into the metric frame.
+
+        Degrees of longitude are shorter than degrees of latitude, so a direction drawn in
+        lon/lat space points elsewhere in metres (up to ~20 degrees off at 50 N).
+        """
+        mx, my = self.metres_per_degree()
+        theta = np.asarray(theta_deg_space, dtype=float)
+        return np.arctan2(my * np.sin(theta), mx * np.cos(theta))
+
+
+def frame_for(lonlat: np.ndarray) -> MetricFrame:
+    """The metric frame of a scene: centred on the bounding-box centre of its objects."""
+    lonlat = np.asarray(lonlat, dtype=float).reshape(-1, 2)
+    lo, hi = lonlat.min(axis=0), lonlat.max(axis=0)
+    c = (lo + hi) / 2.0
+    return MetricFrame(lon0=round(float(c[0]), 7), lat0=round(float(c[1]), 7))
+
+
+def rot2(theta: float | np.ndarray) -> np.ndarray:
+    """2x2 (or ...x2x2) counter-clockwise rotation matrix."""
+    c, s = np.cos(theta), np.sin(theta)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def wrap_angle(theta: np.ndarray | float) -> np.ndarray | float:
+    """Wrap radians into [-pi, pi)."""
+    return (np.asarray(theta) + np.pi) % (2 * np.pi) - np.pi
+
+
+def world_to_local(points: np.ndarray, cam_xy: np.ndarray, theta: float) -> np.ndarray:
+    """Express world points in a camera frame: camera at origin, looking along +x, +y left."""
+    return (np.asarray(points, float) - np.asarray(cam_xy, float)) @ rot2(theta)
+
+
+def local_to_world(local: np.ndarray, cam_xy: np.ndarray, theta: float) -> np.ndarray:
+    """Inverse of :func:`world_to_local`."""
+    return np.asarray(local, float) @ rot2(theta).T + np.asarray(cam_xy, float)
+
+
+def sfm_to_lonlat(points: np.ndarray, transformations: dict) -> np.ndarray:
+    """Push SfM points (N, 3) through the published chain to lon/lat (N, 2).
+
+    lonlat = s * R2[:2, :2] @ (Rpp.T @ X)[:2] + t[:2]; in row form X @ Rpp. Rpp and R2 may be
+    reflections, so no axis is assumed to point up.
+    """
+    rpp = np.asarray(transformations["to_principal_plane"], float)
+    tm = transformations["to_mapillary"]
+    r2 = np.asarray(tm["rotation"], float)
+    s = float(tm["scaling_factor_sfm_to_gps"])
+    t = np.asarray(tm["translation"], float).reshape(-1)[:2]
+    plane = np.asarray(points, float).reshape(-1, 3) @ rpp
+    return s * plane[:, :2] @ r2[:2, :2].T + t
+
+
+def rigid_fit_2d(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
+    """Least-squares rotation + translation (no scale, no reflection) taking src onto dst.
+
+    Returns (theta, t) with dst ~= src @ rot2(theta).T + t.
+    """
+    src = np.asarray(src, float)
+    dst = np.asarray(dst, float)
+    cs, cd = src.mean(0), dst.mean(0)
+    a, b = src - cs, dst - cd
+    num = np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    den = np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1])
+    theta = float(np.arctan2(num, den))
+    t = cd - cs @ rot2(theta).T
+    return theta, t

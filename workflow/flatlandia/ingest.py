@@ -1,0 +1,100 @@
+"""Check what the published data holds for a scene before anything is built on it."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+from . import io
+from .errors import InputError
+
+#: files of a published scene: (key, path relative to the data root, required?)
+SCENE_FILES = [
+    ("reference_map", "individual_reference_maps/map_{scene}.json", True),
+    ("transformations", "maps/{scene}/transformations.json", True),
+    ("tokens", "maps/{scene}/tokens.txt", False),
+    ("sfm_cameras", "maps/{scene}/SfM/cameras.bin", False),
+    ("sfm_images", "maps/{scene}/SfM/images.zip", False),
+    ("sfm_points3D", "maps/{scene}/SfM/points3D.bin", False),
+    ("class_segmented_point_cloud", "maps/{scene}/class_segmented_point_cloud.ply", False),
+    ("bbs", "maps/{scene}/bbs_for_segmented_objects.ply", False),
+]
+GLOBAL_FILES = ["scenes.tsv", "classes.tsv", "local_maps.json"]
+
+
+def read_manifest(root: Path) -> dict[str, tuple[int, str]]:
+    path = root / "MANIFEST.tsv"
+    if not path.exists():
+        return {}
+    df = io.read_tsv(path, ["path", "bytes", "sha256"])
+    return {r.path: (int(r.bytes), r.sha256) for r in df.itertuples(index=False)}
+
+
+def _parse_check(key: str, path: Path) -> None:
+    """Raise InputError if the file cannot be parsed as what it claims to be."""
+    if key == "reference_map":
+        io.read_reference_map(path)
+    elif key == "transformations":
+        io.read_transformations(path)
+    elif key == "tokens":
+        toks = [t for t in path.read_text().split() if t]
+        if not toks:
+            raise InputError(path, "no tokens")
+    elif key.endswith(".ply") or key in ("class_segmented_point_cloud", "bbs"):
+        with open(path, "rb") as f:
+            head = f.read(4096)
+        if not head.startswith(b"ply") or b"end_header" not in head:
+            raise InputError(path, "not a PLY file (no 'ply' magic or no end_header)")
+    elif key == "sfm_images":
+        try:
+            with zipfile.ZipFile(path) as z:
+                bad = z.testzip()
+                if bad is not None:
+                    raise InputError(path, f"corrupt member {bad}")
+                if not any(n.endswith("images.bin") for n in z.namelist()):
+                    raise InputError(path, "zip holds no images.bin")
+        except zipfile.BadZipFile as e:
+            raise InputError(path, f"not a zip file ({e})") from e
+
+
+def check_file(root: Path, rel: str, key: str, manifest: dict, verify_hash: bool) -> dict:
+    path = root / rel
+    rec = {"key": key, "path": rel, "present": path.exists(), "bytes": None, "manifest": rel in manifest,
+           "size_ok": None, "sha256_ok": None, "parse_ok": None, "problem": ""}
+    if not rec["present"]:
+        rec["problem"] = "missing"
+        return rec
+    rec["bytes"] = path.stat().st_size
+    if rel in manifest:
+        size, digest = manifest[rel]
+        rec["size_ok"] = rec["bytes"] == size
+        if not rec["size_ok"]:
+            rec["problem"] = f"size {rec['bytes']} != manifest {size} (truncated?)"
+        elif verify_hash:
+            rec["sha256_ok"] = io.sha256(path) == digest
+            if not rec["sha256_ok"]:
+                rec["problem"] = "sha256 differs from MANIFEST.tsv"
+    try:
+        _parse_check(key, path)
+        rec["parse_ok"] = True
+    except InputError as e:
+        rec["parse_ok"] = False
+        rec["problem"] = (rec["problem"] + "; " if rec["problem"] else "") + e.problem
+    return rec
+
+
+def ingest_scene(root: str | Path, scene: str, verify_hash: bool = True) -> dict:
+    """Report every file of a scene; raise InputError if a required one is missing or broken."""
+    root = Path(root)
+    manifest = read_manifest(root)
+    records = [check_file(root, rel.format(scene=scene), key, manifest, verify_hash)
+               for key, rel, _ in SCENE_FILES]
+    local = check_file(root, "local_maps.json", "local_maps", manifest, verify_hash)
+    records.append(local)
+    required = {k for k, _, req in SCENE_FILES if req} | {"local_maps"}
+    for rec in records:
+        if rec["key"] in required and (not rec["present"] or rec["problem"]):
+            raise InputError(root / rec["path"], f"required file for scene {scene}: {rec['problem']}")
+    n_queries = len(io.read_local_maps(root / "local_maps.json", scene))
+    return {"scene": scene, "root": str(root), "files": records, "n_queries": n_queries,
+            "available": {r["key"]: bool(r["present"] and not r["problem"]) for r in records}}

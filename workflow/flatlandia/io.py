@@ -1,0 +1,192 @@
+"""Readers for the published Flatlandia files and atomic writers for our artifacts.
+
+Every reader validates what it returns and raises :class:`InputError` naming the file.
+Every writer goes through a temporary file in the same folder and an atomic rename, so a
+crash never leaves a half-written output behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+
+# --------------------------------------------------------------------------- atomic writes
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
+                               dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_parquet(df: pd.DataFrame, path: str | Path, metadata: dict[str, Any] | None = None) -> None:
+    """Write a DataFrame as Parquet atomically; ``metadata`` is stored as JSON in the schema."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    if metadata:
+        meta = dict(table.schema.metadata or {})
+        meta[b"flatlandia"] = json.dumps(metadata, sort_keys=True).encode()
+        table = table.replace_schema_metadata(meta)
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp)
+
+
+def read_parquet_metadata(path: str | Path) -> dict[str, Any]:
+    """The ``flatlandia`` JSON metadata stored by :func:`write_parquet` (empty if none)."""
+    import pyarrow.parquet as pq
+
+    meta = pq.read_schema(path).metadata or {}
+    raw = meta.get(b"flatlandia")
+    return json.loads(raw) if raw else {}
+
+
+def write_json(obj: Any, path: str | Path) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n")
+
+
+def write_text(text: str, path: str | Path) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+# --------------------------------------------------------------------------- readers
+
+
+def _need(path: Path) -> Path:
+    if not path.exists():
+        raise InputError(path, "file is missing")
+    if path.is_file() and path.stat().st_size == 0:
+        raise InputError(path, "file is empty")
+    return path
+
+
+def read_json(path: str | Path) -> Any:
+    path = _need(Path(path))
+    try:
+        return json.loads(path.read_text())
+    except UnicodeDecodeError as e:
+        raise InputError(path, f"not UTF-8 text ({e})") from e
+    except json.JSONDecodeError as e:
+        raise InputError(path, f"invalid JSON (truncated or corrupt?): {e}") from e
+
+
+def read_tsv(path: str | Path, required: list[str]) -> pd.DataFrame:
+    path = _need(Path(path))
+    try:
+        df = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False)
+    except Exception as e:  # pandas raises several types for broken files
+        raise InputError(path, f"unreadable TSV: {e}") from e
+    missing = [c for c in required if c not in df.columns]
+    if missing:
+        raise InputError(path, f"missing columns {missing} (has {list(df.columns)})")
+    return df
+
+
+def read_classes(path: str | Path) -> list[str]:
+    """The 42 Mapillary Vistas labels; the class id is the row number."""
+    df = read_tsv(path, ["class_id", "mapillary_label"])
+    ids = df["class_id"].astype(int).tolist()
+    if ids != list(range(len(ids))):
+        raise InputError(path, "class_id must run 0..N-1 in order")
+    return df["mapillary_label"].tolist()
+
+
+def read_reference_map(path: str | Path, n_classes: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A published reference map: ``[[[lon, lat], class_id], ...]`` -> (lonlat (N,2), classes (N,))."""
+    path = Path(path)
+    data = read_json(path)
+    if not isinstance(data, list) or not data:
+        raise InputError(path, "expected a non-empty list of [[lon, lat], class_id]")
+    try:
+        lonlat = np.array([[float(o[0][0]), float(o[0][1])] for o in data])
+        classes = np.array([int(o[1]) for o in data])
+    except (TypeError, ValueError, IndexError) as e:
+        raise InputError(path, f"malformed object entry: {e}") from e
+    bad = ~np.isfinite(lonlat).all(axis=1)
+    if bad.any():
+        raise InputError(path, f"{int(bad.sum())} object(s) with NaN/inf coordinates, first at index "
+                               f"{int(np.flatnonzero(bad)[0])}")
+    if (np.abs(lonlat[:, 0]) > 180).any() or (np.abs(lonlat[:, 1]) > 90).any():
+        raise InputError(path, "coordinates outside lon [-180, 180] / lat [-90, 90]")
+    if n_classes is not None and ((classes < 0) | (classes >= n_classes)).any():
+        raise InputError(path, f"class ids outside 0..{n_classes - 1}")
+    return lonlat, classes
+
+
+def read_local_maps(path: str | Path, scene: str, min_objects: int = 3) -> dict[str, dict[str, np.ndarray]]:
+    """The published local maps of one scene: token -> {"GT": (M,2), "depth": (M,2)}."""
+    path = Path(path)
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise InputError(path, "expected {scene: {token: {GT, depth}}}")
+    if scene not in data:
+        raise InputError(path, f"unknown scene id {scene!r}; scenes present: {sorted(data, key=_natural)}")
+    out: dict[str, dict[str, np.ndarray]] = {}
+    for token, maps in data[scene].items():
+        try:
+            gt = np.asarray(maps["GT"], dtype=float).reshape(-1, 2)
+            depth = np.asarray(maps["depth"], dtype=float).reshape(-1, 2)
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(path, f"scene {scene} query {token}: malformed local map ({e})") from e
+        if len(gt) < min_objects:
+            raise InputError(path, f"scene {scene} query {token}: local map has {len(gt)} object(s), "
+                                   f"fewer than {min_objects}")
+        if len(depth) != len(gt):
+            raise InputError(path, f"scene {scene} query {token}: GT has {len(gt)} objects, depth {len(depth)}")
+        if not (np.isfinite(gt).all() and np.isfinite(depth).all()):
+            raise InputError(path, f"scene {scene} query {token}: NaN/inf coordinates")
+        out[str(token)] = {"GT": gt, "depth": depth}
+    return out
+
+
+def read_transformations(path: str | Path) -> dict:
+    path = Path(path)
+    t = read_json(path)
+    try:
+        rpp = np.asarray(t["to_principal_plane"], float)
+        r2 = np.asarray(t["to_mapillary"]["rotation"], float)
+        s = float(t["to_mapillary"]["scaling_factor_sfm_to_gps"])
+        tr = np.asarray(t["to_mapillary"]["translation"], float).reshape(-1)
+        float(t["to_flatlandia"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(path, f"malformed transformations ({e})") from e
+    if rpp.shape != (3, 3) or r2.shape != (3, 3) or tr.size < 2 or not math.isfinite(s) or s <= 0:
+        raise InputError(path, "transformations have wrong shapes or a non-positive scale")
+    return t
+
+
+def sha256(path: str | Path, chunk: int = 1 << 20) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(chunk), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _natural(s: str) -> tuple:
+    return (0, int(s)) if s.isdigit() else (1, s)

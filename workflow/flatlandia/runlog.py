@@ -1,0 +1,61 @@
+"""Logging for rule scripts: everything (including tqdm progress) goes to the rule's log."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+from typing import Iterable, TypeVar
+
+from tqdm import tqdm
+
+T = TypeVar("T")
+
+
+def setup(log_path: str | Path | None, name: str = "flatlandia") -> logging.Logger:
+    """Log to ``log_path`` (and stderr when none is given); return the logger."""
+    logger = logging.getLogger(name)
+    logger.handlers.clear()
+    logger.setLevel(logging.INFO)
+    if log_path:
+        Path(log_path).parent.mkdir(parents=True, exist_ok=True)
+        handler: logging.Handler = logging.FileHandler(log_path, mode="w")
+    else:
+        handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
+    logger.addHandler(handler)
+    return logger
+
+
+def progress(logger: logging.Logger, desc: str):
+    """A tqdm wrapper writing its bar into the logger's file (or stderr)."""
+    stream = sys.stderr
+    for h in logger.handlers:
+        if isinstance(h, logging.FileHandler):
+            stream = h.stream
+            break
+
+    def wrap(items: Iterable[T]) -> Iterable[T]:
+        return tqdm(items, desc=desc, file=stream, mininterval=1.0, ascii=True)
+
+    return wrap
+
+
+def run(main, smk) -> None:
+    """Run a rule script's ``main(smk, logger)``; bad input ends it with one clear line.
+
+    An :class:`InputError` (or any error) is written to the rule's log and to stderr as
+    ``ERROR: <file>: <problem>`` and the script exits 1, so Snakemake reports the rule failed.
+    """
+    from .errors import InputError
+
+    logger = setup(smk.log[0] if len(smk.log) else None)
+    try:
+        main(smk, logger)
+    except InputError as e:
+        logger.error("%s", e)
+        print(f"ERROR: {e}", file=sys.stderr)
+        raise SystemExit(1) from None
+    except Exception:
+        logger.exception("rule failed")
+        raise

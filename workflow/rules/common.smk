@@ -1,0 +1,92 @@
+# Shared helpers: config validation, the scene sheet, input paths. No lambdas in rules.
+import os
+from pathlib import Path
+
+import pandas as pd
+from snakemake.utils import validate
+
+
+validate(config, schema="../schemas/config.schema.yaml")
+
+SCENES_SHEET = pd.read_csv(config["scenes"], sep="\t", dtype=str, keep_default_na=False)
+validate(SCENES_SHEET, schema="../schemas/scenes.schema.yaml")
+if SCENES_SHEET["scene"].duplicated().any():
+    raise WorkflowError(
+        f"{config['scenes']}: duplicate scene ids "
+        f"{sorted(SCENES_SHEET.loc[SCENES_SHEET['scene'].duplicated(), 'scene'])}"
+    )
+SCENES_SHEET = SCENES_SHEET.set_index("scene", drop=False)
+
+
+def selected_scenes():
+    """Scene ids to build: all of the sheet, or those whose id or city is in config['select']."""
+    wanted = [str(s) for s in config.get("select", [])]
+    if not wanted:
+        return list(SCENES_SHEET["scene"])
+    known = set(SCENES_SHEET["scene"]) | set(SCENES_SHEET["city"])
+    unknown = [w for w in wanted if w not in known]
+    if unknown:
+        raise WorkflowError(
+            f"config 'select': unknown scene id(s) or city(ies) {unknown}; "
+            f"known scenes {list(SCENES_SHEET['scene'])}, cities {sorted(set(SCENES_SHEET['city']))}"
+        )
+    mask = SCENES_SHEET["scene"].isin(wanted) | SCENES_SHEET["city"].isin(wanted)
+    return list(SCENES_SHEET.loc[mask, "scene"])
+
+
+def published_scenes():
+    return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "flatlandia"]
+
+
+wildcard_constraints:
+    scene="|".join(map(str, SCENES_SHEET["scene"])),
+
+
+# ---------------------------------------------------------------- data root
+def _resolve_root():
+    root = os.environ.get("FLATLANDIA_ROOT") or config["flatlandia_root"]
+    return Path(root)
+
+
+FLAT_ROOT_GIVEN = _resolve_root()
+FLAT_FETCH = not FLAT_ROOT_GIVEN.exists()
+FLAT_ROOT = Path(config["fetch"]["dest"]) if FLAT_FETCH else FLAT_ROOT_GIVEN
+FETCH_FLAG = str(Path(config["fetch"]["dest"]).with_suffix(".fetched"))
+
+
+def flatlandia_file(relpath):
+    """Path of a published data file; while the data must be fetched, the fetch flag instead."""
+    return FETCH_FLAG if FLAT_FETCH else str(FLAT_ROOT / relpath)
+
+
+def scene_data_inputs(wildcards):
+    """The published files a scene is built from (tracked so edits trigger a rebuild)."""
+    s = wildcards.scene
+    return {
+        "reference_map": flatlandia_file(f"individual_reference_maps/map_{s}.json"),
+        "transformations": flatlandia_file(f"maps/{s}/transformations.json"),
+        "local_maps": flatlandia_file("local_maps.json"),
+    }
+
+
+def scene_tokens_path(wildcards):
+    return str(FLAT_ROOT / f"maps/{wildcards.scene}/tokens.txt")
+
+
+def per_scene(pattern, scenes=None):
+    return expand(pattern, scene=scenes if scenes is not None else published_scenes())
+
+
+def scene_city(wildcards):
+    return SCENES_SHEET.loc[wildcards.scene, "city"]
+
+
+def all_targets():
+    return (
+        per_scene("results/{scene}/maps/reference_map.parquet")
+        + per_scene("results/{scene}/maps/reference_map.geojson")
+        + per_scene("results/{scene}/maps/reference_map.png")
+        + per_scene("results/{scene}/queries/queries.parquet")
+        + ["results/tables/dataset_stats.parquet", "results/tables/dataset_stats.md",
+           "results/tables/recovery.parquet"]
+    )

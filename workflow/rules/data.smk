@@ -1,0 +1,52 @@
+# Data source: the published Flatlandia data, checked per scene.
+
+
+if FLAT_FETCH:
+
+    rule fetch_flatlandia:
+        output:
+            flag=FETCH_FLAG,
+        params:
+            dest=config["fetch"]["dest"],
+            url=config["fetch"]["url"],
+            timeout_s=config["fetch"].get("timeout_s", 30),
+            scenes=config["scenes"],
+        log:
+            "logs/fetch_flatlandia/fetch.log",
+        conda:
+            "../../envs/flatlandia.yaml"
+        script:
+            "../scripts/fetch_flatlandia.py"
+
+
+rule ingest:
+    input:
+        unpack(scene_data_inputs),
+    output:
+        report="results/{scene}/ingest/ingest.json",
+    params:
+        root=str(FLAT_ROOT),
+        verify_sha256=config.get("ingest", {}).get("verify_sha256", True),
+    log:
+        "logs/ingest/{scene}.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/ingest.py"
+
+
+rule reference_map:
+    input:
+        unpack(scene_data_inputs),
+        ingest="results/{scene}/ingest/ingest.json",
+    output:
+        parquet="results/{scene}/maps/reference_map.parquet",
+        geojson="results/{scene}/maps/reference_map.geojson",
+    params:
+        root=str(FLAT_ROOT),
+    log:
+        "logs/reference_map/{scene}.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/reference_map.py"

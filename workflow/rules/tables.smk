@@ -1,0 +1,41 @@
+# Tables over all selected scenes.
+
+
+def tokens_files():
+    if FLAT_FETCH:
+        return [FETCH_FLAG]
+    return [p for p in per_scene(str(FLAT_ROOT / "maps/{scene}/tokens.txt")) if Path(p).exists()]
+
+
+rule dataset_stats:
+    input:
+        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
+        queries=per_scene("results/{scene}/queries/queries.parquet"),
+        tokens=tokens_files(),
+    output:
+        parquet="results/tables/dataset_stats.parquet",
+        per_scene="results/tables/dataset_stats_per_scene.parquet",
+        markdown=report("results/tables/dataset_stats.md", caption="../report/dataset_stats.rst", category="Tables"),
+    params:
+        root=str(FLAT_ROOT),
+        cities=SCENES_SHEET["city"].to_dict(),
+    log:
+        "logs/dataset_stats/all.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/dataset_stats.py"
+
+
+rule recovery_table:
+    input:
+        recovered=per_scene("results/{scene}/queries/recovered.parquet"),
+    output:
+        parquet="results/tables/recovery.parquet",
+        markdown="results/tables/recovery.md",
+    log:
+        "logs/recovery_table/all.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/recovery_table.py"

@@ -1,0 +1,21 @@
+"""Rule fetch_flatlandia: download the published data when no local copy is configured."""
+
+import pandas as pd
+
+from flatlandia import fetch, runlog
+
+
+def main(smk, log):
+    scenes = pd.read_csv(smk.params.scenes, sep="\t", dtype=str, keep_default_na=False)
+    scenes = scenes[scenes["source"] == "flatlandia"]
+    log.info("fetching %s into %s", smk.params.url, smk.params.dest)
+    try:
+        dest = fetch.fetch_flatlandia(smk.params.dest, scenes, smk.params.url, smk.params.timeout_s)
+    except fetch.FetchError as e:
+        log.error("%s", e)
+        raise SystemExit(f"ERROR: {e}") from None
+    open(smk.output.flag, "w").write(f"{dest}\n")
+    log.info("done: %s", dest)
+
+
+runlog.run(main, snakemake)  # noqa: F821

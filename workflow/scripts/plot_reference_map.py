@@ -1,0 +1,17 @@
+"""Rule plot_reference_map: objects by class with the query cameras, as a PNG."""
+
+import pandas as pd
+
+from flatlandia import maps, runlog
+
+
+def main(smk, log):
+    ref = pd.read_parquet(smk.input.reference_map)
+    q = pd.read_parquet(smk.input.queries)
+    scene = smk.wildcards.scene
+    maps.plot_reference_map(ref, q, smk.output.png,
+                            f"scene {scene} ({smk.params.city}): {len(ref)} objects, {len(q)} queries")
+    log.info("wrote %s", smk.output.png)
+
+
+runlog.run(main, snakemake)  # noqa: F821

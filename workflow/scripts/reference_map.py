@@ -1,0 +1,21 @@
+"""Rule reference_map: the published map of a scene as GeoParquet + GeoJSON in a metric frame."""
+
+from pathlib import Path
+
+from flatlandia import geo, io, maps, runlog
+from flatlandia.classes import CLASSES
+
+
+def main(smk, log):
+    scene = smk.wildcards.scene
+    lonlat, classes = io.read_reference_map(Path(smk.params.root) / f"individual_reference_maps/map_{scene}.json",
+                                            n_classes=len(CLASSES))
+    frame = geo.frame_for(lonlat)
+    ref = maps.reference_table(scene, lonlat, classes, CLASSES, frame)
+    meta = maps.frame_metadata(scene, frame)
+    maps.write_geoparquet(ref, meta, smk.output.parquet)
+    maps.write_geojson(ref, meta, smk.output.geojson)
+    log.info("scene %s: %d objects, %d classes, frame %s", scene, len(ref), ref["class_id"].nunique(), frame.proj4)
+
+
+runlog.run(main, snakemake)  # noqa: F821
