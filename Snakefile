@@ -1,11 +1,14 @@
 # Flatlandia: regenerate the object-map 3DoF localization benchmark end to end.
 # Run: snakemake --cores 2 all   (see README.md; config/README.md documents every setting)
+import os
+
 from snakemake.utils import min_version
 
 min_version("9.0")
 
 
-configfile: "config/config.yaml"
+# The default config sits beside this file; --configfile/--config override it.
+configfile: os.path.join(workflow.basedir, "config/config.yaml")
 
 
 include: "workflow/rules/common.smk"

@@ -119,3 +119,8 @@ def build_queries(scene: str, recovered: pd.DataFrame, ref: pd.DataFrame,
             second_cam_dist_m=r.second_cam_dist_m,
         ))
     return pd.DataFrame(rows)
+
+
+def xy(cell) -> np.ndarray:
+    """A local-map cell (list of [x, y], or the array of arrays Parquet gives back) as (M, 2)."""
+    return np.stack([np.asarray(p, dtype=float) for p in cell]).reshape(-1, 2)

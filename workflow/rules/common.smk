@@ -8,7 +8,17 @@ from snakemake.utils import validate
 
 validate(config, schema="../schemas/config.schema.yaml")
 
-SCENES_SHEET = pd.read_csv(config["scenes"], sep="\t", dtype=str, keep_default_na=False)
+
+def config_path(path):
+    """A path from the config: relative to the working directory if it exists there, else to the repo."""
+    p = Path(path).expanduser()
+    if p.is_absolute() or p.exists():
+        return p
+    beside_repo = Path(workflow.basedir) / p
+    return beside_repo if beside_repo.exists() else p
+
+
+SCENES_SHEET = pd.read_csv(config_path(config["scenes"]), sep="\t", dtype=str, keep_default_na=False)
 validate(SCENES_SHEET, schema="../schemas/scenes.schema.yaml")
 if SCENES_SHEET["scene"].duplicated().any():
     raise WorkflowError(
@@ -45,7 +55,7 @@ wildcard_constraints:
 # ---------------------------------------------------------------- data root
 def _resolve_root():
     root = os.environ.get("FLATLANDIA_ROOT") or config["flatlandia_root"]
-    return Path(root)
+    return config_path(root).resolve()
 
 
 FLAT_ROOT_GIVEN = _resolve_root()
@@ -69,8 +79,10 @@ def scene_data_inputs(wildcards):
     }
 
 
-def scene_tokens_path(wildcards):
-    return str(FLAT_ROOT / f"maps/{wildcards.scene}/tokens.txt")
+def tokens_files():
+    if FLAT_FETCH:
+        return [FETCH_FLAG]
+    return [p for p in per_scene(str(FLAT_ROOT / "maps/{scene}/tokens.txt")) if Path(p).exists()]
 
 
 def per_scene(pattern, scenes=None):

@@ -10,7 +10,7 @@ if FLAT_FETCH:
             dest=config["fetch"]["dest"],
             url=config["fetch"]["url"],
             timeout_s=config["fetch"].get("timeout_s", 30),
-            scenes=config["scenes"],
+            scenes=str(config_path(config["scenes"])),
         log:
             "logs/fetch_flatlandia/fetch.log",
         conda:

@@ -1,12 +1,6 @@
 # Tables over all selected scenes.
 
 
-def tokens_files():
-    if FLAT_FETCH:
-        return [FETCH_FLAG]
-    return [p for p in per_scene(str(FLAT_ROOT / "maps/{scene}/tokens.txt")) if Path(p).exists()]
-
-
 rule dataset_stats:
     input:
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
@@ -17,7 +11,6 @@ rule dataset_stats:
         per_scene="results/tables/dataset_stats_per_scene.parquet",
         markdown=report("results/tables/dataset_stats.md", caption="../report/dataset_stats.rst", category="Tables"),
     params:
-        root=str(FLAT_ROOT),
         cities=SCENES_SHEET["city"].to_dict(),
     log:
         "logs/dataset_stats/all.log",

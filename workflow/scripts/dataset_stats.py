@@ -9,12 +9,13 @@ from flatlandia import io, runlog, stats
 
 def main(smk, log):
     cities = smk.params.cities
+    tokens_of = {Path(p).parent.name: Path(p) for p in smk.input.tokens if Path(p).name == "tokens.txt"}
     rows, lonlat_by_city = [], {}
     for ref_path, q_path in zip(smk.input.reference_maps, smk.input.queries):
         ref, q = pd.read_parquet(ref_path), pd.read_parquet(q_path)
         scene = str(ref["scene"].iloc[0])
-        tokens = Path(smk.params.root) / f"maps/{scene}/tokens.txt"
-        n_images = len(tokens.read_text().split()) if tokens.exists() else None
+        tokens = tokens_of.get(scene)
+        n_images = len(tokens.read_text().split()) if tokens else None
         rows.append(stats.scene_stats(scene, cities[scene], ref, q, n_images))
         lonlat_by_city.setdefault(cities[scene], {})[scene] = ref[["lon", "lat"]].to_numpy()
     per_scene = pd.DataFrame(rows)

@@ -1,0 +1,49 @@
+# One-command entry points (see README.md):
+#   make all    set everything up, then run `snakemake --cores 2 all` on the default config
+#   make test   set everything up, then run the whole test suite
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+CORES  ?= 2
+
+.PHONY: all test install system-deps lint bench report clean
+
+all: install
+	$(BIN)/snakemake --cores $(CORES) all
+
+test: install
+	$(BIN)/python -m pytest -q
+
+install: system-deps $(STAMP)
+
+# open3d needs libusb-1.0 from Debian; install it when missing (as root), else say how.
+system-deps:
+	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing libusb-1.0-0 (needed by open3d)"; \
+	    (apt-get install -y -q libusb-1.0-0 || (apt-get update -q && apt-get install -y -q libusb-1.0-0)) >/dev/null; \
+	  else \
+	    echo "open3d needs libusb-1.0: run 'sudo apt-get install libusb-1.0-0'" >&2; exit 1; \
+	  fi; \
+	fi
+
+$(STAMP): envs/requirements.txt envs/constraints.txt pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -r envs/requirements.txt -c envs/constraints.txt
+	$(BIN)/python -m pip install -q --no-deps -e .
+	touch $(STAMP)
+
+lint: install
+	$(BIN)/snakemake --lint
+
+bench: install
+	$(BIN)/python benchmarks/bench_recover.py
+
+report: install
+	$(BIN)/snakemake --cores $(CORES) all
+	$(BIN)/snakemake --report results/report.html
+
+clean:
+	rm -rf results logs .snakemake benchmarks/*/

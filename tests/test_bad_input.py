@@ -1,0 +1,116 @@
+"""Bad input gets an error naming the file and the problem, and leaves no half-written output."""
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from flatlandia import ingest, io
+from flatlandia.errors import InputError
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputError, match="map_3.json: file is missing"):
+        io.read_reference_map(tmp_path / "map_3.json")
+
+
+def test_truncated_json(tmp_path, flat_root):
+    src = (flat_root / "individual_reference_maps/map_12.json").read_text()
+    p = tmp_path / "map_12.json"
+    p.write_text(src[: len(src) // 2])
+    with pytest.raises(InputError, match=r"map_12.json: invalid JSON"):
+        io.read_reference_map(p)
+
+
+def test_invalid_json_and_wrong_shape(tmp_path):
+    p = tmp_path / "local_maps.json"
+    p.write_text("{not json")
+    with pytest.raises(InputError, match="local_maps.json: invalid JSON"):
+        io.read_local_maps(p, "0")
+    p.write_text(json.dumps([1, 2, 3]))
+    with pytest.raises(InputError, match="local_maps.json: expected"):
+        io.read_local_maps(p, "0")
+
+
+def test_unknown_scene(tmp_path, flat_root):
+    with pytest.raises(InputError, match="unknown scene id '42'"):
+        io.read_local_maps(flat_root / "local_maps.json", "42")
+
+
+def test_local_map_with_too_few_objects(tmp_path):
+    p = tmp_path / "local_maps.json"
+    p.write_text(json.dumps({"0": {"123": {"GT": [[1, 0], [2, 0]], "depth": [[1, 0], [2, 0]]}}}))
+    with pytest.raises(InputError, match="query 123: local map has 2 object"):
+        io.read_local_maps(p, "0")
+
+
+def test_reference_map_with_nan(tmp_path):
+    p = tmp_path / "map_0.json"
+    p.write_text(json.dumps([[[2.0, 48.0], 1], [[math.nan, 48.0], 2]]).replace("NaN", "NaN"))
+    with pytest.raises(InputError, match="map_0.json: 1 object.*NaN"):
+        io.read_reference_map(p)
+
+
+def test_reference_map_with_bad_class(tmp_path):
+    p = tmp_path / "map_0.json"
+    p.write_text(json.dumps([[[2.0, 48.0], 1], [[2.1, 48.0], 99]]))
+    with pytest.raises(InputError, match="class ids outside"):
+        io.read_reference_map(p, n_classes=42)
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path):
+    out = tmp_path / "t.parquet"
+    bad = pd.DataFrame({"a": [object()]})  # pyarrow cannot serialise this
+    with pytest.raises(Exception):
+        io.write_parquet(bad, out)
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+    io.write_parquet(pd.DataFrame({"a": [1, 2]}), out, {"k": 1})
+    assert io.read_parquet_metadata(out) == {"k": 1}
+
+
+def _copy_scene(flat_root, dst, scene="12"):
+    for rel in ["MANIFEST.tsv", "local_maps.json", f"individual_reference_maps/map_{scene}.json",
+                f"maps/{scene}/transformations.json", f"maps/{scene}/tokens.txt"]:
+        (dst / rel).parent.mkdir(parents=True, exist_ok=True)
+        (dst / rel).write_bytes((flat_root / rel).read_bytes())
+
+
+def test_ingest_reports_availability(flat_root):
+    rep = ingest.ingest_scene(flat_root, "12")
+    assert rep["n_queries"] == 3
+    assert all(rep["available"].values())  # scene 12 is complete
+    rep3 = ingest.ingest_scene(flat_root, "3", verify_hash=False)
+    assert rep3["available"]["reference_map"] and not rep3["available"]["sfm_points3D"]
+
+
+def test_ingest_detects_truncation_and_missing_required(tmp_path, flat_root):
+    _copy_scene(flat_root, tmp_path)
+    tok = tmp_path / "maps/12/tokens.txt"
+    tok.write_bytes(tok.read_bytes()[:-10])
+    rep = ingest.ingest_scene(tmp_path, "12")
+    rec = next(f for f in rep["files"] if f["key"] == "tokens")
+    assert rec["size_ok"] is False and "truncated" in rec["problem"]
+    (tmp_path / "maps/12/transformations.json").unlink()
+    with pytest.raises(InputError, match="transformations.json: required file for scene 12: missing"):
+        ingest.ingest_scene(tmp_path, "12")
+
+
+def test_ingest_sha256_mismatch(tmp_path, flat_root):
+    _copy_scene(flat_root, tmp_path)
+    p = tmp_path / "individual_reference_maps/map_12.json"
+    data = p.read_bytes()
+    p.write_bytes(data.replace(b"2.37", b"2.38", 1))  # same size, different content
+    with pytest.raises(InputError, match="sha256 differs"):
+        ingest.ingest_scene(tmp_path, "12")
+
+
+def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
+    from flatlandia import fetch
+
+    with pytest.raises(fetch.FetchError, match="FLATLANDIA_ROOT"):
+        fetch.fetch_flatlandia(tmp_path / "data", pd.DataFrame({"scene": ["0"], "city": ["x"], "name": ["y"]}),
+                               url="http://127.0.0.1:9/nothing.zip", timeout_s=5)
+    assert not (tmp_path / "data").exists()

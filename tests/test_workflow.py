@@ -1,0 +1,123 @@
+"""End-to-end: the Snakemake workflow on real scenes, dry runs, lint and bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from flatlandia import io
+
+SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
+
+
+def smk(repo: Path, workdir: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    cmd = [SNAKEMAKE, "-s", str(repo / "Snakefile"), "-d", str(workdir), *args]
+    # tests pass the data root through --config; the environment variable would override it
+    full_env = {k: v for k, v in os.environ.items() if k != "FLATLANDIA_ROOT"} | (env or {})
+    return subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, env=full_env, timeout=900)
+
+
+@pytest.fixture(scope="module")
+def run_two_scenes(repo, flat_root, tmp_path_factory):
+    wd = tmp_path_factory.mktemp("e2e")
+    res = smk(repo, wd, "--cores", "2", "all", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    return wd
+
+
+@pytest.mark.slow
+def test_end_to_end_two_scenes(run_two_scenes, flat_root):
+    wd = run_two_scenes
+    for scene, n_q, n_obj in (("9", 12, 13), ("12", 3, 44)):
+        q = pd.read_parquet(wd / f"results/{scene}/queries/queries.parquet")
+        assert len(q) == n_q and (q["residual_m"] < 0.01).all()
+        ref = pd.read_parquet(wd / f"results/{scene}/maps/reference_map.parquet")
+        assert len(ref) == n_obj and {"x_m", "y_m", "lon", "lat", "class_id", "class_label"} <= set(ref.columns)
+        meta = io.read_parquet_metadata(wd / f"results/{scene}/maps/reference_map.parquet")
+        assert "+proj=tmerc" in meta["crs"]
+        gj = json.loads((wd / f"results/{scene}/maps/reference_map.geojson").read_text())
+        assert gj["type"] == "FeatureCollection" and len(gj["features"]) == n_obj
+        lon, lat = gj["features"][0]["geometry"]["coordinates"]
+        assert (lon, lat) == pytest.approx((ref["lon"][0], ref["lat"][0]))
+        png = wd / f"results/{scene}/maps/reference_map.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert (wd / f"logs/recover/{scene}.log").read_text().count("queries recovered") == 1
+        assert (wd / f"benchmarks/recover/{scene}.tsv").exists()
+    stats = pd.read_parquet(wd / "results/tables/dataset_stats.parquet")
+    assert list(stats["city"]) == ["Lisbon", "Paris", "all"]
+    assert stats.set_index("city").loc["all", "total_queries"] == 15
+    rec = pd.read_parquet(wd / "results/tables/recovery.parquet")
+    assert rec.set_index("scene").loc["all", "recovered"] == 15
+
+
+@pytest.mark.slow
+def test_rerun_is_a_no_op(run_two_scenes, repo, flat_root):
+    res = smk(repo, run_two_scenes, "-n", "all", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0
+    assert "Nothing to be done" in res.stdout + res.stderr
+
+
+def test_dry_run_lists_the_full_dag(repo, flat_root, tmp_path):
+    res = smk(repo, tmp_path, "-n", "all", "--config", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stderr[-2000:]
+    out = res.stdout + res.stderr
+    for rule in ("ingest", "recover", "reference_map", "queries", "plot_reference_map"):
+        assert any(line.split()[:2] == [rule, "20"] for line in out.splitlines()), rule
+
+
+def test_select_a_city(repo, flat_root, tmp_path):
+    res = smk(repo, tmp_path, "-n", "all", "--config", "select=[Berlin]", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stderr[-2000:]
+    out = res.stdout + res.stderr
+    assert "results/3/queries/queries.parquet" in out and "results/4/queries/queries.parquet" in out
+    assert "results/5/queries/queries.parquet" not in out
+
+
+def test_unknown_selection_is_a_clear_error(repo, flat_root, tmp_path):
+    res = smk(repo, tmp_path, "-n", "all", "--config", "select=[Atlantis]", f"flatlandia_root={flat_root}")
+    assert res.returncode != 0
+    assert "unknown scene id(s) or city(ies) ['Atlantis']" in res.stdout + res.stderr
+
+
+def test_lint_is_clean(repo, tmp_path, flat_root):
+    res = smk(repo, tmp_path, "--lint", "--config", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stdout[-3000:]
+    assert "Lints for" not in res.stdout, res.stdout[-3000:]
+
+
+def test_bad_reference_map_stops_the_rule_without_output(repo, flat_root, tmp_path):
+    data = tmp_path / "data"
+    shutil.copytree(flat_root, data, ignore=shutil.ignore_patterns("*.ply", "*.bin", "*.zip", "MANIFEST.tsv"))
+    for p in data.rglob("*"):
+        p.chmod(0o755 if p.is_dir() else 0o644)
+    bad = data / "individual_reference_maps/map_12.json"
+    objs = json.loads(bad.read_text())
+    objs[3][0][0] = None
+    bad.write_text(json.dumps(objs))
+    wd = tmp_path / "wd"
+    wd.mkdir()
+    res = smk(repo, wd, "--cores", "1", "results/12/maps/reference_map.parquet",
+              "--config", f"flatlandia_root={data}")
+    assert res.returncode != 0
+    log = (wd / "logs/ingest/12.log").read_text()
+    assert "map_12.json" in log and "malformed object entry" in log
+    assert not (wd / "results/12/maps/reference_map.parquet").exists()
+    assert not (wd / "results/12/ingest/ingest.json").exists()
+
+
+def test_missing_data_is_fetched_or_fails_fast_offline(repo, tmp_path):
+    cfg = tmp_path / "offline.yaml"
+    cfg.write_text(f"flatlandia_root: {tmp_path / 'nowhere'}\n"
+                   f"fetch: {{url: 'http://127.0.0.1:9/x.zip', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n")
+    res = smk(repo, tmp_path, "--cores", "1", "results/12/ingest/ingest.json", "--configfile", str(cfg))
+    assert res.returncode != 0
+    log = (tmp_path / "logs/fetch_flatlandia/fetch.log").read_text()
+    assert "could not download" in log and "FLATLANDIA_ROOT" in log
+    assert not (tmp_path / "fetched").exists()
