@@ -53,6 +53,8 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
     stats = pd.read_parquet(wd / "results/tables/dataset_stats.parquet")
     assert list(stats["city"]) == ["Lisbon", "Paris", "all"]
     assert stats.set_index("city").loc["all", "total_queries"] == 15
+    avail = pd.read_parquet(wd / "results/tables/availability.parquet").set_index("scene")
+    assert avail.loc["12"].drop("queries").all() and not avail.loc["9", "sfm_images"]
     rec = pd.read_parquet(wd / "results/tables/recovery.parquet")
     assert rec.set_index("scene").loc["all", "recovered"] == 15
 

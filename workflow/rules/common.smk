@@ -100,5 +100,5 @@ def all_targets():
         + per_scene("results/{scene}/maps/reference_map.png")
         + per_scene("results/{scene}/queries/queries.parquet")
         + ["results/tables/dataset_stats.parquet", "results/tables/dataset_stats.md",
-           "results/tables/recovery.parquet"]
+           "results/tables/recovery.parquet", "results/tables/availability.parquet"]
     )

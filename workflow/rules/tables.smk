@@ -32,3 +32,17 @@ rule recovery_table:
         "../../envs/flatlandia.yaml"
     script:
         "../scripts/recovery_table.py"
+
+
+rule availability_table:
+    input:
+        reports=per_scene("results/{scene}/ingest/ingest.json"),
+    output:
+        parquet="results/tables/availability.parquet",
+        markdown="results/tables/availability.md",
+    log:
+        "logs/availability_table/all.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/availability_table.py"

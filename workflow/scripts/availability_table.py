@@ -1,0 +1,21 @@
+"""Rule availability_table: which published files each scene has (and whether they check out)."""
+
+import json
+
+import pandas as pd
+
+from flatlandia import io, runlog, stats
+
+
+def main(smk, log):
+    rows = []
+    for path in smk.input.reports:
+        rep = json.loads(open(path).read())
+        rows.append({"scene": rep["scene"], "queries": rep["n_queries"], **rep["available"]})
+    df = pd.DataFrame(rows)
+    io.write_parquet(df, smk.output.parquet)
+    io.write_text("# Published files available per scene\n\n" + stats.to_markdown(df), smk.output.markdown)
+    log.info("\n%s", stats.to_markdown(df))
+
+
+runlog.run(main, snakemake)  # noqa: F821
