@@ -1,0 +1,104 @@
+"""Images branch, front half: metadata, audit, dedup, segmentation backends and masks."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from flatlandia import images, segment
+from flatlandia.errors import InputError
+
+LUND = Path(__file__).resolve().parents[2] / "shared" / "images" / "lund"
+
+
+def test_exif_metadata_of_a_real_mapillary_image():
+    rec = images.read_exif_metadata(LUND / "01.jpg")
+    assert (rec["width"], rec["height"]) == (1024, 768)
+    assert rec["lat"] == pytest.approx(55.698167, abs=1e-5) and rec["lon"] == pytest.approx(13.195389, abs=1e-5)
+    assert rec["alt"] == pytest.approx(37.0)
+    assert rec["heading"] == pytest.approx(179.2156)  # from MAPCompassHeading.TrueHeading
+    assert rec["capture_time"].startswith("2014-06-07T10:24:05")
+
+
+def test_audit_table_of_lund_keeps_distinct_images():
+    df = images.audit_table(LUND, dedup_threshold=0.02)
+    assert len(df) == 29 and df["kept"].all()
+    assert df["capture_time"].is_monotonic_increasing
+
+
+def test_near_duplicate_and_missing_gps_are_dropped_with_reasons(tmp_path):
+    for n in ("01.jpg", "02.jpg"):
+        shutil.copy(LUND / n, tmp_path / n)
+    shutil.copy(LUND / "02.jpg", tmp_path / "02b.jpg")  # the same picture again
+    Image.new("RGB", (64, 48), (120, 120, 120)).save(tmp_path / "nogps.jpg")
+    df = images.audit_table(tmp_path, dedup_threshold=0.02).set_index("name")
+    assert df.loc["02b.jpg", "drop_reason"] == "near-duplicate of previous image"
+    assert df.loc["nogps.jpg", "drop_reason"] == "no GPS position"
+    assert df.loc["01.jpg", "kept"] and df.loc["02.jpg", "kept"]
+
+
+def test_metadata_csv_overrides_and_is_checked(tmp_path):
+    Image.new("RGB", (64, 48), (10, 200, 30)).save(tmp_path / "a.jpg")
+    (tmp_path / "metadata.csv").write_text("name,lat,lon,heading\na.jpg,55.7,13.19,90\n")
+    df = images.read_folder_metadata(tmp_path)
+    assert df.loc[0, "lat"] == 55.7 and df.loc[0, "heading"] == 90
+    (tmp_path / "metadata.csv").write_text("name,lat,lon\nzzz.jpg,1,2\n")
+    with pytest.raises(InputError, match="metadata.csv: names not in the folder"):
+        images.read_folder_metadata(tmp_path)
+
+
+def test_empty_or_missing_folder_is_a_clear_error(tmp_path):
+    with pytest.raises(InputError, match="no images"):
+        images.list_images(tmp_path)
+    with pytest.raises(InputError, match="does not exist"):
+        images.list_images(tmp_path / "nope")
+
+
+def test_offline_backend_masks_sky_but_claims_no_objects():
+    ids, names = segment.make_backend("offline").labels(LUND / "15.jpg")
+    mask, cls, shares = segment.mask_and_classes(ids, names, [0.0, 0.95, 1.0, 1.0])
+    assert mask.dtype == np.uint8 and set(np.unique(mask)) <= {0, 255}
+    assert 0.15 < shares["nature--sky"] < 0.6  # the top of this street view is sky
+    assert mask[:20].mean() < 128 and mask[400:700].mean() > 128  # top mostly ignored, street kept
+    assert (mask[-10:] == 0).all()  # watermark strip
+    assert (cls == segment.NOT_AN_OBJECT).all()
+
+
+def test_precomputed_backend_maps_vistas_names_to_flatlandia_classes(tmp_path):
+    names = ["void", "human--person", "object--street-light", "object--support--pole", "nature--sky",
+             "marking--discrete--crosswalk-zebra"]
+    (tmp_path / "labels.json").write_text(json.dumps({"labels": [{"name": n} for n in names]}))
+    ids = np.zeros((20, 30), dtype=np.uint8)
+    ids[:5] = 4
+    ids[5:10, :10] = 1
+    ids[10:, :10] = 2
+    ids[10:, 10:20] = 3
+    ids[10:, 20:] = 5
+    Image.fromarray(ids).save(tmp_path / "img.png")
+    backend = segment.make_backend("precomputed", labels_dir=str(tmp_path))
+    got, got_names = backend.labels(Path("img.jpg"))
+    mask, cls, _ = segment.mask_and_classes(got, got_names, None)
+    assert (mask[:10, :10] == 0).all() and (mask[:5] == 0).all()  # sky and person ignored
+    assert cls[15, 5] == segment.CLASSES.index("object--street-light")
+    assert cls[15, 15] == segment.CLASSES.index("object--support--pole")
+    assert cls[15, 25] == segment.CLASSES.index("crosswalk-zebra")
+    with pytest.raises(InputError, match="no precomputed label image"):
+        backend.labels(Path("other.jpg"))
+
+
+def test_every_flatlandia_class_has_a_vistas_name():
+    assert (segment.flatlandia_class_of(segment.CLASSES) == np.arange(42)).all()
+
+
+def test_backends_fail_clearly_without_their_inputs(tmp_path):
+    with pytest.raises(InputError, match="needs a local checkpoint"):
+        segment.make_backend("transformers")
+    with pytest.raises(InputError, match="no config.json"):
+        segment.make_backend("transformers", weights=str(tmp_path))
+    with pytest.raises(InputError, match="labels.json"):
+        segment.make_backend("precomputed", labels_dir=str(tmp_path))
+    with pytest.raises(InputError, match="unknown backend"):
+        segment.make_backend("magic")

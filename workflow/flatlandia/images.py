@@ -1,0 +1,177 @@
+"""A folder of geotagged crowd images: metadata (EXIF or CSV), audit table, near-duplicate removal.
+
+Metadata sources, in order of precedence per field:
+1. ``metadata.csv`` beside the images (columns ``name`` and any of ``lat, lon, alt, heading,
+   capture_time``), for images whose EXIF lacks GPS;
+2. the Mapillary ImageDescription JSON (``MAPCompassHeading.TrueHeading``, ``MAPCaptureTime``,
+   ``MAPGPSAccuracyMeters``);
+3. standard EXIF GPS tags (``GPSLatitude``..., ``GPSImgDirection``) and ``DateTimeOriginal``.
+Headings are degrees clockwise from north (compass convention), as the sources give them.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from PIL import ExifTags, Image
+
+from .errors import InputError
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
+GPS_IFD = 0x8825
+EXIF_IFD = 0x8769
+
+
+def list_images(folder: str | Path) -> list[Path]:
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(folder, "image folder does not exist")
+    imgs = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    if not imgs:
+        raise InputError(folder, f"no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in the folder")
+    return imgs
+
+
+def _dms(value, ref) -> float | None:
+    try:
+        d, m, s = (float(x) for x in value)
+    except (TypeError, ValueError):
+        return None
+    deg = d + m / 60.0 + s / 3600.0
+    return -deg if str(ref).upper() in ("S", "W") else deg
+
+
+def _float(v) -> float | None:
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) else None
+
+
+def _parse_time(text: str | None) -> str | None:
+    if not text:
+        return None
+    for fmt in ("%Y_%m_%d_%H_%M_%S_%f", "%Y:%m:%d %H:%M:%S", "%Y-%m-%dT%H:%M:%S", "%Y-%m-%d %H:%M:%S"):
+        try:
+            return datetime.strptime(text.strip(), fmt).isoformat()
+        except ValueError:
+            continue
+    return None
+
+
+def read_exif_metadata(path: str | Path) -> dict:
+    """One image's size and geotag; missing fields are None."""
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            width, height = im.size
+            exif = im.getexif()
+    except Exception as e:  # PIL raises many types for broken files
+        raise InputError(path, f"unreadable image ({e})") from e
+    tags = {ExifTags.TAGS.get(k, k): v for k, v in exif.items()}
+    gps = {ExifTags.GPSTAGS.get(k, k): v for k, v in exif.get_ifd(GPS_IFD).items()}
+    sub = {ExifTags.TAGS.get(k, k): v for k, v in exif.get_ifd(EXIF_IFD).items()}
+    rec = {
+        "name": path.name, "width": width, "height": height,
+        "camera": " ".join(str(tags.get(k, "")).strip() for k in ("Make", "Model")).strip() or None,
+        "lat": _dms(gps.get("GPSLatitude"), gps.get("GPSLatitudeRef", "N")),
+        "lon": _dms(gps.get("GPSLongitude"), gps.get("GPSLongitudeRef", "E")),
+        "alt": _float(gps.get("GPSAltitude")),
+        "heading": _float(gps.get("GPSImgDirection")),
+        "heading_accuracy": None, "gps_accuracy_m": _float(gps.get("GPSDOP")),
+        "capture_time": _parse_time(sub.get("DateTimeOriginal") or tags.get("DateTime")),
+        "focal_35mm": _float(sub.get("FocalLengthIn35mmFilm")),
+    }
+    desc = tags.get("ImageDescription")
+    if isinstance(desc, str) and desc.strip().startswith("{"):
+        try:
+            mp = json.loads(desc)
+        except json.JSONDecodeError:
+            mp = {}
+        head = mp.get("MAPCompassHeading", {}) if isinstance(mp.get("MAPCompassHeading"), dict) else {}
+        rec["heading"] = _float(head.get("TrueHeading")) if head.get("TrueHeading") is not None else rec["heading"]
+        rec["heading_accuracy"] = _float(head.get("AccuracyDegrees"))
+        rec["gps_accuracy_m"] = _float(mp.get("MAPGPSAccuracyMeters")) or rec["gps_accuracy_m"]
+        rec["capture_time"] = _parse_time(mp.get("MAPCaptureTime")) or rec["capture_time"]
+        for key, field in (("lat", "MAPLatitude"), ("lon", "MAPLongitude"), ("alt", "MAPAltitude")):
+            if rec[key] is None:
+                rec[key] = _float(mp.get(field))
+    return rec
+
+
+def read_folder_metadata(folder: str | Path, csv_name: str = "metadata.csv") -> pd.DataFrame:
+    """Metadata of every image of a folder, with ``metadata.csv`` overriding EXIF where given."""
+    folder = Path(folder)
+    df = pd.DataFrame([read_exif_metadata(p) for p in list_images(folder)])
+    csv = folder / csv_name
+    if csv.exists():
+        extra = pd.read_csv(csv)
+        if "name" not in extra.columns:
+            raise InputError(csv, "needs a 'name' column naming each image")
+        unknown = set(extra["name"]) - set(df["name"])
+        if unknown:
+            raise InputError(csv, f"names not in the folder: {sorted(unknown)[:5]}")
+        extra = extra.set_index("name")
+        df = df.set_index("name")
+        for col in ("lat", "lon", "alt", "heading", "capture_time"):
+            if col in extra.columns:
+                vals = extra[col].reindex(df.index)
+                df[col] = vals.where(vals.notna(), df[col])
+        df = df.reset_index()
+    return df
+
+
+def geotag_problems(df: pd.DataFrame) -> pd.Series:
+    """Why each image cannot be used as a geotagged image ('' when it can)."""
+    lat, lon = pd.to_numeric(df["lat"], errors="coerce"), pd.to_numeric(df["lon"], errors="coerce")
+    why = pd.Series("", index=df.index, dtype=object)
+    why[lat.isna() | lon.isna()] = "no GPS position"
+    why[(lat.abs() > 90) | (lon.abs() > 180)] = "GPS position out of range"
+    return why
+
+
+def thumbnail(path: str | Path, size: tuple[int, int] = (64, 48)) -> np.ndarray:
+    with Image.open(path) as im:
+        return np.asarray(im.convert("L").resize(size, Image.Resampling.BILINEAR), dtype=np.float32) / 255.0
+
+
+def near_duplicates(paths: list[Path], threshold: float) -> list[float]:
+    """Mean absolute grey-level difference of each image to the last *kept* one (first: inf).
+
+    An image whose difference is below ``threshold`` is a near-duplicate of its predecessor
+    (a phone standing still), as in the paper's low pixel-wise variance test.
+    """
+    diffs, last = [], None
+    for p in paths:
+        t = thumbnail(p)
+        if last is None or t.shape != last.shape:
+            diffs.append(float("inf"))
+            last = t
+            continue
+        d = float(np.mean(np.abs(t - last)))
+        diffs.append(d)
+        if d >= threshold:
+            last = t
+    return diffs
+
+
+def audit_table(folder: str | Path, dedup_threshold: float) -> pd.DataFrame:
+    """The images audit table: metadata, kept/dropped and why (no GPS, near-duplicate)."""
+    folder = Path(folder)
+    df = read_folder_metadata(folder)
+    order = df.sort_values(["capture_time", "name"], na_position="last").index
+    df = df.loc[order].reset_index(drop=True)
+    df["drop_reason"] = geotag_problems(df)
+    ok = df["drop_reason"] == ""
+    diffs = pd.Series(np.nan, index=df.index)
+    diffs[ok] = near_duplicates([folder / n for n in df.loc[ok, "name"]], dedup_threshold)
+    df["diff_to_previous"] = diffs
+    df.loc[ok & (diffs < dedup_threshold), "drop_reason"] = "near-duplicate of previous image"
+    df["kept"] = df["drop_reason"] == ""
+    return df

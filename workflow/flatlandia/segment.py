@@ -1,0 +1,206 @@
+"""Segmentation backends behind one interface: label maps and masks of moving/changing content.
+
+Every backend returns, per image, a *Vistas label-name map*: an integer image plus a table
+``id -> Mapillary Vistas label name``. From it we derive
+- the binary mask pycolmap reads (``<image name>.png``, 0 = ignore, 255 = use): people,
+  riders, vehicles, sky, vegetation and the configured watermark box are ignored;
+- the Flatlandia object-class map (uint8, class id 0-41, 255 = not an object): Flatlandia's
+  42 classes are Vistas labels, matched by name (see ``flatlandia_class_of``).
+
+Backends:
+- ``offline``: no learned weights. Sky = bright, low-texture pixels connected to the top
+  border; vegetation = excess-green pixels. It finds **no people, no vehicles and no object
+  classes**: masks are partial and the object map of an images scene stays empty with it.
+- ``precomputed``: label PNGs in Vistas ids from a folder (``<stem>.png``) + ``labels.json``
+  (a list of label names, index = id, as in the Vistas config files).
+- ``transformers``: a Vistas semantic-segmentation checkpoint (e.g. Mask2Former) loaded with
+  ``transformers`` from a local folder the user provides; nothing is downloaded.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from .classes import CLASSES
+from .errors import InputError
+
+#: Vistas label-name prefixes whose pixels are moving or changing content (masked out).
+DYNAMIC_PREFIXES = ("human--", "object--vehicle--", "nature--sky", "nature--vegetation", "animal--")
+
+#: Flatlandia class names that are not literally Vistas v2.0 names, with the v2.0 name(s).
+#: Vistas v1.2 has none of the marking--discrete subclasses (only marking--general) and
+#: no object--sign--information/ object--traffic-sign--information-parking/ direction split.
+VISTAS_ALIASES = {
+    "driveway": ["construction--flat--driveway"],
+    "crosswalk-plain": ["construction--flat--crosswalk-plain"],
+    "crosswalk-zebra": ["marking--discrete--crosswalk-zebra", "marking--crosswalk-zebra"],
+    "give-way-row": ["marking--discrete--give-way-row"],
+    "give-way-single": ["marking--discrete--give-way-single"],
+    "stop-line": ["marking--discrete--stop-line"],
+    "other-marking": ["marking--discrete--other-marking", "marking--general"],
+    "banner": ["object--banner"],
+}
+VISTAS_V12_MISSING = [c for c in CLASSES if c.startswith("marking--discrete--")] + [
+    "give-way-row", "give-way-single", "stop-line", "object--sign--information",
+    "object--traffic-sign--information-parking", "object--traffic-sign--direction"]
+
+NOT_AN_OBJECT = 255
+
+
+def flatlandia_class_of(vistas_names: list[str]) -> np.ndarray:
+    """Flatlandia class id (0-41) of each Vistas label name; 255 where it is not one of them."""
+    lookup = {}
+    for cid, name in enumerate(CLASSES):
+        for alias in [name] + VISTAS_ALIASES.get(name, []):
+            lookup[alias] = cid
+    return np.array([lookup.get(n, NOT_AN_OBJECT) for n in vistas_names], dtype=np.uint8)
+
+
+def dynamic_of(vistas_names: list[str]) -> np.ndarray:
+    return np.array([n.startswith(DYNAMIC_PREFIXES) for n in vistas_names], dtype=bool)
+
+
+def watermark_mask(shape: tuple[int, int], box: list[float] | None) -> np.ndarray:
+    """Pixels inside a watermark box given as fractions [x0, y0, x1, y1] of the image."""
+    h, w = shape
+    m = np.zeros((h, w), dtype=bool)
+    if box:
+        x0, y0, x1, y1 = box
+        m[int(round(y0 * h)):int(round(y1 * h)), int(round(x0 * w)):int(round(x1 * w))] = True
+    return m
+
+
+# ----------------------------------------------------------------------- offline backend
+OFFLINE_NAMES = ["void", "nature--sky", "nature--vegetation"]
+
+
+def offline_labels(rgb: np.ndarray) -> np.ndarray:
+    """Sky and vegetation by colour rules (ids into OFFLINE_NAMES)."""
+    from scipy import ndimage
+
+    img = rgb.astype(np.float32) / 255.0
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    grey = img.mean(axis=-1)
+    grad = np.hypot(*np.gradient(ndimage.uniform_filter(grey, 3)))
+    texture = ndimage.uniform_filter(grad, 9)
+    blue_sky = (b > r + 0.04) & (b > g - 0.02) & (grey > 0.35)
+    cloud = (grey > 0.7) & (np.abs(b - r) < 0.12)
+    sky_like = (blue_sky | cloud) & (texture < 0.03)
+    sky_like = ndimage.binary_closing(sky_like, iterations=2)
+    lab, _ = ndimage.label(sky_like)
+    top = np.unique(lab[:4][lab[:4] > 0])  # closing erodes the very border
+    sky = np.isin(lab, top)
+    exg = 2 * g - r - b
+    veg = (exg > 0.10) & (g > 0.15) & ~sky
+    veg = ndimage.binary_opening(veg, iterations=2)
+    out = np.zeros(rgb.shape[:2], dtype=np.uint8)
+    out[sky] = 1
+    out[veg] = 2
+    return out
+
+
+# ----------------------------------------------------------------------- backends
+class Backend:
+    """Interface: ``labels(path) -> (id map (H, W) int, names list)``."""
+
+    name = "base"
+
+    def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
+        raise NotImplementedError
+
+
+class OfflineBackend(Backend):
+    name = "offline"
+
+    def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
+        with Image.open(path) as im:
+            rgb = np.asarray(im.convert("RGB"))
+        return offline_labels(rgb), OFFLINE_NAMES
+
+
+class PrecomputedBackend(Backend):
+    name = "precomputed"
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        names_path = self.folder / "labels.json"
+        if not names_path.exists():
+            raise InputError(names_path, "precomputed labels need labels.json (list of Vistas label names, index = id)")
+        names = json.loads(names_path.read_text())
+        if isinstance(names, dict) and "labels" in names:  # the Vistas config file layout
+            names = [lab["name"] for lab in names["labels"]]
+        self.names = [str(n) for n in names]
+
+    def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
+        lab_path = self.folder / f"{Path(path).stem}.png"
+        if not lab_path.exists():
+            raise InputError(lab_path, f"no precomputed label image for {Path(path).name}")
+        with Image.open(lab_path) as im:
+            ids = np.asarray(im)
+        if ids.ndim != 2:
+            raise InputError(lab_path, "label image must be single-channel ids")
+        if ids.max() >= len(self.names):
+            raise InputError(lab_path, f"label id {int(ids.max())} beyond the {len(self.names)} names of labels.json")
+        return ids, self.names
+
+
+class TransformersBackend(Backend):
+    name = "transformers"
+
+    def __init__(self, weights: str | Path | None):
+        if not weights:
+            raise InputError("config segment.weights", "the transformers backend needs a local checkpoint folder")
+        self.weights = Path(weights)
+        if not (self.weights / "config.json").exists():
+            raise InputError(self.weights, "not a transformers checkpoint folder (no config.json); nothing is downloaded")
+        try:
+            import torch
+            from transformers import AutoImageProcessor, AutoModelForUniversalSegmentation
+        except ImportError as e:
+            raise InputError(self.weights, f"the transformers backend needs `pip install transformers` ({e})") from e
+        self.torch = torch
+        self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True)
+        self.model = AutoModelForUniversalSegmentation.from_pretrained(self.weights, local_files_only=True).eval()
+        id2label = self.model.config.id2label
+        self.names = [id2label[i] for i in range(len(id2label))]
+
+    def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
+        with Image.open(path) as im:
+            rgb = im.convert("RGB")
+            size = rgb.size[::-1]
+            inputs = self.processor(images=rgb, return_tensors="pt")
+        with self.torch.no_grad():
+            out = self.model(**inputs)
+        seg = self.processor.post_process_semantic_segmentation(out, target_sizes=[size])[0]
+        return seg.cpu().numpy().astype(np.int32), self.names
+
+
+def make_backend(name: str, weights: str | None = None, labels_dir: str | None = None) -> Backend:
+    if name == "offline":
+        return OfflineBackend()
+    if name == "precomputed":
+        if not labels_dir:
+            raise InputError("config segment.labels_dir", "the precomputed backend needs a folder of label images")
+        return PrecomputedBackend(labels_dir)
+    if name == "transformers":
+        return TransformersBackend(weights)
+    raise InputError("config segment.backend", f"unknown backend {name!r} (offline, precomputed, transformers)")
+
+
+def mask_and_classes(ids: np.ndarray, names: list[str], watermark_box: list[float] | None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(pycolmap mask uint8 0/255, Flatlandia class map uint8, pixel shares per masked kind)."""
+    dyn = dynamic_of(names)[ids]
+    wm = watermark_mask(ids.shape, watermark_box)
+    ignore = dyn | wm
+    cls = flatlandia_class_of(names)[ids]
+    cls[ignore] = NOT_AN_OBJECT
+    shares = {"masked": float(ignore.mean()), "watermark": float(wm.mean())}
+    for kind in ("human--", "object--vehicle--", "nature--sky", "nature--vegetation"):
+        sel = np.array([n.startswith(kind) for n in names])
+        shares[kind.strip("-")] = float(sel[ids].mean()) if sel.any() else 0.0
+    shares["objects"] = float((cls != NOT_AN_OBJECT).mean())
+    return np.where(ignore, 0, 255).astype(np.uint8), cls, shares
