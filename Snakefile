@@ -14,6 +14,7 @@ configfile: os.path.join(workflow.basedir, "config/config.yaml")
 include: "workflow/rules/common.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/queries.smk"
+include: "workflow/rules/images.smk"
 include: "workflow/rules/tables.smk"
 
 

@@ -3,25 +3,14 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
 from flatlandia import io
-
-SNAKEMAKE = str(Path(sys.executable).parent / "snakemake")
-
-
-def smk(repo: Path, workdir: Path, *args: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    cmd = [SNAKEMAKE, "-s", str(repo / "Snakefile"), "-d", str(workdir), *args]
-    # tests pass the data root through --config; the environment variable would override it
-    full_env = {k: v for k, v in os.environ.items() if k != "FLATLANDIA_ROOT"} | (env or {})
-    return subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, env=full_env, timeout=900)
+from snakemake_runner import smk
 
 
 @pytest.fixture(scope="module")

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Iterable, TypeVar
@@ -19,7 +21,8 @@ def setup(log_path: str | Path | None, name: str = "flatlandia") -> logging.Logg
     logger.setLevel(logging.INFO)
     if log_path:
         Path(log_path).parent.mkdir(parents=True, exist_ok=True)
-        handler: logging.Handler = logging.FileHandler(log_path, mode="w")
+        open(log_path, "w").close()  # start empty, then append: native code appends to it too
+        handler: logging.Handler = logging.FileHandler(log_path, mode="a")
     else:
         handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(message)s"))
@@ -59,3 +62,26 @@ def run(main, smk) -> None:
     except Exception:
         logger.exception("rule failed")
         raise
+
+
+@contextlib.contextmanager
+def native_output_to(log_path: str | Path | None):
+    """Send what compiled libraries (COLMAP's glog) print on fds 1 and 2 into the rule's log."""
+    if not log_path:
+        yield
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with open(log_path, "ab", buffering=0) as f:
+        os.dup2(f.fileno(), 1)
+        os.dup2(f.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)

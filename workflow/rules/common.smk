@@ -48,6 +48,22 @@ def published_scenes():
     return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "flatlandia"]
 
 
+def published_cities():
+    return {s: SCENES_SHEET.loc[s, "city"] for s in published_scenes()}
+
+
+def images_scenes():
+    return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "images"]
+
+
+def images_dir(wildcards):
+    """The image folder of an images scene (from the sheet's path column)."""
+    row = SCENES_SHEET.loc[wildcards.scene]
+    if row["source"] != "images" or not row["path"]:
+        raise WorkflowError(f"{config['scenes']}: scene {wildcards.scene} is not an images scene with a path")
+    return str(config_path(row["path"]))
+
+
 wildcard_constraints:
     scene="|".join(map(str, SCENES_SHEET["scene"])),
 
@@ -101,4 +117,5 @@ def all_targets():
         + per_scene("results/{scene}/queries/queries.parquet")
         + ["results/tables/dataset_stats.parquet", "results/tables/dataset_stats.md",
            "results/tables/recovery.parquet", "results/tables/availability.parquet"]
+        + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
     )

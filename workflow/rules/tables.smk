@@ -11,7 +11,7 @@ rule dataset_stats:
         per_scene="results/tables/dataset_stats_per_scene.parquet",
         markdown=report("results/tables/dataset_stats.md", caption="../report/dataset_stats.rst", category="Tables"),
     params:
-        cities=SCENES_SHEET["city"].to_dict(),
+        cities=published_cities(),
     log:
         "logs/dataset_stats/all.log",
     conda:

@@ -1,0 +1,67 @@
+"""Classify SfM points: each 3D point takes the majority object class of its 2D observations."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from PIL import Image
+
+from .segment import NOT_AN_OBJECT
+
+
+def point_votes(rec, class_maps: dict[str, np.ndarray]) -> pd.DataFrame:
+    """One row per 3D point: xyz, majority Flatlandia class (255 = background), votes, observations.
+
+    A point is an object point when the majority of its *labelled-image* observations fall on
+    pixels of one class; ties and background majorities give 255.
+    """
+    rows = []
+    for pid, p in rec.points3D.items():
+        labels = []
+        for el in p.track.elements:
+            img = rec.images[el.image_id]
+            cmap = class_maps.get(img.name)
+            if cmap is None:
+                continue
+            x, y = img.points2D[el.point2D_idx].xy
+            r, c = int(np.clip(round(y - 0.5), 0, cmap.shape[0] - 1)), int(np.clip(round(x - 0.5), 0, cmap.shape[1] - 1))
+            labels.append(int(cmap[r, c]))
+        cls, votes = NOT_AN_OBJECT, 0
+        if labels:
+            vals, counts = np.unique(labels, return_counts=True)
+            order = np.argsort(-counts)
+            top = counts[order[0]]
+            if top * 2 > len(labels) and (len(order) == 1 or counts[order[1]] < top):
+                cls, votes = int(vals[order[0]]), int(top)
+        rows.append({"point3D_id": int(pid), "x": p.xyz[0], "y": p.xyz[1], "z": p.xyz[2],
+                     "class_id": cls, "votes": votes, "observations": len(labels)})
+    return pd.DataFrame(rows)
+
+
+def load_class_maps(folder: Path, names: list[str]) -> dict[str, np.ndarray]:
+    maps = {}
+    for n in names:
+        p = folder / f"{n}.png"
+        if p.exists():
+            with Image.open(p) as im:
+                maps[n] = np.asarray(im)
+    return maps
+
+
+def write_classified_ply(points: pd.DataFrame, path: Path) -> None:
+    """ASCII PLY of the points with an integer ``class_id`` property and a colour per class."""
+    from .io import atomic_path
+
+    rng = np.random.default_rng(0)
+    palette = rng.integers(40, 255, size=(256, 3))
+    palette[NOT_AN_OBJECT] = (51, 51, 51)  # background grey, as in the published clouds
+    lines = ["ply", "format ascii 1.0", f"element vertex {len(points)}", "property float x", "property float y",
+             "property float z", "property uchar red", "property uchar green", "property uchar blue",
+             "property uchar class_id", "end_header"]
+    for r in points.itertuples(index=False):
+        col = palette[r.class_id]
+        lines.append(f"{r.x:.6f} {r.y:.6f} {r.z:.6f} {col[0]} {col[1]} {col[2]} {r.class_id}")
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")

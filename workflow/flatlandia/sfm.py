@@ -1,0 +1,134 @@
+"""Structure from motion with pycolmap (pinned 4.2.1): masked SIFT, matching, mapping, cleaning, BA.
+
+pycolmap's API moves between versions; this module is the only place that calls it for SfM,
+and :func:`check_version` refuses an untested one with a clear message.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+
+TESTED_PYCOLMAP = "4.2.1"
+
+
+def check_version() -> None:
+    import pycolmap
+
+    if pycolmap.__version__ != TESTED_PYCOLMAP:
+        raise RuntimeError(f"pycolmap {pycolmap.__version__} is installed, but the SfM stage is tested with "
+                           f"{TESTED_PYCOLMAP} only (envs/requirements.txt pins it)")
+
+
+@dataclass
+class SfmOptions:
+    matcher: str = "exhaustive"  # or "sequential"
+    mapper: str = "global"  # or "incremental"
+    camera_model: str = "SIMPLE_RADIAL"
+    max_image_size: int = 1600
+    max_num_features: int = 8192
+    seed: int = 0
+    num_threads: int = 2
+    height_mad_k: float = 6.0  # cameras this many MADs off the camera plane are removed
+
+
+def run_sfm(image_dir: Path, image_names: list[str], mask_dir: Path | None, work: Path,
+            opts: SfmOptions, log=print):
+    """Extract, match and map; returns the largest reconstruction (pycolmap.Reconstruction)."""
+    import pycolmap
+
+    check_version()
+    pycolmap.set_random_seed(opts.seed)
+    if len(image_names) < 3:
+        raise InputError(image_dir, f"SfM needs at least 3 images, {len(image_names)} kept")
+    work.mkdir(parents=True, exist_ok=True)
+    db = work / "database.db"
+    if db.exists():
+        db.unlink()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = opts.camera_model
+    if mask_dir is not None:
+        reader.mask_path = str(mask_dir)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = opts.max_image_size
+    extraction.num_threads = opts.num_threads
+    extraction.sift.max_num_features = opts.max_num_features
+    log(f"extracting SIFT features from {len(image_names)} images (masks: {mask_dir})")
+    pycolmap.extract_features(db, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.AUTO,
+                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+    log(f"matching ({opts.matcher})")
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = opts.seed
+    if opts.matcher == "sequential":
+        pycolmap.match_sequential(db, verification_options=verification, device=pycolmap.Device.cpu)
+    else:
+        pycolmap.match_exhaustive(db, verification_options=verification, device=pycolmap.Device.cpu)
+    out = work / "models"
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir()
+    log(f"mapping ({opts.mapper})")
+    if opts.mapper == "incremental":
+        o = pycolmap.IncrementalPipelineOptions()
+        o.random_seed = opts.seed
+        o.num_threads = opts.num_threads
+        recs = pycolmap.incremental_mapping(db, image_dir, out, options=o)
+    else:
+        o = pycolmap.GlobalPipelineOptions()
+        o.random_seed = opts.seed
+        o.num_threads = opts.num_threads
+        recs = pycolmap.global_mapping(db, image_dir, out, options=o)
+    if not recs:
+        raise InputError(image_dir, "SfM produced no model (too few matches between the images?)")
+    best = max(recs.values(), key=lambda r: (r.num_reg_images(), r.num_points3D()))
+    log(f"{len(recs)} model(s); largest has {best.num_reg_images()} images, {best.num_points3D()} points")
+    return best
+
+
+def camera_centres(rec) -> pd.DataFrame:
+    rows = [{"image_id": int(i), "name": img.name, **dict(zip("xyz", img.projection_center()))}
+            for i, img in rec.images.items() if img.has_pose]
+    return pd.DataFrame(rows)
+
+
+def height_outliers(centres: np.ndarray, k: float) -> np.ndarray:
+    """Cameras far above or below the plane through the others (street level), by a MAD test."""
+    c = np.asarray(centres, float)
+    if len(c) < 4:
+        return np.zeros(len(c), dtype=bool)
+    mu = np.median(c, axis=0)
+    _, _, vt = np.linalg.svd(c - mu, full_matrices=False)
+    h = (c - mu) @ vt[2]
+    mad = np.median(np.abs(h - np.median(h))) + 1e-12
+    spread = np.median(np.linalg.norm(c - mu, axis=1)) + 1e-12
+    return np.abs(h - np.median(h)) > max(k * 1.4826 * mad, 0.05 * spread)
+
+
+def remove_cameras(rec, image_ids: list[int]) -> None:
+    for i in image_ids:
+        rec.deregister_frame(rec.images[i].frame_id)
+
+
+def final_bundle_adjustment(rec) -> None:
+    import pycolmap
+
+    opts = pycolmap.BundleAdjustmentOptions()
+    opts.print_summary = False
+    pycolmap.bundle_adjustment(rec, opts)
+
+
+def stats_table(rec, n_input: int, removed: pd.DataFrame) -> pd.DataFrame:
+    """One-row summary of the model, plus the removed cameras and why."""
+    return pd.DataFrame([{
+        "images_input": n_input, "registered": rec.num_reg_images(), "points3D": rec.num_points3D(),
+        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
+        "mean_track_length": float(rec.compute_mean_track_length()),
+        "removed_cameras": int(len(removed)),
+        "removed": "; ".join(f"{r.name}: {r.reason}" for r in removed.itertuples()) if len(removed) else "",
+    }])

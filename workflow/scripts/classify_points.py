@@ -1,0 +1,22 @@
+"""Rule classify_points: majority class of each 3D point's observations; classified PLY."""
+
+from pathlib import Path
+
+import pycolmap
+
+from flatlandia import classify, io, runlog
+
+
+def main(smk, log):
+    rec = pycolmap.Reconstruction(smk.input.model)
+    names = [img.name for img in rec.images.values()]
+    maps = classify.load_class_maps(Path(smk.input.classes), names)
+    pts = classify.point_votes(rec, maps)
+    io.write_parquet(pts, smk.output.points)
+    classify.write_classified_ply(pts, Path(smk.output.ply))
+    n_obj = int((pts["class_id"] != 255).sum())
+    log.info("%d points, %d on objects (%s)", len(pts), n_obj,
+             pts.loc[pts["class_id"] != 255, "class_id"].value_counts().to_dict())
+
+
+runlog.run(main, snakemake)  # noqa: F821

@@ -1,0 +1,13 @@
+"""Rule images_audit: metadata of every image, kept or dropped and why."""
+
+from flatlandia import images, io, runlog
+
+
+def main(smk, log):
+    df = images.audit_table(smk.input.images, smk.params.dedup_threshold)
+    io.write_parquet(df, smk.output.table)
+    log.info("%d images, %d kept; dropped: %s", len(df), int(df["kept"].sum()),
+             df.loc[~df["kept"], "drop_reason"].value_counts().to_dict())
+
+
+runlog.run(main, snakemake)  # noqa: F821
