@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -112,3 +113,17 @@ def test_missing_data_is_fetched_or_fails_fast_offline(repo, tmp_path):
     log = (tmp_path / "logs/fetch_flatlandia/fetch.log").read_text()
     assert "could not download" in log and "FLATLANDIA_ROOT" in log
     assert not (tmp_path / "fetched").exists()
+
+
+def test_slurm_profile_dry_runs_with_the_expected_resources(repo, flat_root, tmp_path):
+    res = smk(repo, tmp_path, "--profile", str(repo / "profiles/slurm"), "-n", "all",
+              "--config", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    out = res.stdout + res.stderr
+    resources = {}
+    for rule, block in re.findall(r"^\s*rule (\w+):\n(.*?)Shell command", out, flags=re.S | re.M):
+        resources.setdefault(rule, re.search(r"resources: (.*)", block).group(1))
+    assert "mem_mb=16000" in resources["sfm"] and "cpus_per_task=8" in resources["sfm"]
+    assert "runtime=240" in resources["sfm"]
+    assert "mem_mb=2000" in resources["recover"] and "slurm_partition=cpu" in resources["recover"]
+    assert "Group job scene_prep" in out  # light per-scene steps travel as one cluster job
