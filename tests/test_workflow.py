@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pandas as pd
@@ -47,6 +49,22 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
     assert avail.loc["12"].drop("queries").all() and not avail.loc["9", "sfm_images"]
     rec = pd.read_parquet(wd / "results/tables/recovery.parquet")
     assert rec.set_index("scene").loc["all", "recovered"] == 15
+
+
+@pytest.mark.slow
+def test_manifest_and_audit_trace_every_artifact(run_two_scenes):
+    wd = run_two_scenes
+    man = pd.read_parquet(wd / "results/manifest.parquet").set_index("artifact")
+    q = "results/12/queries/queries.parquet"
+    assert man.loc[q, "rule"] == "queries" and man.loc[q, "scene"] == "12"
+    assert man.loc[q, "sha256"] == io.sha256(wd / q)
+    inputs = json.loads(man.loc[q, "inputs"])
+    assert inputs["results/12/queries/recovered.parquet"] == io.sha256(wd / "results/12/queries/recovered.parquet")
+    assert man["git_commit"].str.len().min() >= 7 and man["config_hash"].nunique() == 1
+    assert {"ingest", "recover", "reference_map", "plot_reference_map", "dataset_stats"} <= set(man["rule"])
+    res = subprocess.run([str(Path(sys.executable).parent / "flatlandia"), "audit", "--scene", "12"], cwd=wd,
+                         capture_output=True, text=True)
+    assert res.returncode == 0 and q in res.stdout and "results/9/" not in res.stdout
 
 
 @pytest.mark.slow

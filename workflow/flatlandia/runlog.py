@@ -52,9 +52,12 @@ def run(main, smk) -> None:
     """
     from .errors import InputError
 
+    from . import provenance
+
     logger = setup(smk.log[0] if len(smk.log) else None)
     try:
         main(smk, logger)
+        logger.info("provenance: %s", provenance.write_record(smk))
     except InputError as e:
         logger.error("%s", e)
         print(f"ERROR: {e}", file=sys.stderr)

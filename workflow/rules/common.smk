@@ -109,7 +109,8 @@ def scene_city(wildcards):
     return SCENES_SHEET.loc[wildcards.scene, "city"]
 
 
-def all_targets():
+def products_of_the_run():
+    """Every artifact `all` asks for, except the manifest that lists them."""
     return (
         per_scene("results/{scene}/maps/reference_map.parquet")
         + per_scene("results/{scene}/maps/reference_map.geojson")
@@ -119,3 +120,7 @@ def all_targets():
            "results/tables/recovery.parquet", "results/tables/availability.parquet"]
         + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
     )
+
+
+def all_targets():
+    return products_of_the_run() + ["results/manifest.parquet"]

@@ -46,3 +46,16 @@ rule availability_table:
         "../../envs/flatlandia.yaml"
     script:
         "../scripts/availability_table.py"
+
+
+rule manifest:
+    input:
+        products_of_the_run(),
+    output:
+        parquet="results/manifest.parquet",
+    log:
+        "logs/manifest/all.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/manifest.py"
