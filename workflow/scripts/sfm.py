@@ -17,7 +17,7 @@ def main(smk, log):
     opts = sfm.SfmOptions(matcher=o.get("matcher", "exhaustive"), mapper=o.get("mapper", "global"),
                           camera_model=o.get("camera_model", "SIMPLE_RADIAL"),
                           max_image_size=o.get("max_image_size", 1600), seed=smk.params.seed,
-                          num_threads=smk.threads, height_mad_k=o.get("height_mad_k", 6.0))
+                          num_threads=1 if o.get("deterministic", True) else smk.threads, height_mad_k=o.get("height_mad_k", 6.0))
     out = Path(smk.output.model)
     work = out.parent / "work"
     pycolmap.logging.logtostderr = True  # COLMAP's own log, redirected into the rule's log below
