@@ -145,3 +145,18 @@ def test_slurm_profile_dry_runs_with_the_expected_resources(repo, flat_root, tmp
     assert "runtime=240" in resources["sfm"]
     assert "mem_mb=2000" in resources["recover"] and "slurm_partition=cpu" in resources["recover"]
     assert "Group job scene_prep" in out  # light per-scene steps travel as one cluster job
+
+
+@pytest.mark.slow
+def test_rerun_from_scratch_gives_identical_tables(run_two_scenes, repo, flat_root, tmp_path):
+    res = smk(repo, tmp_path, "--cores", "2", "all", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stderr[-2000:]
+    tables = ["results/12/queries/queries.parquet", "results/9/queries/queries.parquet",
+              "results/12/maps/reference_map.parquet", "results/tables/dataset_stats.parquet",
+              "results/tables/dataset_stats_per_scene.parquet", "results/tables/availability.parquet"]
+    for t in tables:
+        pd.testing.assert_frame_equal(pd.read_parquet(run_two_scenes / t), pd.read_parquet(tmp_path / t), check_exact=True)
+    timing = ["seconds"]  # wall-clock columns are the only ones allowed to differ
+    a = pd.read_parquet(run_two_scenes / "results/tables/recovery.parquet").drop(columns=timing)
+    b = pd.read_parquet(tmp_path / "results/tables/recovery.parquet").drop(columns=timing)
+    pd.testing.assert_frame_equal(a, b, check_exact=True)
