@@ -105,12 +105,3 @@ def test_ingest_sha256_mismatch(tmp_path, flat_root):
     p.write_bytes(data.replace(b"2.37", b"2.38", 1))  # same size, different content
     with pytest.raises(InputError, match="sha256 differs"):
         ingest.ingest_scene(tmp_path, "12")
-
-
-def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
-    from flatlandia import fetch
-
-    with pytest.raises(fetch.FetchError, match="FLATLANDIA_ROOT"):
-        fetch.fetch_flatlandia(tmp_path / "data", pd.DataFrame({"scene": ["0"], "city": ["x"], "name": ["y"]}),
-                               url="http://127.0.0.1:9/nothing.zip", timeout_s=5)
-    assert not (tmp_path / "data").exists()

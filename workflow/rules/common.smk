@@ -59,9 +59,21 @@ def images_scenes():
 def images_dir(wildcards):
     """The image folder of an images scene (from the sheet's path column)."""
     row = SCENES_SHEET.loc[wildcards.scene]
-    if row["source"] != "images" or not row["path"]:
-        raise WorkflowError(f"{config['scenes']}: scene {wildcards.scene} is not an images scene with a path")
-    return str(config_path(row["path"]))
+    if row["source"] != "images":
+        raise WorkflowError(f"{config['scenes']}: scene {wildcards.scene} is not an images scene")
+    if row["path"] and config_path(row["path"]).exists():
+        return str(config_path(row["path"]))
+    if row.get("url", ""):
+        return f"resources/images/{wildcards.scene}"  # fetched by rule fetch_images
+    raise WorkflowError(
+        f"{config['scenes']}: images folder {row['path']!r} of scene {wildcards.scene} does not exist "
+        "and the sheet gives no url to fetch it from"
+    )
+
+
+def images_fetch_params(wildcards):
+    row = SCENES_SHEET.loc[wildcards.scene]
+    return {"url": row.get("url", ""), "subfolder": row.get("subfolder", "")}
 
 
 wildcard_constraints:

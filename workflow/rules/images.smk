@@ -1,6 +1,20 @@
 # Images branch: a folder of geotagged crowd images -> audit -> masks -> SfM -> classified points.
 
 
+rule fetch_images:
+    output:
+        images=directory("resources/images/{scene}"),
+    params:
+        source=images_fetch_params,
+        timeout_s=config["fetch"].get("timeout_s", 30),
+    log:
+        "logs/fetch_images/{scene}.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/fetch_images.py"
+
+
 rule images_audit:
     input:
         images=images_dir,

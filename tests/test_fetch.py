@@ -1,0 +1,67 @@
+"""Fetching default inputs from their public source (here a local zip served by file:// URL)."""
+
+import zipfile
+
+import pandas as pd
+import pytest
+
+from flatlandia import fetch, ingest
+from snakemake_runner import smk
+
+SCENE12 = ["local_maps.json", "individual_reference_maps/map_12.json", "maps/12/transformations.json",
+           "maps/12/tokens.txt", "MANIFEST.tsv"]
+
+
+@pytest.fixture
+def upstream_zip(tmp_path, flat_root):
+    """A repository archive shaped like GitHub's: Flatlandia-main/data/..."""
+    z = tmp_path / "Flatlandia-main.zip"
+    with zipfile.ZipFile(z, "w") as out:
+        out.writestr("Flatlandia-main/README.md", "upstream readme")
+        for rel in SCENE12:
+            out.write(flat_root / rel, f"Flatlandia-main/data/{rel}")
+    return z
+
+
+def test_fetch_flatlandia_unpacks_data_and_adds_sheets(upstream_zip, tmp_path):
+    scenes = pd.DataFrame({"scene": ["12"], "city": ["Paris"], "name": ["ParisRosaPark"]})
+    dest = fetch.fetch_flatlandia(tmp_path / "data", scenes, url=upstream_zip.as_uri(), timeout_s=5)
+    assert (dest / "local_maps.json").exists() and not (dest / "README.md").exists()
+    assert (dest / "classes.tsv").read_text().count("\n") == 43
+    rep = ingest.ingest_scene(dest, "12", verify_hash=True)
+    assert rep["n_queries"] == 3 and rep["available"]["transformations"]
+
+
+def test_fetch_images_takes_the_subfolder(tmp_path, flat_root):
+    z = tmp_path / "OpenSfM-main.zip"
+    lund = flat_root.parent / "images" / "lund"
+    with zipfile.ZipFile(z, "w") as out:
+        for name in ("01.jpg", "02.jpg"):
+            out.write(lund / name, f"OpenSfM-main/data/lund/images/{name}")
+        out.writestr("OpenSfM-main/data/lund/config.yaml", "x")
+    dest = fetch.fetch_images(z.as_uri(), "data/lund/images", tmp_path / "imgs", timeout_s=5)
+    assert sorted(p.name for p in dest.iterdir()) == ["01.jpg", "02.jpg"]
+
+
+def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
+    with pytest.raises(fetch.FetchError, match="FLATLANDIA_ROOT"):
+        fetch.fetch_flatlandia(tmp_path / "data", pd.DataFrame({"scene": ["0"], "city": ["x"], "name": ["y"]}),
+                               url="http://127.0.0.1:9/nothing.zip", timeout_s=5)
+    assert not (tmp_path / "data").exists()
+    with pytest.raises(fetch.FetchError, match="archive holds no data/ folder"):
+        bad = tmp_path / "bad.zip"
+        with zipfile.ZipFile(bad, "w") as out:
+            out.writestr("x/readme", "nothing")
+        fetch.fetch_flatlandia(tmp_path / "data", pd.DataFrame({"scene": [], "city": [], "name": []}),
+                               url=bad.as_uri())
+    assert not (tmp_path / "data").exists()
+
+
+def test_workflow_fetches_when_the_data_folder_is_missing(repo, upstream_zip, tmp_path):
+    cfg = tmp_path / "fetch.yaml"
+    cfg.write_text(f"flatlandia_root: {tmp_path / 'nowhere'}\n"
+                   f"fetch: {{url: '{upstream_zip.as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n")
+    res = smk(repo, tmp_path, "--cores", "1", "results/12/queries/queries.parquet", "--configfile", str(cfg))
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    assert (tmp_path / "fetched/local_maps.json").exists()
+    assert len(pd.read_parquet(tmp_path / "results/12/queries/queries.parquet")) == 3

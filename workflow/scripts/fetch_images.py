@@ -1,0 +1,16 @@
+"""Rule fetch_images: an images scene's folder from its public source, when no local copy exists."""
+
+from flatlandia import fetch, runlog
+
+
+def main(smk, log):
+    src = smk.params.source
+    log.info("fetching %s (%s) into %s", src["url"], src["subfolder"], smk.output.images)
+    try:
+        fetch.fetch_images(src["url"], src["subfolder"], smk.output.images, smk.params.timeout_s)
+    except fetch.FetchError as e:
+        log.error("%s", e)
+        raise SystemExit(f"ERROR: {e}") from None
+
+
+runlog.run(main, snakemake)  # noqa: F821
