@@ -42,6 +42,10 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert (wd / f"logs/recover/{scene}.log").read_text().count("queries recovered") == 1
         assert (wd / f"benchmarks/recover/{scene}.tsv").exists()
+    for t in ("dataset_stats", "recovery"):  # renderings hold one line per Parquet row
+        md = [ln for ln in (wd / f"results/tables/{t}.md").read_text().splitlines() if ln.startswith("| ")]
+        assert len(md) == 1 + len(pd.read_parquet(wd / f"results/tables/{t}.parquet"))
+        assert (wd / f"results/tables/{t}.tex").read_text().startswith("\\begin{table}")
     stats = pd.read_parquet(wd / "results/tables/dataset_stats.parquet")
     assert list(stats["city"]) == ["Lisbon", "Paris", "all"]
     assert stats.set_index("city").loc["all", "total_queries"] == 15

@@ -68,7 +68,9 @@ def city_table(per_scene: pd.DataFrame, union_km2: dict[str, float]) -> pd.DataF
             "paper_queries": paper.get("queries", np.nan), "paper_area_km2": paper.get("area_km2", np.nan),
             "paper_kb_per_map": paper.get("kb_per_map", np.nan), "paper_images": paper.get("images", np.nan),
         })
-    return pd.DataFrame(rows)
+    df = pd.DataFrame(rows)
+    floats = [c for c in df.columns if c.startswith("paper_")] + ["images"]
+    return df.astype({c: float for c in floats})
 
 
 def union_area_km2(lonlat_by_scene: dict[str, np.ndarray]) -> float:
@@ -80,15 +82,3 @@ def union_area_km2(lonlat_by_scene: dict[str, np.ndarray]) -> float:
     frame = geo.frame_for(pts)
     hulls = [MultiPoint(frame.to_xy(ll)).convex_hull for ll in lonlat_by_scene.values()]
     return float(unary_union(hulls).area) / 1e6
-
-
-def to_markdown(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
-    """A GitHub markdown table of a DataFrame (no extra dependency)."""
-    def fmt(v):
-        if isinstance(v, (float, np.floating)):
-            return "" if np.isnan(v) else format(v, floatfmt)
-        return str(v)
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in df.itertuples(index=False)]
-    return "\n".join(lines) + "\n"

@@ -10,6 +10,7 @@ rule dataset_stats:
         parquet="results/tables/dataset_stats.parquet",
         per_scene="results/tables/dataset_stats_per_scene.parquet",
         markdown=report("results/tables/dataset_stats.md", caption="../report/dataset_stats.rst", category="Tables"),
+        latex="results/tables/dataset_stats.tex",
     params:
         cities=published_cities(),
     log:
@@ -25,7 +26,8 @@ rule recovery_table:
         recovered=per_scene("results/{scene}/queries/recovered.parquet"),
     output:
         parquet="results/tables/recovery.parquet",
-        markdown="results/tables/recovery.md",
+        markdown=report("results/tables/recovery.md", caption="../report/recovery.rst", category="Tables"),
+        latex="results/tables/recovery.tex",
     log:
         "logs/recovery_table/all.log",
     conda:

@@ -4,7 +4,7 @@ import json
 
 import pandas as pd
 
-from flatlandia import io, runlog, stats
+from flatlandia import io, runlog, tables
 
 
 def main(smk, log):
@@ -14,8 +14,8 @@ def main(smk, log):
         rows.append({"scene": rep["scene"], "queries": rep["n_queries"], **rep["available"]})
     df = pd.DataFrame(rows)
     io.write_parquet(df, smk.output.parquet)
-    io.write_text("# Published files available per scene\n\n" + stats.to_markdown(df), smk.output.markdown)
-    log.info("\n%s", stats.to_markdown(df))
+    io.write_text("# Published files available per scene\n\n" + tables.to_markdown(df), smk.output.markdown)
+    log.info("\n%s", tables.to_markdown(df))
 
 
 runlog.run(main, snakemake)  # noqa: F821

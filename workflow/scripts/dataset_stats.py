@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog, stats
+from flatlandia import io, runlog, stats, tables
 
 
 def main(smk, log):
@@ -22,12 +22,13 @@ def main(smk, log):
     union = {c: stats.union_area_km2(d) for c, d in lonlat_by_city.items()}
     table = stats.city_table(per_scene, union)
     io.write_parquet(per_scene, smk.output.per_scene)
-    io.write_parquet(table, smk.output.parquet)
-    md = ("# Dataset statistics (paper Table 2)\n\nPer city: mean per scene of area (convex hull of the "
-          "objects, km2), map size (kB, compact JSON), images (SfM tokens), objects and queries; "
-          "density = objects per 1000 m2. `paper_*`: the paper's figures.\n\n" + stats.to_markdown(table))
-    io.write_text(md, smk.output.markdown)
-    log.info("\n%s", stats.to_markdown(table))
+    tables.write_table(
+        table, "dataset_stats", smk.output.parquet, smk.output.markdown, smk.output.latex,
+        title="Dataset statistics (paper Table 2)",
+        note="Per city: mean per scene of area (convex hull of the objects, km2), map size (kB, compact JSON), "
+             "images (SfM tokens), objects and queries; density = objects per 1000 m2. `paper_*`: the paper's "
+             "figures.")
+    log.info("\n%s", tables.to_markdown(table))
 
 
 runlog.run(main, snakemake)  # noqa: F821

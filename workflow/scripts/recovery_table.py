@@ -2,7 +2,7 @@
 
 import pandas as pd
 
-from flatlandia import io, runlog, stats
+from flatlandia import io, runlog, tables
 
 
 def main(smk, log):
@@ -23,9 +23,9 @@ def main(smk, log):
     df = pd.concat([df, pd.DataFrame([{"scene": "all", **total}])], ignore_index=True)
     for c in ["queries", "recovered", "ambiguous", "resolved_exact_fit", "same_classes", "unresolved"]:
         df[c] = df[c].astype("int64")
-    io.write_parquet(df, smk.output.parquet)
-    io.write_text("# Query recovery\n\n" + stats.to_markdown(df), smk.output.markdown)
-    log.info("\n%s", stats.to_markdown(df))
+    tables.write_table(df, "recovery", smk.output.parquet, smk.output.markdown, smk.output.latex,
+                       title="Query recovery by registration of the published GT local maps")
+    log.info("\n%s", tables.to_markdown(df))
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -1,0 +1,137 @@
+"""Result tables with stable, documented schemas: Parquet + markdown + LaTeX, checked when written.
+
+Each table has a schema here: column, dtype kind, unit and meaning. :func:`write_table` refuses a
+DataFrame whose columns or dtypes differ from its schema, so a downstream reader (or a paper)
+can rely on them; ``docs/tables.md`` is rendered from the same schemas (:func:`schema_markdown`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .io import write_parquet, write_text
+
+
+@dataclass(frozen=True)
+class Column:
+    name: str
+    kind: str  # "int", "float", "str", "bool"
+    unit: str
+    meaning: str
+
+
+SCHEMAS: dict[str, list[Column]] = {
+    "dataset_stats": [
+        Column("city", "str", "", "city, or 'all'"),
+        Column("scenes", "int", "", "number of scenes"),
+        Column("area_km2", "float", "km2", "mean per scene: convex hull of the reference objects"),
+        Column("kb_per_map", "float", "kB", "mean per scene: map as compact JSON [[lon, lat], class]"),
+        Column("images", "float", "", "mean per scene: images in the SfM (tokens.txt)"),
+        Column("objects", "float", "", "mean objects per scene"),
+        Column("queries", "float", "", "mean queries per scene"),
+        Column("total_objects", "int", "", "objects in all scenes"),
+        Column("total_queries", "int", "", "queries in all scenes"),
+        Column("union_area_km2", "float", "km2", "area of the union of the scenes' hulls (overlaps count once)"),
+        Column("density_per_1000m2", "float", "1/1000 m2", "objects per 1000 m2 of hull area"),
+        Column("paper_scenes", "float", "", "the paper's Table 2"),
+        Column("paper_objects", "float", "", "the paper's Table 2"),
+        Column("paper_queries", "float", "", "the paper's Table 2"),
+        Column("paper_area_km2", "float", "km2", "the paper's Table 2"),
+        Column("paper_kb_per_map", "float", "kB", "the paper's Table 2"),
+        Column("paper_images", "float", "", "the paper's Table 2"),
+    ],
+    "recovery": [
+        Column("scene", "str", "", "scene id, or 'all'"),
+        Column("queries", "int", "", "published GT local maps"),
+        Column("recovered", "int", "", "registered onto the reference map"),
+        Column("max_residual_m", "float", "m", "largest object residual of a recovered query"),
+        Column("ambiguous", "int", "", "queries with a second solution within recover.tol_m"),
+        Column("resolved_exact_fit", "int", "", "ambiguous queries settled by the exact fit"),
+        Column("same_classes", "int", "", "ambiguous queries whose solutions agree on every class"),
+        Column("unresolved", "int", "", "equally exact solutions that disagree on classes"),
+        Column("seconds", "float", "s", "registration wall time (not reproducible)"),
+    ],
+}
+
+
+def _kind(series: pd.Series) -> str:
+    if pd.api.types.is_bool_dtype(series):
+        return "bool"
+    if pd.api.types.is_integer_dtype(series):
+        return "int"
+    if pd.api.types.is_float_dtype(series):
+        return "float"
+    return "str"
+
+
+def check_schema(df: pd.DataFrame, name: str) -> None:
+    """Raise ValueError naming every column that is missing, extra or of the wrong kind."""
+    schema = SCHEMAS[name]
+    want = [c.name for c in schema]
+    problems = []
+    if list(df.columns) != want:
+        missing = [c for c in want if c not in df.columns]
+        extra = [c for c in df.columns if c not in want]
+        problems.append(f"columns differ (missing {missing}, extra {extra}, order matters)")
+    for c in schema:
+        if c.name in df.columns and _kind(df[c.name]) != c.kind:
+            problems.append(f"{c.name}: {_kind(df[c.name])} instead of {c.kind}")
+    if problems:
+        raise ValueError(f"table {name!r} does not match its schema: " + "; ".join(problems))
+
+
+def to_markdown(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
+    def fmt(v):
+        if isinstance(v, (float, np.floating)):
+            return "" if np.isnan(v) else format(v, floatfmt)
+        return str(v)
+
+    cols = list(df.columns)
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in df.itertuples(index=False)]
+    return "\n".join(lines) + "\n"
+
+
+def to_latex(df: pd.DataFrame, floatfmt: str = ".3g", caption: str = "") -> str:
+    def esc(v) -> str:
+        if isinstance(v, (float, np.floating)):
+            return "--" if np.isnan(v) else format(v, floatfmt)
+        return str(v).replace("_", r"\_").replace("%", r"\%").replace("&", r"\&")
+
+    cols = list(df.columns)
+    lines = [r"\begin{table}[t]", r"\centering", r"\begin{tabular}{" + "l" * len(cols) + "}", r"\hline",
+             " & ".join(esc(c) for c in cols) + r" \\", r"\hline"]
+    lines += [" & ".join(esc(v) for v in row) + r" \\" for row in df.itertuples(index=False)]
+    lines += [r"\hline", r"\end{tabular}"]
+    if caption:
+        lines.append(r"\caption{" + esc(caption) + "}")
+    lines.append(r"\end{table}")
+    return "\n".join(lines) + "\n"
+
+
+def write_table(df: pd.DataFrame, name: str, parquet: str | Path, markdown: str | Path | None = None,
+                latex: str | Path | None = None, title: str = "", note: str = "") -> None:
+    """Check the schema, then write Parquet (schema in its metadata) and the renderings."""
+    check_schema(df, name)
+    meta = {"table": name, "columns": {c.name: {"unit": c.unit, "meaning": c.meaning} for c in SCHEMAS[name]}}
+    write_parquet(df, parquet, meta)
+    if markdown:
+        head = f"# {title}\n\n" if title else ""
+        write_text(head + (note + "\n\n" if note else "") + to_markdown(df), markdown)
+    if latex:
+        write_text(to_latex(df, caption=title), latex)
+
+
+def schema_markdown() -> str:
+    """Documentation of every table's columns (rendered into docs/tables.md)."""
+    out = ["# Result tables\n", "Generated from `workflow/flatlandia/tables.py`; every table is checked "
+           "against this schema when written.\n"]
+    for name, cols in SCHEMAS.items():
+        out.append(f"\n## `results/tables/{name}.parquet`\n")
+        out.append("| column | type | unit | meaning |\n|---|---|---|---|")
+        out += [f"| `{c.name}` | {c.kind} | {c.unit} | {c.meaning} |" for c in cols]
+    return "\n".join(out) + "\n"
