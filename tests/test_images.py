@@ -57,6 +57,15 @@ def test_empty_or_missing_folder_is_a_clear_error(tmp_path):
         images.list_images(tmp_path / "nope")
 
 
+def test_offline_people_detector_finds_the_pedestrian_of_lund_01():
+    rgb = np.asarray(Image.open(LUND / "01.jpg").convert("RGB"))
+    boxes = segment.detect_people(rgb)
+    assert len(boxes) == 1
+    x, y, w, h = boxes[0]
+    assert 380 < x + w / 2 < 480 and h > 100  # the walker in the middle of the street
+    assert segment.detect_people(np.asarray(Image.open(LUND / "10.jpg").convert("RGB"))) == []
+
+
 def test_offline_backend_masks_sky_but_claims_no_objects():
     ids, names = segment.make_backend("offline").labels(LUND / "15.jpg")
     mask, cls, shares = segment.mask_and_classes(ids, names, [0.0, 0.95, 1.0, 1.0])
