@@ -20,6 +20,7 @@ def main(smk, log):
         lonlat_by_city.setdefault(cities[scene], {})[scene] = ref[["lon", "lat"]].to_numpy()
     per_scene = pd.DataFrame(rows)
     union = {c: stats.union_area_km2(d) for c, d in lonlat_by_city.items()}
+    union["all"] = sum(union.values())  # cities do not overlap
     table = stats.city_table(per_scene, union)
     io.write_parquet(per_scene, smk.output.per_scene)
     tables.write_table(
