@@ -109,7 +109,8 @@ def offline_labels(rgb: np.ndarray) -> np.ndarray:
     top = np.unique(lab[:4][lab[:4] > 0])  # closing erodes the very border
     sky = np.isin(lab, top)
     exg = 2 * g - r - b
-    veg = (exg > 0.10) & (g > 0.15) & ~sky
+    sat = (img.max(axis=-1) - img.min(axis=-1)) / (img.max(axis=-1) + 1e-6)
+    veg = (exg > 0.10) & (g > 0.15) & (sat > 0.2) & ~sky  # saturated: not greenish stone or bronze
     veg = ndimage.binary_opening(veg, iterations=2)
     out = np.zeros(rgb.shape[:2], dtype=np.uint8)
     out[sky] = 1
@@ -220,3 +221,10 @@ def mask_and_classes(ids: np.ndarray, names: list[str], watermark_box: list[floa
         shares[kind.strip("-")] = float(sel[ids].mean()) if sel.any() else 0.0
     shares["objects"] = float((cls != NOT_AN_OBJECT).mean())
     return np.where(ignore, 0, 255).astype(np.uint8), cls, shares
+
+
+def ignore_iou(ours: np.ndarray, reference: np.ndarray) -> float:
+    """IoU of the ignored (0) pixels of two masks; NaN when neither ignores anything."""
+    a, b = np.asarray(ours) == 0, np.asarray(reference) == 0
+    union = int((a | b).sum())
+    return float((a & b).sum() / union) if union else float("nan")
