@@ -29,15 +29,24 @@ def test_audit_table_of_lund_keeps_distinct_images():
     assert df["capture_time"].is_monotonic_increasing
 
 
-def test_near_duplicate_and_missing_gps_are_dropped_with_reasons(tmp_path):
+def test_near_duplicate_missing_gps_and_broken_files(tmp_path):
     for n in ("01.jpg", "02.jpg"):
         shutil.copy(LUND / n, tmp_path / n)
     shutil.copy(LUND / "02.jpg", tmp_path / "02b.jpg")  # the same picture again
     Image.new("RGB", (64, 48), (120, 120, 120)).save(tmp_path / "nogps.jpg")
+    data = (LUND / "03.jpg").read_bytes()
+    (tmp_path / "truncated.jpg").write_bytes(data[: len(data) // 3])
+    (tmp_path / "garbage.jpg").write_bytes(b"not a jpeg at all")
     df = images.audit_table(tmp_path, dedup_threshold=0.02).set_index("name")
     assert df.loc["02b.jpg", "drop_reason"] == "near-duplicate of previous image"
-    assert df.loc["nogps.jpg", "drop_reason"] == "no GPS position"
-    assert df.loc["01.jpg", "kept"] and df.loc["02.jpg", "kept"]
+    assert df.loc["nogps.jpg", "kept"] and not df.loc["nogps.jpg", "has_gps"]  # kept for SfM, not for GPS
+    assert df.loc["truncated.jpg", "drop_reason"].startswith("unreadable image")
+    assert df.loc["garbage.jpg", "drop_reason"].startswith("unreadable image")
+    assert df.loc["01.jpg", "kept"] and df.loc["02.jpg", "kept"] and df.loc["01.jpg", "has_gps"]
+    dropped = images.audit_table(tmp_path, 0.02, missing_gps="drop").set_index("name")
+    assert dropped.loc["nogps.jpg", "drop_reason"] == "no GPS position"
+    with pytest.raises(InputError, match=r"images without a GPS position: \['nogps.jpg'\]"):
+        images.audit_table(tmp_path, 0.02, missing_gps="stop")
 
 
 def test_metadata_csv_overrides_and_is_checked(tmp_path):

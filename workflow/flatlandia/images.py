@@ -72,6 +72,7 @@ def read_exif_metadata(path: str | Path) -> dict:
         with Image.open(path) as im:
             width, height = im.size
             exif = im.getexif()
+            im.load()  # decode the pixels: a truncated file fails here, not in SfM
     except Exception as e:  # PIL raises many types for broken files
         raise InputError(path, f"unreadable image ({e})") from e
     tags = {ExifTags.TAGS.get(k, k): v for k, v in exif.items()}
@@ -108,7 +109,17 @@ def read_exif_metadata(path: str | Path) -> dict:
 def read_folder_metadata(folder: str | Path, csv_name: str = "metadata.csv") -> pd.DataFrame:
     """Metadata of every image of a folder, with ``metadata.csv`` overriding EXIF where given."""
     folder = Path(folder)
-    df = pd.DataFrame([read_exif_metadata(p) for p in list_images(folder)])
+    recs = []
+    for p in list_images(folder):
+        try:
+            recs.append(read_exif_metadata(p))
+        except InputError as e:  # one broken file in a crowd folder: drop it, say why
+            recs.append({"name": p.name, "unreadable": e.problem})
+    df = pd.DataFrame(recs)
+    for col in ("width", "height", "camera", "lat", "lon", "alt", "heading", "heading_accuracy",
+                "gps_accuracy_m", "capture_time", "focal_35mm", "unreadable"):
+        if col not in df.columns:
+            df[col] = None
     csv = folder / csv_name
     if csv.exists():
         extra = pd.read_csv(csv)
@@ -127,13 +138,9 @@ def read_folder_metadata(folder: str | Path, csv_name: str = "metadata.csv") -> 
     return df
 
 
-def geotag_problems(df: pd.DataFrame) -> pd.Series:
-    """Why each image cannot be used as a geotagged image ('' when it can)."""
+def has_gps(df: pd.DataFrame) -> pd.Series:
     lat, lon = pd.to_numeric(df["lat"], errors="coerce"), pd.to_numeric(df["lon"], errors="coerce")
-    why = pd.Series("", index=df.index, dtype=object)
-    why[lat.isna() | lon.isna()] = "no GPS position"
-    why[(lat.abs() > 90) | (lon.abs() > 180)] = "GPS position out of range"
-    return why
+    return lat.notna() & lon.notna() & (lat.abs() <= 90) & (lon.abs() <= 180)
 
 
 def thumbnail(path: str | Path, size: tuple[int, int] = (64, 48)) -> np.ndarray:
@@ -161,17 +168,33 @@ def near_duplicates(paths: list[Path], threshold: float) -> list[float]:
     return diffs
 
 
-def audit_table(folder: str | Path, dedup_threshold: float) -> pd.DataFrame:
-    """The images audit table: metadata, kept/dropped and why (no GPS, near-duplicate)."""
+def audit_table(folder: str | Path, dedup_threshold: float, missing_gps: str = "keep") -> pd.DataFrame:
+    """The images audit table: metadata, kept/dropped and why.
+
+    Unreadable images are dropped. Images without a GPS position are kept for SfM but cannot
+    anchor the GPS alignment (``missing_gps="keep"``), dropped (``"drop"``), or stop the scene
+    with an error naming them (``"stop"``). Near-duplicates of the previous kept image are dropped.
+    """
+    if missing_gps not in ("keep", "drop", "stop"):
+        raise ValueError(f"missing_gps must be keep, drop or stop, not {missing_gps!r}")
     folder = Path(folder)
     df = read_folder_metadata(folder)
     order = df.sort_values(["capture_time", "name"], na_position="last").index
     df = df.loc[order].reset_index(drop=True)
-    df["drop_reason"] = geotag_problems(df)
+    df["has_gps"] = has_gps(df)
+    df["drop_reason"] = ""
+    broken = df["unreadable"].notna()
+    df.loc[broken, "drop_reason"] = "unreadable image: " + df.loc[broken, "unreadable"].astype(str)
+    no_gps = ~df["has_gps"] & ~broken
+    if no_gps.any() and missing_gps == "stop":
+        raise InputError(folder, f"images without a GPS position: {list(df.loc[no_gps, 'name'])[:10]} "
+                                 "(set images.missing_gps to keep or drop to go on without them)")
+    if missing_gps == "drop":
+        df.loc[no_gps, "drop_reason"] = "no GPS position"
     ok = df["drop_reason"] == ""
     diffs = pd.Series(np.nan, index=df.index)
     diffs[ok] = near_duplicates([folder / n for n in df.loc[ok, "name"]], dedup_threshold)
     df["diff_to_previous"] = diffs
     df.loc[ok & (diffs < dedup_threshold), "drop_reason"] = "near-duplicate of previous image"
     df["kept"] = df["drop_reason"] == ""
-    return df
+    return df.drop(columns="unreadable")

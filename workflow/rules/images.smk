@@ -22,6 +22,7 @@ rule images_audit:
         table="results/{scene}/images/images.parquet",
     params:
         dedup_threshold=config["images"]["dedup_threshold"],
+        missing_gps=config["images"].get("missing_gps", "keep"),
     log:
         "logs/images_audit/{scene}.log",
     conda:

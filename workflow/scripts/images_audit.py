@@ -4,7 +4,7 @@ from flatlandia import images, io, runlog
 
 
 def main(smk, log):
-    df = images.audit_table(smk.input.images, smk.params.dedup_threshold)
+    df = images.audit_table(smk.input.images, smk.params.dedup_threshold, smk.params.missing_gps)
     io.write_parquet(df, smk.output.table)
     log.info("%d images, %d kept; dropped: %s", len(df), int(df["kept"].sum()),
              df.loc[~df["kept"], "drop_reason"].value_counts().to_dict())
