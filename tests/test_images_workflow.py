@@ -64,3 +64,18 @@ def test_points_take_the_majority_class_of_their_observations(lund_run):
         elif share < 0.5:
             assert pts.loc[pid, "class_id"] == 255
     assert checked > 10
+
+
+@pytest.mark.slow
+def test_views_from_the_lund_model(lund_run):
+    from flatlandia import imagequeries
+
+    model = pycolmap.Reconstruction(str(lund_run / "results/lund/sfm/model"))
+    views = imagequeries.views_from_colmap(model)
+    assert len(views) == model.num_reg_images()
+    for v in views[:5]:
+        img = model.find_image_with_name(v.name)
+        assert np.allclose(v.centre, img.projection_center(), atol=1e-6)
+        assert np.allclose(v.viewing_direction, img.viewing_direction(), atol=1e-6)
+        uv, z = imagequeries.project(v, np.array([model.points3D[i].xyz for i in v.obs_point_ids[:20]]))
+        assert (z > 0).all() and np.median(np.linalg.norm(uv - v.obs_xy[:20], axis=1)) < 5  # pixels

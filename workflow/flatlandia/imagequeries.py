@@ -1,0 +1,151 @@
+"""Queries of an images scene: 3DoF poses, detections and local maps from SfM + objects + alignment.
+
+The alignment is an affine map of SfM points onto the scene's metric ground plane,
+``xy = A @ X + b`` with ``A`` (2x3) = scale x planar rotation x projection on the principal
+plane. Directions map with ``A`` alone, so a camera's heading is the angle of ``A @ d`` for its
+viewing direction ``d``.
+
+Detections are the objects' 3D boxes projected into each image where at least
+``min_points`` of the object's points are observed, clipped to the image. Queries are images
+detecting at least ``min_objects`` objects. Local maps (camera at the origin looking along +x,
++y left, metres):
+- GT: the detected objects' map positions in the camera frame;
+- depth (``sparse`` backend): each detection's centre pixel lifted to the median camera depth
+  of the SfM points observed inside the detection, then projected on the ground plane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from . import geo
+
+
+@dataclass
+class View:
+    """One registered image: intrinsics, pose (camera from world), size and its observations."""
+
+    name: str
+    K: np.ndarray  # 3x3 (distortion ignored for box projection)
+    R: np.ndarray  # 3x3 cam_from_world rotation
+    t: np.ndarray  # 3 cam_from_world translation
+    width: int
+    height: int
+    obs_point_ids: np.ndarray  # SfM point ids observed
+    obs_xy: np.ndarray  # (n, 2) their pixel positions
+
+    @property
+    def centre(self) -> np.ndarray:
+        return -self.R.T @ self.t
+
+    @property
+    def viewing_direction(self) -> np.ndarray:
+        return self.R[2]  # the camera's +z axis in world coordinates
+
+
+def views_from_colmap(rec) -> list[View]:
+    out = []
+    for img in rec.images.values():
+        if not img.has_pose:
+            continue
+        cam = rec.cameras[img.camera_id]
+        pose = img.cam_from_world() if callable(img.cam_from_world) else img.cam_from_world
+        mat = np.asarray(pose.matrix())
+        pts = [(p.point3D_id, p.xy) for p in img.points2D if p.has_point3D()]
+        ids = np.array([p[0] for p in pts], dtype=np.int64)
+        xy = np.array([p[1] for p in pts], dtype=float).reshape(-1, 2)
+        out.append(View(img.name, np.asarray(cam.calibration_matrix()), mat[:, :3], mat[:, 3],
+                        int(cam.width), int(cam.height), ids, xy))
+    return out
+
+
+def pose_3dof(view: View, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    """Camera position on the map (metres) and heading (radians, CCW from east)."""
+    xy = A @ view.centre + b
+    d = A @ view.viewing_direction
+    return xy, float(np.arctan2(d[1], d[0]))
+
+
+def project(view: View, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions and depths of world points (pinhole)."""
+    cam = X @ view.R.T + view.t
+    z = cam[:, 2]
+    uv = cam @ view.K.T
+    return uv[:, :2] / np.where(np.abs(uv[:, 2:]) < 1e-12, 1e-12, uv[:, 2:]), z
+
+
+def detections(view: View, objects: pd.DataFrame, point_object: dict[int, int], min_points: int = 2) -> pd.DataFrame:
+    """Objects seen by a view: clipped projected 3D box, number of observed points.
+
+    ``objects`` needs ``object_id`` and ``corners`` (8x3 box corners in SfM coordinates);
+    ``point_object`` maps SfM point id -> object id.
+    """
+    seen: dict[int, int] = {}
+    for pid in view.obs_point_ids:
+        oid = point_object.get(int(pid))
+        if oid is not None:
+            seen[oid] = seen.get(oid, 0) + 1
+    rows = []
+    by_id = objects.set_index("object_id")
+    for oid, n in sorted(seen.items()):
+        if n < min_points:
+            continue
+        corners = np.asarray(by_id.loc[oid, "corners"], float).reshape(8, 3)
+        uv, z = project(view, corners)
+        if (z <= 0).all():
+            continue
+        uv = uv[z > 0]
+        x0, y0 = np.clip(uv.min(0), 0, [view.width, view.height])
+        x1, y1 = np.clip(uv.max(0), 0, [view.width, view.height])
+        if x1 - x0 < 1 or y1 - y0 < 1:
+            continue
+        rows.append({"object_id": int(oid), "n_points": n, "box": [float(x0), float(y0), float(x1), float(y1)]})
+    return pd.DataFrame(rows, columns=["object_id", "n_points", "box"])
+
+
+def sparse_depth_point(view: View, box: list[float], point_xyz: dict[int, np.ndarray]) -> np.ndarray | None:
+    """The detection centre lifted to the median depth of SfM points observed inside the box."""
+    x0, y0, x1, y1 = box
+    inside = ((view.obs_xy[:, 0] >= x0) & (view.obs_xy[:, 0] <= x1) &
+              (view.obs_xy[:, 1] >= y0) & (view.obs_xy[:, 1] <= y1))
+    ids = view.obs_point_ids[inside]
+    if len(ids) == 0:
+        return None
+    X = np.array([point_xyz[int(i)] for i in ids])
+    depth = float(np.median((X @ view.R.T + view.t)[:, 2]))
+    if depth <= 0:
+        return None
+    ray = np.linalg.solve(view.K, np.array([(x0 + x1) / 2, (y0 + y1) / 2, 1.0]))
+    cam = ray * depth / ray[2]
+    return view.R.T @ (cam - view.t)  # world (SfM) coordinates
+
+
+def scene_queries(scene: str, views: list[View], objects: pd.DataFrame, point_object: dict[int, int],
+                  point_xyz: dict[int, np.ndarray], A: np.ndarray, b: np.ndarray, obj_xy: dict[int, np.ndarray],
+                  obj_class: dict[int, int], min_objects: int = 3, min_points: int = 2) -> pd.DataFrame:
+    """The queries table of an images scene, in the published scenes' schema (see README)."""
+    rows = []
+    for v in views:
+        det = detections(v, objects, point_object, min_points)
+        if len(det) < min_objects:
+            continue
+        cam_xy, theta = pose_3dof(v, A, b)
+        ids = det["object_id"].tolist()
+        gt = geo.world_to_local(np.array([obj_xy[i] for i in ids]), cam_xy, theta)
+        depth = []
+        for box in det["box"]:
+            X = sparse_depth_point(v, box, point_xyz)
+            depth.append([np.nan, np.nan] if X is None else geo.world_to_local((A @ X + b)[None], cam_xy, theta)[0])
+        depth = np.asarray(depth, float)
+        rows.append({
+            "scene": scene, "token": v.name, "n_objects": len(ids), "ref_idx": ids,
+            "classes": [int(obj_class[i]) for i in ids], "x_m": float(cam_xy[0]), "y_m": float(cam_xy[1]),
+            "theta_deg": float(np.degrees(theta)), "gt_local_xy_m": gt.tolist(), "depth_local_xy_m": depth.tolist(),
+            "boxes": det["box"].tolist(),
+        })
+    cols = ["scene", "token", "n_objects", "ref_idx", "classes", "x_m", "y_m", "theta_deg", "gt_local_xy_m",
+            "depth_local_xy_m", "boxes"]
+    return pd.DataFrame(rows, columns=cols)
