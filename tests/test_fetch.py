@@ -61,7 +61,10 @@ def test_workflow_fetches_when_the_data_folder_is_missing(repo, upstream_zip, tm
     cfg = tmp_path / "fetch.yaml"
     cfg.write_text(f"flatlandia_root: {tmp_path / 'nowhere'}\n"
                    f"fetch: {{url: '{upstream_zip.as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n")
-    res = smk(repo, tmp_path, "--cores", "1", "results/12/queries/queries.parquet", "--configfile", str(cfg))
+    res = smk(repo, tmp_path, "--cores", "1", "results/12/queries/queries.parquet", "results/tables/dataset_stats.parquet",
+              "--configfile", str(cfg), "--config", "select=[12]")
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert (tmp_path / "fetched/local_maps.json").exists()
     assert len(pd.read_parquet(tmp_path / "results/12/queries/queries.parquet")) == 3
+    stats = pd.read_parquet(tmp_path / "results/tables/dataset_stats.parquet").set_index("city")
+    assert stats.loc["Paris", "images"] == 49  # tokens.txt of the fetched scene 12

@@ -10,6 +10,9 @@ from flatlandia import io, runlog, stats, tables
 def main(smk, log):
     cities = smk.params.cities
     tokens_of = {Path(p).parent.name: Path(p) for p in smk.input.tokens if Path(p).name == "tokens.txt"}
+    for flag in (Path(p) for p in smk.input.tokens if p.endswith(".fetched")):  # data fetched by the workflow
+        root = Path(flag.read_text().strip())
+        tokens_of.update({t.parent.name: t for t in root.glob("maps/*/tokens.txt")})
     rows, lonlat_by_city = [], {}
     for ref_path, q_path in zip(smk.input.reference_maps, smk.input.queries):
         ref, q = pd.read_parquet(ref_path), pd.read_parquet(q_path)
