@@ -14,7 +14,7 @@ from snakemake_runner import smk
 @pytest.fixture(scope="module")
 def lund_run(repo, flat_root, tmp_path_factory):
     wd = tmp_path_factory.mktemp("lund")
-    res = smk(repo, wd, "--cores", "2", "results/lund/sfm/classified_points.parquet",
+    res = smk(repo, wd, "--cores", "2", "results/lund/sfm/classified_points.parquet", "results/lund/sfm/sfm_summary.png",
               "--config", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd
@@ -37,6 +37,7 @@ def test_lund_audit_masks_and_sfm(lund_run):
     pts = pd.read_parquet(wd / "results/lund/sfm/classified_points.parquet")
     assert len(pts) == model.num_points3D()
     assert (pts["class_id"] == 255).all()  # the offline backend claims no object classes
+    assert (wd / "results/lund/sfm/sfm_summary.png").read_bytes()[:4] == b"\x89PNG"
     ply = (wd / "results/lund/sfm/classified_points.ply").read_text().splitlines()
     assert ply[0] == "ply" and f"element vertex {len(pts)}" in ply
 

@@ -132,3 +132,52 @@ def stats_table(rec, n_input: int, removed: pd.DataFrame) -> pd.DataFrame:
         "removed_cameras": int(len(removed)),
         "removed": "; ".join(f"{r.name}: {r.reason}" for r in removed.itertuples()) if len(removed) else "",
     }])
+
+
+def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, path: Path, title: str) -> None:
+    """Top view of the model (cameras + points on the camera plane) beside the GPS track (metres)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from . import geo
+    from .io import atomic_path
+
+    cameras = cameras.sort_values("name")  # capture order for Mapillary sequences
+    c = cameras[["x", "y", "z"]].to_numpy()
+    mu = np.median(c, axis=0)
+    _, _, vt = np.linalg.svd(c - mu, full_matrices=False)
+    cam2 = (c - mu) @ vt[:2].T
+    pts2 = (np.asarray(points, float).reshape(-1, 3) - mu) @ vt[:2].T
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6), dpi=100)
+    ax = axes[0]
+    ax.scatter(pts2[:, 0], pts2[:, 1], s=1, c="0.6", label=f"{len(pts2)} points")
+    ax.plot(cam2[:, 0], cam2[:, 1], "-o", ms=3, c="tab:red", label=f"{len(cam2)} cameras")
+    lim = np.percentile(np.abs(np.vstack([cam2, pts2])), 98) * 1.2 if len(pts2) else None
+    if lim:
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
+    ax.set_aspect("equal")
+    ax.set_title(f"SfM (camera plane, SfM units): {stats['registered']}/{stats['images_input']} registered, "
+                 f"{stats['mean_reprojection_error_px']:.2f} px", fontsize=9)
+    ax.legend(fontsize=8)
+    ax = axes[1]
+    gps = cameras.dropna(subset=["lat", "lon"])
+    if len(gps):
+        xy = geo.frame_for(gps[["lon", "lat"]].to_numpy()).to_xy(gps[["lon", "lat"]].to_numpy())
+        ax.plot(xy[:, 0], xy[:, 1], "-o", ms=3, c="tab:blue", label="GPS (EXIF)")
+        if "heading" in gps and gps["heading"].notna().any():
+            th = np.radians(90.0 - gps["heading"].to_numpy(float))  # compass -> CCW from east
+            ax.quiver(xy[:, 0], xy[:, 1], np.cos(th), np.sin(th), color="tab:blue", alpha=0.6, width=0.004,
+                      angles="xy", scale_units="xy", scale=0.15)
+        ax.legend(fontsize=8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_title("GPS positions and compass headings", fontsize=9)
+    fig.suptitle(title)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", bbox_inches="tight")
+    plt.close(fig)

@@ -131,6 +131,7 @@ def products_of_the_run():
         + ["results/tables/dataset_stats.parquet", "results/tables/dataset_stats.md",
            "results/tables/recovery.parquet", "results/tables/availability.parquet"]
         + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
+        + per_scene("results/{scene}/sfm/sfm_summary.png", images_scenes())
     )
 
 

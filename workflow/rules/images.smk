@@ -98,3 +98,23 @@ rule classify_points:
         "../../envs/flatlandia.yaml"
     script:
         "../scripts/classify_points.py"
+
+
+rule plot_sfm:
+    input:
+        model="results/{scene}/sfm/model",
+        cameras="results/{scene}/sfm/cameras.parquet",
+        stats="results/{scene}/sfm/sfm_stats.parquet",
+    output:
+        png=report(
+            "results/{scene}/sfm/sfm_summary.png",
+            caption="../report/sfm_summary.rst",
+            category="SfM",
+            labels={"scene": "{scene}"},
+        ),
+    log:
+        "logs/plot_sfm/{scene}.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/plot_sfm.py"

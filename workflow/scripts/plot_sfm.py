@@ -1,0 +1,21 @@
+"""Rule plot_sfm: top view of an images scene's SfM model beside its GPS track."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pycolmap
+
+from flatlandia import runlog, sfm
+
+
+def main(smk, log):
+    rec = pycolmap.Reconstruction(smk.input.model)
+    cams = pd.read_parquet(smk.input.cameras)
+    stats = pd.read_parquet(smk.input.stats).iloc[0]
+    pts = np.array([p.xyz for p in rec.points3D.values()])
+    sfm.plot_summary(cams, pts, stats, Path(smk.output.png), f"scene {smk.wildcards.scene}")
+    log.info("wrote %s", smk.output.png)
+
+
+runlog.run(main, snakemake)  # noqa: F821
