@@ -4,9 +4,11 @@ Axis convention of every local map we write: camera at the origin, looking along
 its left (counter-clockwise), units in metres of the scene's metric frame. ``theta`` is the
 heading of the camera's +x axis, counter-clockwise from east, in that metric frame.
 
-Depth local maps are published with an arbitrary per-query scale (depth/GT ratio 0.001-0.01).
-We keep their shape and bearings and normalise each so that the median object range is 1;
-the least-squares factor to the GT metric map is stored separately as an *oracle* for analysis.
+Depth local maps are published with an arbitrary per-query scale (depth/GT ratio 0.001-0.01)
+in the same degree-unit frame as the GT maps. We carry them into the metric camera frame (so
+their bearings are true bearings, see :func:`published_to_metric_frame`) and normalise each
+so that the median object range is 1; the least-squares factor to the GT metric map is
+stored separately as an *oracle* for analysis.
 """
 
 from __future__ import annotations
@@ -21,6 +23,23 @@ from .errors import InputError
 def metric_local_map(ref_xy: np.ndarray, cam_xy: np.ndarray, theta: float) -> np.ndarray:
     """The matched objects (metric frame) seen from the camera: (M, 2) metres."""
     return geo.world_to_local(ref_xy, cam_xy, theta)
+
+
+def published_to_metric_frame(local: np.ndarray, theta_lonlat: float, theta_metric: float,
+                              metres_per_degree: tuple[float, float]) -> np.ndarray:
+    """A published local map (degree units, isotropic in lon/lat) in the metric camera frame.
+
+    Published maps live in lon/lat degrees, where east-west is stretched by 1/cos(lat): their
+    bearings are not the camera's true bearings. Undo it: camera frame -> lon/lat offsets ->
+    metres -> metric camera frame. Applied to a GT map this gives the metric GT map (to within
+    the projection's variation over the scene); applied to a depth map it keeps its shape up to
+    the unknown scale, with true bearings.
+    """
+    from .recover import UNIT_DEG
+
+    offsets_deg = np.asarray(local, float) @ geo.rot2(theta_lonlat).T * UNIT_DEG
+    metres = offsets_deg * np.asarray(metres_per_degree, float)
+    return metres @ geo.rot2(theta_metric)
 
 
 def normalise_depth_map(depth: np.ndarray) -> tuple[np.ndarray, float]:
@@ -101,13 +120,16 @@ def build_queries(scene: str, recovered: pd.DataFrame, ref: pd.DataFrame,
         raise InputError(f"scene {scene}", f"{len(missing)} queries could not be recovered: {missing[:5]}")
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
     classes = ref["class_id"].to_numpy()
+    mpd = frame.metres_per_degree()
     cams = frame.to_xy(recovered[["lon", "lat"]].to_numpy())
     thetas = frame.heading_to_metric(np.radians(recovered["theta_lonlat_deg"].to_numpy()))
     rows = []
     for k, r in enumerate(recovered.itertuples(index=False)):
         idx = np.asarray(r.ref_idx, int)
         gt = metric_local_map(ref_xy[idx], cams[k], thetas[k])
-        depth_norm, _ = normalise_depth_map(local_maps[r.token]["depth"])
+        depth_metric = published_to_metric_frame(local_maps[r.token]["depth"], np.radians(r.theta_lonlat_deg),
+                                                 thetas[k], mpd)
+        depth_norm, _ = normalise_depth_map(depth_metric)
         rows.append(dict(
             scene=scene, token=r.token, n_objects=len(idx), ref_idx=idx.tolist(),
             classes=classes[idx].tolist(), lon=r.lon, lat=r.lat,

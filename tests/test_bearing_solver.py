@@ -1,0 +1,44 @@
+"""The bearing solver: exact on noise-free maps, graceful with noise, real GT maps solved to 0 m."""
+
+import numpy as np
+import pytest
+
+from flatlandia import bearing_solver as bs
+from flatlandia import geo
+
+
+def _scene(seed=0, n_ref=60, n_q=6):
+    rng = np.random.default_rng(seed)
+    ref = rng.uniform(-60, 60, size=(n_ref, 2))
+    cls = rng.integers(0, 20, n_ref)  # a typical map holds 10-30 classes
+    cam, theta = np.array([3.0, -2.0]), 0.7
+    local_all = geo.world_to_local(ref, cam, theta)
+    ahead = np.flatnonzero((local_all[:, 0] > 5) & (np.abs(local_all[:, 1]) < local_all[:, 0]))
+    pick = rng.choice(ahead, n_q, replace=False)
+    return ref, cls, cam, theta, local_all[pick], cls[pick], pick
+
+
+def test_exact_on_noise_free_maps_and_any_scale():
+    ref, cls, cam, theta, local, qcls, pick = _scene()
+    for scale in (1.0, 0.013):  # GT map (metres) and an unscaled depth-like map
+        p = bs.solve(local * scale, qcls, ref, cls)
+        assert np.hypot(p.x - cam[0], p.y - cam[1]) < 1e-6
+        assert abs(geo.wrap_angle(p.theta - theta)) < 1e-8
+        assert sorted(r for _, r in p.inliers) == sorted(pick) and p.confidence == 1.0
+
+
+def test_graceful_with_range_noise_and_an_outlier():
+    ref, cls, cam, theta, local, qcls, _ = _scene(seed=3, n_q=7)
+    rng = np.random.default_rng(1)
+    bearing = np.arctan2(local[:, 1], local[:, 0]) + np.radians(rng.normal(0, 0.5, len(local)))
+    rng_noisy = np.linalg.norm(local, axis=1) * rng.uniform(0.7, 1.3, len(local))
+    noisy = np.column_stack([np.cos(bearing), np.sin(bearing)]) * rng_noisy[:, None] * 0.01
+    noisy[0] = [0.3, -0.2]  # an outlier detection
+    p = bs.solve(noisy, qcls, ref, cls)
+    assert np.hypot(p.x - cam[0], p.y - cam[1]) < 2.0
+    assert abs(np.degrees(geo.wrap_angle(p.theta - theta))) < 2.0
+    assert p.confidence >= 5 / 7
+
+
+def test_nothing_to_solve():
+    assert bs.solve(np.zeros((1, 2)), [1], np.zeros((5, 2)), [1] * 5) is None
