@@ -42,3 +42,24 @@ def test_graceful_with_range_noise_and_an_outlier():
 
 def test_nothing_to_solve():
     assert bs.solve(np.zeros((1, 2)), [1], np.zeros((5, 2)), [1] * 5) is None
+
+
+def test_gtbb_proposal_box():
+    from flatlandia import fine_solver_eval as fse
+
+    ref = np.array([[0.0, 0], [10, 0], [10, 10], [0, 10.5], [20, 20], [-0.4, 5]])
+    idx = fse.gtbb_proposal(ref, [1, 2], cam_xy=[0.0, 0.0])  # box [0,10]x[0,10] enlarged 10% -> +-0.5
+    assert list(idx) == [0, 1, 2, 3, 5]
+
+
+def test_summary_counts_thresholds_and_failures():
+    import pandas as pd
+
+    from flatlandia import fine_solver_eval as fse
+
+    e = pd.DataFrame({"error_m": [0.1, 0.8, 4.0, 50.0], "error_deg": [1.0, 4.0, 9.0, 90.0],
+                      "solvable": [True, True, True, False], "seconds": [0.01] * 4,
+                      "error_paper_units_m": [1.0, 2.0, 3.0, 4.0]})
+    s = fse.summarise(e)
+    assert (s["pct_0.5m_2deg"], s["pct_1m_5deg"], s["pct_5m_10deg"], s["pct_10m_20deg"]) == (25, 50, 75, 75)
+    assert s["failure_pct"] == 25 and s["gross_pct"] == 25 and s["median_m"] == pytest.approx(2.4)

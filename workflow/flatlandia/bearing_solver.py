@@ -65,7 +65,7 @@ def _score(q_bear: np.ndarray, q_range: np.ndarray, q_cls: np.ndarray, ref: np.n
 
 
 def solve(query_xy: np.ndarray, query_cls: np.ndarray, ref_xy: np.ndarray, ref_cls: np.ndarray,
-          bearing_tol_deg: float = 3.0, coarse_tol_deg: float = 10.0, range_ratio: float = 2.5,
+          bearing_tol_deg: float = 3.0, coarse_tol_deg: float = 15.0, range_ratio: float = 3.0,
           max_hyp: int = 200_000, top_k: int = 20, chunk: int = 4096) -> Pose | None:
     """Pose of the camera given a (depth or GT) local map and candidate reference objects.
 

@@ -78,6 +78,8 @@ def images_fetch_params(wildcards):
 
 wildcard_constraints:
     scene="|".join(map(str, SCENES_SHEET["scene"])),
+    map_type="gt|depth",
+    proposal="gtbb|whole",
 
 
 # ---------------------------------------------------------------- data root
@@ -132,7 +134,13 @@ def products_of_the_run():
            "results/tables/recovery.parquet", "results/tables/availability.parquet"]
         + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
         + per_scene("results/{scene}/sfm/sfm_summary.png", images_scenes())
+        + ["results/tables/fine_solver.parquet"]
     )
+
+
+def fine_solver_summaries():
+    return expand("results/fine/solver_{map_type}_{proposal}/summary.json",
+                  map_type=config["fine"]["map_types"], proposal=config["fine"]["proposals"])
 
 
 def all_targets():
