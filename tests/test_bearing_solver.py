@@ -63,3 +63,11 @@ def test_summary_counts_thresholds_and_failures():
     s = fse.summarise(e)
     assert (s["pct_0.5m_2deg"], s["pct_1m_5deg"], s["pct_5m_10deg"], s["pct_10m_20deg"]) == (25, 50, 75, 75)
     assert s["failure_pct"] == 25 and s["gross_pct"] == 25 and s["median_m"] == pytest.approx(2.4)
+
+
+def test_camera_prior_keeps_hypotheses_near_known_cameras():
+    ref, cls, cam, theta, local, qcls, _ = _scene(seed=5)
+    p = bs.solve(local * 0.02, qcls, ref, cls, prior_xy=cam[None] + [[4.0, -3.0]], prior_radius_m=15.0)
+    assert np.hypot(p.x - cam[0], p.y - cam[1]) < 1e-6
+    far = bs.solve(local * 0.02, qcls, ref, cls, prior_xy=np.array([[500.0, 500.0]]), prior_radius_m=15.0)
+    assert far is None  # no pose is allowed where no camera ever stood

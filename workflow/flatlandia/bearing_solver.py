@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
 
 from . import geo
 
@@ -66,12 +67,15 @@ def _score(q_bear: np.ndarray, q_range: np.ndarray, q_cls: np.ndarray, ref: np.n
 
 def solve(query_xy: np.ndarray, query_cls: np.ndarray, ref_xy: np.ndarray, ref_cls: np.ndarray,
           bearing_tol_deg: float = 3.0, coarse_tol_deg: float = 15.0, range_ratio: float = 3.0,
-          max_hyp: int = 200_000, top_k: int = 20, chunk: int = 4096) -> Pose | None:
+          max_hyp: int = 200_000, top_k: int = 20, chunk: int = 4096,
+          prior_xy: np.ndarray | None = None, prior_radius_m: float = 15.0) -> Pose | None:
     """Pose of the camera given a (depth or GT) local map and candidate reference objects.
 
     Hypotheses are scored with a loose bearing tolerance (their position is only as good as the
     noisy range ratio of two objects), the ``top_k`` best are refined on their inliers' bearings,
     re-scored with the tight tolerance at the refined pose, and the best refined pose wins.
+    ``prior_xy`` (e.g. the training cameras of the scene) keeps only hypotheses within
+    ``prior_radius_m`` of one of them: cameras stand where people walk.
     """
     q = np.asarray(query_xy, float)
     r = np.asarray(ref_xy, float)
@@ -81,6 +85,7 @@ def solve(query_xy: np.ndarray, query_cls: np.ndarray, ref_xy: np.ndarray, ref_c
         return None
     q_bear = np.arctan2(q[:, 1], q[:, 0])
     q_range = np.linalg.norm(q, axis=1)
+    prior = cKDTree(np.asarray(prior_xy, float)) if prior_xy is not None and len(prior_xy) else None
     loose, tight = np.radians(coarse_tol_deg), np.radians(bearing_tol_deg)
     pairs = [(i, j) for i in range(m) for j in range(m) if i < j and np.linalg.norm(q[j] - q[i]) > 1e-9]
     # widest angular separation first: best-conditioned hypotheses
@@ -99,6 +104,9 @@ def solve(query_xy: np.ndarray, query_cls: np.ndarray, ref_xy: np.ndarray, ref_c
         for k in range(0, len(aa), chunk):
             s, th, t = _similarity_from_pairs(q, r, i, j, aa[k:k + chunk], bb[k:k + chunk])
             n, res, _, _ = _score(q_bear, q_range, qc, r, rc, s, th, t, loose, range_ratio)
+            if prior is not None:
+                near = prior.query(t, k=1)[0] <= prior_radius_m
+                s, th, t, n, res = s[near], th[near], t[near], n[near], res[near]
             top = np.lexsort((res, -n))[:top_k]
             cand_n.append(n[top]); cand_res.append(res[top]); cand_s.append(s[top])
             cand_th.append(th[top]); cand_t.append(t[top])
@@ -121,6 +129,8 @@ def solve(query_xy: np.ndarray, query_cls: np.ndarray, ref_xy: np.ndarray, ref_c
         if best is None or key > best[0]:
             inl_pairs = [(k, int(match2[0, k])) for k in range(m) if inl2[0, k]]
             best = (key, x, y, theta, inl_pairs)
+    if best is None:  # every hypothesis fell outside the camera prior
+        return None
     _, x, y, theta, inl_pairs = best
     return Pose(x, y, theta, inl_pairs, len(inl_pairs) / m)
 

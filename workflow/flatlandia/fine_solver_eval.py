@@ -27,7 +27,8 @@ def gtbb_proposal(ref_xy: np.ndarray, matched: list[int], cam_xy: np.ndarray, en
 
 
 def evaluate_scene(ref: pd.DataFrame, queries: pd.DataFrame, map_type: str, proposal: str,
-                   solver_kwargs: dict, progress=None) -> pd.DataFrame:
+                   solver_kwargs: dict, prior_xy: np.ndarray | None = None, progress=None) -> pd.DataFrame:
+    """Solve every query; ``prior_xy`` (training cameras) constrains the whole-map setting."""
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
     ref_cls = ref["class_id"].to_numpy()
     mpu = metres_per_unit(float(ref["lat"].mean()))
@@ -38,7 +39,8 @@ def evaluate_scene(ref: pd.DataFrame, queries: pd.DataFrame, map_type: str, prop
         cam = np.array([r.x_m, r.y_m])
         idx = gtbb_proposal(ref_xy, list(r.ref_idx), cam) if proposal == "gtbb" else np.arange(len(ref_xy))
         t0 = time.perf_counter()
-        pose = bearing_solver.solve(local, np.asarray(r.classes), ref_xy[idx], ref_cls[idx], **solver_kwargs)
+        pose = bearing_solver.solve(local, np.asarray(r.classes), ref_xy[idx], ref_cls[idx], prior_xy=prior_xy,
+                                    **solver_kwargs)
         dt = time.perf_counter() - t0
         solvable = sum(np.isin(ref_cls[idx], list(r.classes))) >= 3
         if pose is None:
