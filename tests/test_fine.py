@@ -1,0 +1,234 @@
+"""Fine 3DoF localization: the geometric solver, the learned baselines, metrics (issue 6)."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from flatlandia import fine, geo, io, localmaps, maps, solver
+from flatlandia import fine_eval as fe
+from flatlandia.classes import CLASSES
+
+torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="module")
+def scene(flat_root):
+    """Scene 9's reference map and queries, built from the published data."""
+    lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
+    frame = geo.frame_for(lonlat)
+    ref = maps.reference_table("9", lonlat, classes, CLASSES, frame)
+    local = io.read_local_maps(flat_root / "local_maps.json", "9")
+    rec = localmaps.recover_scene("9", lonlat, classes, local)
+    split = localmaps.split_queries(list(rec["token"]), 0, salt="9")
+    return ref, localmaps.build_queries("9", rec, ref, local, frame, split)
+
+
+# ----------------------------------------------------------------------------- solver
+
+def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
+    ref, q = scene
+    props = fe.gtbb_proposals(ref, q)
+    e = fe.evaluate_solver(ref, q, props, "gt")
+    assert len(e) == len(q)
+    assert (e["error_m"] < 0.1).mean() >= 0.99
+    assert e["error_deg"].median() < 1e-6
+    assert e["seconds"].mean() < 0.1
+
+
+def test_solver_exact_on_gt_maps_whole_map(scene):
+    ref, q = scene
+    q = q.iloc[:20]
+    e = fe.evaluate_solver(ref, q, fe.whole_map_proposals(ref, q), "gt")
+    assert (e["error_m"] < 0.1).mean() >= 0.95
+
+
+def _synthetic(rng, n_ref=40, n_q=6, noise_deg=0.0, outliers=0, n_cls=4, range_noise=0.2):
+    ref = rng.uniform(-60, 60, (n_ref, 2))
+    cls = rng.integers(0, n_cls, n_ref)
+    cam, theta = np.array([3.0, -4.0]), 0.7
+    local = geo.world_to_local(ref, cam, theta)
+    vis = np.flatnonzero((local[:, 0] > 2) & (np.abs(np.arctan2(local[:, 1], local[:, 0])) < 1.0))[:n_q]
+    ql = local[vis].copy()
+    bearing = np.arctan2(ql[:, 1], ql[:, 0]) + np.radians(noise_deg) * rng.standard_normal(len(ql))
+    rng_ = np.linalg.norm(ql, axis=1) * np.exp(range_noise * rng.standard_normal(len(ql)))
+    depth = np.column_stack([np.cos(bearing), np.sin(bearing)]) * rng_[:, None]
+    for k in range(outliers):  # a wrong bearing
+        b = bearing[k] + np.radians(25.0)
+        depth[k] = np.array([np.cos(b), np.sin(b)]) * rng_[k]
+    depth /= np.median(np.linalg.norm(depth, axis=1))
+    return ref, cls, cam, theta, ql, cls[vis], depth, vis
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_solver_synthetic_exact_metric_and_bearing_only(seed):
+    rng = np.random.default_rng(seed)
+    ref, cls, cam, theta, ql, qc, depth, vis = _synthetic(rng, range_noise=0.0)
+    s = solver.solve(ql, qc, ref, cls, metric=True)
+    assert np.hypot(s.x - cam[0], s.y - cam[1]) < 1e-6 and abs(geo.wrap_angle(s.theta - theta)) < 1e-8
+    assert s.confidence == pytest.approx(1.0)
+    # noise-free but unscaled depth map: exact
+    s = solver.solve(depth, qc, ref, cls, metric=False)
+    assert np.hypot(s.x - cam[0], s.y - cam[1]) < 1e-4 and abs(geo.wrap_angle(s.theta - theta)) < 1e-6
+    # exact bearings, noisy ranges: bearings carry it (weak range terms pull by centimetres)
+    ref, cls, cam, theta, ql, qc, depth, vis = _synthetic(np.random.default_rng(seed), range_noise=0.2)
+    s = solver.solve(depth, qc, ref, cls, metric=False)
+    assert np.hypot(s.x - cam[0], s.y - cam[1]) < 0.3 and abs(np.degrees(geo.wrap_angle(s.theta - theta))) < 0.3
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_solver_synthetic_noise_and_outliers(seed):
+    rng = np.random.default_rng(10 + seed)
+    ref, cls, cam, theta, ql, qc, depth, vis = _synthetic(rng, n_q=8, noise_deg=0.5, outliers=1)
+    s = solver.solve(depth, qc, ref, cls, metric=False)
+    assert np.hypot(s.x - cam[0], s.y - cam[1]) < 2.0
+    assert abs(np.degrees(geo.wrap_angle(s.theta - theta))) < 2.0
+    matched = dict(s.inliers)
+    assert matched.get(0) != vis[0]  # the wrong bearing is not matched to its true object
+    assert sum(matched.get(k) == vis[k] for k in range(1, len(vis))) >= 6  # the others are
+
+
+def test_solver_returns_none_without_candidates():
+    assert solver.solve(np.array([[1.0, 0.0], [2.0, 1.0]]), [1, 2], np.zeros((0, 2)), np.zeros(0, int)) is None
+
+
+def test_fit_priors():
+    mu, sd = solver.fit_priors([np.array([[10.0, 0.0], [0.0, 10.0]]), np.array([[30.0, 0.0]])])
+    assert mu == pytest.approx(np.mean(np.log([10.0, 30.0])))
+    assert sd > 0
+
+
+# ----------------------------------------------------------------------------- metrics
+
+def test_pose_errors_wrap_around():
+    e_m, e_deg = fe.pose_errors(3.0, 4.0, math.radians(179.0), 0.0, 0.0, math.radians(-179.0))
+    assert e_m == pytest.approx(5.0) and e_deg == pytest.approx(2.0)
+
+
+def test_summary_on_hand_made_errors():
+    e = pd.DataFrame({"error_m": [0.1, 0.8, 4.0, 9.0, 50.0, np.inf], "error_deg": [1.0, 4.0, 9.0, 30.0, 1.0, 180.0],
+                      "solvable": [True] * 5 + [False], "seconds": [0.01] * 6, "error_paper_m": [0.0] * 6})
+    s = fe.summarise(e)
+    assert s["pct_0.5m_2deg"] == pytest.approx(100 / 6)
+    assert s["pct_1m_5deg"] == pytest.approx(200 / 6)
+    assert s["pct_5m_10deg"] == pytest.approx(300 / 6)
+    assert s["pct_10m_20deg"] == pytest.approx(300 / 6)  # 9 m but 30 deg is out
+    assert s["failure_pct"] == pytest.approx(100 / 6)
+    assert s["gross_pct"] == pytest.approx(200 / 6)  # inf counts as gross
+    assert s["median_m"] == pytest.approx(6.5)
+    assert s["mean_query_s"] == pytest.approx(0.01)
+
+
+def test_solvable_counts_class_multiset():
+    assert fe.solvable([1, 1, 2], [1, 1, 2, 5])
+    assert not fe.solvable([1, 1, 2], [1, 2, 5])  # only one object of class 1 for two query objects
+    assert not fe.solvable([1, 2, 3], [4, 5, 6])
+
+
+def test_gtbb_box_and_paper_units():
+    ref_xy = np.array([[0.0, 0.0], [10.0, 10.0], [10.5, 5.0], [12.0, 5.0], [-0.4, 5.0]])
+    idx = fe.gtbb_indices(ref_xy, [0, 1], [10.0, 0.0])
+    assert set(idx) == {0, 1, 2, 4}  # box [0,10]^2 enlarged 10%: [-0.5, 10.5]
+    mpu = fe.metres_per_unit(45.0)
+    assert fe.paper_metres(mpu, 45.0) == pytest.approx(215.0)
+
+
+def test_markdown_table_layout():
+    rows = [dict(method="MLP", map_type=mt, strategy="GT-BB", median_m=5.0, median_deg=9.0, median_paper_m=6.0,
+                 mean_query_s=0.002, failure_pct=0.0, gross_pct=1.0, **{c: 10.0 for c in fe._TH_COLS})
+            for mt in ("gt", "depth")]
+    md = fe.render_markdown(fe.table_rows(rows))
+    assert "Table 4" in md and "| MLP | GT-BB |" in md and "13.3" in md  # the paper's depth MLP median
+
+
+# ----------------------------------------------------------------------------- learned models
+
+def _toy_samples(n, cfg, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        ref = rng.uniform(-50, 50, (12, 2))
+        cls = rng.integers(0, 5, 12)
+        cam, th = rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)
+        local = geo.world_to_local(ref[:5], cam, th)
+        q = local / np.median(np.linalg.norm(local, axis=1)) if cfg.map_type == "depth" else local
+        out.append(fine.make_sample(q, cls[:5], ref, cls, cfg, cam, th))
+    return out
+
+
+@pytest.mark.parametrize("name", fine.MODELS)
+def test_models_forward_backward_shapes(name):
+    cfg = fine.FineConfig(model=name, hidden=16, heads=2, rounds=1)
+    samples = _toy_samples(5, cfg)
+    model = fine.build_model(cfg)
+    batch = fine.Batch.from_data_list(samples)
+    out = model(batch)
+    assert out.shape == (5, 3)
+    loss = fine.pose_loss(out, batch.y)
+    loss.backward()
+    assert all(p.grad is not None for p in model.parameters() if p.requires_grad)
+
+
+@pytest.mark.parametrize("name", fine.MODELS)
+def test_batching_equals_one_by_one(name):
+    cfg = fine.FineConfig(model=name, hidden=16, heads=2, rounds=1)
+    samples = _toy_samples(4, cfg)
+    torch.manual_seed(0)
+    model = fine.build_model(cfg).eval()
+    with torch.no_grad():
+        together = model(fine.Batch.from_data_list(samples))
+        alone = torch.cat([model(fine.Batch.from_data_list([s])) for s in samples])
+    assert torch.allclose(together, alone, atol=1e-5)
+
+
+def test_loss_and_angle_wrap():
+    a = torch.tensor([math.radians(179.0)])
+    b = torch.tensor([math.radians(-179.0)])
+    assert fine.angle_distance(a, b).item() == pytest.approx(math.radians(2.0), abs=1e-6)
+    pred = torch.tensor([[0.3, 0.4, 0.1]])
+    assert fine.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]])).item() == pytest.approx(0.5, abs=1e-6)
+
+
+def test_augmentation_is_a_rigid_motion_of_region_and_target():
+    cfg = fine.FineConfig(model="MLP", map_type="gt", aug_depth_scale=0.0)
+    samples = _toy_samples(3, cfg)
+    batch = fine.Batch.from_data_list(samples)
+    aug = fine.augment(batch, cfg, torch.Generator().manual_seed(0))
+    q = batch.is_q
+    assert torch.allclose(aug.local[q], batch.local[q])  # query stays in its camera frame
+    for g in range(3):
+        r = (~q) & (batch.batch == g)
+        # the region seen from the (augmented) camera is unchanged: the pose moved with the map
+        before = geo.world_to_local(batch.local[r].numpy(), batch.y[g, :2].numpy(), float(batch.y[g, 2]))
+        after = geo.world_to_local(aug.local[r].numpy(), aug.y[g, :2].numpy(), float(aug.y[g, 2]))
+        assert np.allclose(before, after, atol=1e-5)
+
+
+def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
+    cfg = fine.FineConfig(model="MLP", map_type="gt", hidden=32, epochs=8, batch_size=16, lr=3e-3, augment=False)
+    train = _toy_samples(64, cfg, seed=1)
+    val = _toy_samples(16, cfg, seed=2)
+    res = fine.train(train, val, cfg)
+    losses = [h["train_loss"] for h in res["history"]]
+    assert losses[-1] < losses[0]
+    assert res["best_val_median_m"] <= res["history"][0]["val_median_m"]
+    res2 = fine.train(train, val, cfg)
+    assert [h["train_loss"] for h in res2["history"]] == losses  # seeded, deterministic on CPU
+    path = tmp_path / "ck.pt"
+    fine.save_checkpoint(res, path)
+    model, cfg2 = fine.load_checkpoint(path)
+    assert cfg2 == cfg
+    assert np.allclose(fine.predict(model, val), fine.predict(res["model"], val), atol=1e-6)
+
+
+def test_learned_model_on_real_scene_samples(scene):
+    ref, q = scene
+    cfg = fine.FineConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
+    tr = q[q["split"] == "train"]
+    samples, kept = fine.samples_from_queries(ref, tr, fe.gtbb_proposals(ref, tr), cfg)
+    assert len(samples) == len(kept) == len(tr) > 3
+    model = fine.build_model(cfg)
+    e = fine.evaluate_model(model, cfg, ref, tr.iloc[:4], fe.gtbb_proposals(ref, tr.iloc[:4]))
+    assert len(e) == 4 and np.isfinite(e["error_m"]).all()

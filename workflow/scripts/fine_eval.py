@@ -1,0 +1,78 @@
+"""Rule fine_eval: per-query errors of one run (method x map type x proposal) on the test split.
+
+Methods: ``geo`` (the geometric solver, priors from the training split) or a trained model
+checkpoint. Proposals: ``gtbb`` (oracle), ``whole`` (whole reference map), or a coarse proposal
+table (columns scene, token, strategy, proposal) filtered on the configured strategy.
+"""
+
+import os
+
+import numpy as np
+import pandas as pd
+import torch
+
+from flatlandia import fine, io, localmaps, runlog, solver
+from flatlandia import fine_eval as fe
+
+
+def proposals_for(smk, ref, queries, coarse):
+    kind = smk.params.p['proposal']
+    if kind == "gtbb":
+        return fe.gtbb_proposals(ref, queries)
+    if kind == "whole":
+        return fe.whole_map_proposals(ref, queries)
+    scene = str(ref["scene"].iloc[0])
+    p = coarse[(coarse["scene"].astype(str) == scene) & (coarse["strategy"] == smk.params.p['strategy'])]
+    return p[p["token"].astype(str).isin(queries["token"].astype(str))]
+
+
+def run_name(smk):
+    w = smk.wildcards
+    return f"{w.method}_{w.map_type}_{w.proposal}"
+
+
+def main(smk, log):
+    torch.set_num_threads(int(smk.threads))
+    method, mt = smk.params.p['method'], smk.wildcards.map_type
+    coarse = pd.read_parquet(smk.input.coarse) if smk.input.get("coarse") else None
+    qs = {p: pd.read_parquet(p) for p in smk.input.queries}
+    geo_cfg = dict(smk.params.geo)
+    scale_prior = None
+    if method == "geo" and mt == "depth" and geo_cfg.get("scale_prior", True):
+        scale_prior = solver.fit_priors([localmaps.xy(c) for q in qs.values()
+                                         for c in q.loc[q["split"] == "train", "gt_local_xy_m"]])
+        log.info("depth scale prior (log metres per unit): %s", scale_prior)
+    model = cfg = None
+    if method != "geo":
+        model, cfg = fine.load_checkpoint(smk.input.checkpoint)
+    parts = []
+    for ref_path, q_path in zip(smk.input.reference_maps, smk.input.queries):
+        ref, q = pd.read_parquet(ref_path), qs[q_path]
+        test = q[q["split"] == "test"]
+        props = proposals_for(smk, ref, test, coarse)
+        if method == "geo":
+            prior = None
+            if geo_cfg.get("camera_prior", True):
+                tr = q[q["split"] == "train"]
+                prior = np.column_stack([tr["x_m"], tr["y_m"], np.radians(tr["theta_deg"])])
+            parts.append(fe.evaluate_solver(ref, test, props, mt, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
+                                            method="geometric solver",
+                                            progress=runlog.progress(log, f"scene {ref['scene'].iloc[0]}")))
+        else:
+            parts.append(fine.evaluate_model(model, cfg, ref, test, props))
+    errors = pd.concat(parts, ignore_index=True)
+    errors["strategy"] = smk.params.p['strategy_label']
+    meta = {"run": run_name(smk), "method": method, "map_type": mt, "proposal": smk.params.p['proposal'],
+            "geo": geo_cfg if method == "geo" else None, "model_config": cfg.to_dict() if cfg else None}
+    io.write_parquet(errors, smk.output.errors, meta)
+    summary = fe.summarise(errors)
+    summary.update(method=str(errors["method"].iloc[0]), map_type=mt, strategy=smk.params.p['strategy_label'],
+                   run=run_name(smk))
+    if model is not None:
+        summary["n_parameters"] = fine.n_parameters(model)
+        summary["model_mb"] = os.path.getsize(smk.input.checkpoint) / 1e6
+    io.write_json(fe.json_safe(summary), smk.output.summary)
+    log.info("%s: %s", run_name(smk), summary)
+
+
+runlog.run(main, snakemake)  # noqa: F821
