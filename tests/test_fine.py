@@ -232,3 +232,17 @@ def test_learned_model_on_real_scene_samples(scene):
     model = fine.build_model(cfg)
     e = fine.evaluate_model(model, cfg, ref, tr.iloc[:4], fe.gtbb_proposals(ref, tr.iloc[:4]))
     assert len(e) == 4 and np.isfinite(e["error_m"]).all()
+
+
+def test_external_proposal_table_and_failure_rate(scene):
+    """A coarse-style proposal table (scene, token, strategy, proposal): too-small proposals count in F%."""
+    ref, q = scene
+    q = q.iloc[:6]
+    good = fe.gtbb_proposals(ref, q)
+    props = good.copy()
+    props["strategy"] = "2N_LM"
+    props.loc[0, "proposal"] = [int(ref["obj_idx"].iloc[0])]  # one object: cannot hold a solution
+    e = fe.evaluate_solver(ref, q, props, "gt")
+    assert not e.loc[0, "solvable"] and e.loc[1:, "solvable"].all()
+    assert fe.summarise(e)["failure_pct"] == pytest.approx(100 / 6)
+    assert (e.loc[1:, "error_m"] < 0.1).all() and set(e["strategy"]) == {"2N_LM"}

@@ -59,6 +59,7 @@ class FineConfig:
     batch_size: int = 32
     lr: float = 1e-3
     weight_decay: float = 0.0
+    lr_schedule: str = "none"        # none | cosine (to 1% of lr over the epochs)
     scale_m: float = 100.0           # metres per normalised unit
     depth_unit_m: float = 25.0       # metres assumed per depth-map unit (typical median object range)
     angle_weight: float = 1.0
@@ -364,6 +365,8 @@ def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, l
     set_determinism(cfg.seed)
     model = build_model(cfg)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.epochs, 1), eta_min=0.01 * cfg.lr)
+             if cfg.lr_schedule == "cosine" else None)
     gen = torch.Generator().manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     history, best, best_state, best_epoch = [], float("inf"), None, -1
@@ -381,6 +384,8 @@ def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, l
             opt.step()
             tot += float(loss.detach()) * int(batch.num_graphs)
             n += int(batch.num_graphs)
+        if sched is not None:
+            sched.step()
         rec = {"epoch": ep, "train_loss": tot / max(n, 1)}
         if val_samples and (ep % cfg.eval_every == 0 or ep == cfg.epochs - 1):
             e_m, e_deg = errors_metres(predict(model, val_samples), val_samples, cfg)

@@ -236,11 +236,14 @@ def render_markdown(df: pd.DataFrame) -> str:
                 r = g[g["map_type"] == mt]
                 cells.append(cell(r.iloc[0]) if len(r) else "—")
                 p = PAPER_TABLE4.get((method, mt)) if strategy == "GT-BB" else None
+                best = ""
+                if p is None and strategy == "GT-BB":  # not a paper method: its best row (MLP)
+                    p, best = PAPER_TABLE4[("MLP", mt)], "best (MLP): "
                 if p is None:
-                    p5 = PAPER_TABLE5.get((method, "Sim+Trip", mt)) if strategy.startswith("Sim+Trip") else None
-                    cells.append(f'{p5[0]} "m"; {p5[1]}°' if p5 else "—")
+                    p5 = PAPER_TABLE5.get(("MLP", "Sim+Trip", mt)) if strategy != "GT-BB" else None
+                    cells.append(f'best (MLP, Sim+Trip 2N_LM): {p5[0]} "m"; {p5[1]}°' if p5 else "—")
                 else:
-                    cells.append(" / ".join(f"{v:g}" for v in p[:4]) + f'; {p[4]} "m"; {p[5]}°'
+                    cells.append(best + " / ".join(f"{v:g}" for v in p[:4]) + f'; {p[4]} "m"; {p[5]}°'
                                  + (f"; {1000 * PAPER_QT_S:.0f} ms" if method == "MLP" else ""))
             out.append(f"| {method} | {strategy} | {cells[0]} | {cells[1]} | {cells[2]} | {cells[3]} |")
         out.append("")

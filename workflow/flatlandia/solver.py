@@ -18,8 +18,11 @@ Steps: (1) hypotheses from pairs of query objects x same-class ordered pairs of 
 objects (2-point similarity: position, heading, scale), optionally kept only near a prior
 (training-split cameras) and within a plausible scale; (2) MSAC scoring, vectorised: each query
 object costs the smallest normalised squared residual over same-class candidates, truncated at
-``tau**2``; (3) the ``top_k`` hypotheses are refined by robust least squares on the residuals of
-their matches with re-association (a few rounds), re-scored, and the best wins. The result holds
+``tau**2``, plus prior costs (distance [and heading difference] to the nearest training camera,
+log-scale for depth maps) when priors are given; (3) the ``top_k`` distinct hypotheses are refined
+together (vectorised robust Gauss-Newton on their matches, with re-association), re-scored, and
+the best wins. For depth maps hypotheses come from 3-bearing resections (range-free) and then
+2-point similarities. The result holds
 the pose, the inlier matches (query index, candidate index) and a confidence in [0, 1].
 """
 
@@ -28,7 +31,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from . import geo
@@ -259,60 +261,97 @@ class _Problem:
         return [pairs[k] for k in order]
 
     # ------------------------------------------------------------------ refinement
-    def refine(self, t, theta, s):
-        """Robust least squares with re-association; returns (t, theta, s)."""
-        p = np.array([t[0], t[1], theta, np.log(max(s, 1e-9))])
-        tau2 = self.cfg.tau ** 2
-        for _ in range(self.cfg.refine_rounds):
-            cost = self.costs(p[None, :2], p[2:3], np.exp(p[3:4]))[0]  # (M, K)
-            best = cost.argmin(axis=1)
-            bc = cost[np.arange(self.m), best]
-            inl = np.flatnonzero(bc < tau2)
-            if len(inl) < 2:
-                break
-            qi, ri = inl, self.cand[inl, best[inl]]
-            p_new = self._lsq(p, qi, ri)
-            if np.allclose(p_new, p, atol=1e-9):
-                p = p_new
-                break
-            p = p_new
-        return p[:2].copy(), float(geo.wrap_angle(p[2])), float(np.exp(p[3]))
+    def refine_batch(self, t: np.ndarray, theta: np.ndarray, s: np.ndarray, iters: int = 15):
+        """Vectorised robust Gauss-Newton with re-association for C hypotheses at once.
 
-    def _lsq(self, p0, qi, ri):
-        r = self.r[ri]
-        q = self.q[qi]
-        qb, qr = self.q_bear[qi], self.q_range[qi]
-        metric = self.metric
-        sp, sb, sr, eps = self.cfg.position_sigma_m, self.sb, self.cfg.refine_log_range_sigma, self.eps_q
-
-        prior, cfg, sprior = self.prior, self.cfg, self.scale_prior
-
-        def prior_resid(p):
-            out = []
-            if prior is not None and cfg.prior_weight > 0:
-                out.append(np.sqrt(cfg.prior_weight * self._pose_prior_sq(p[None, :2], p[2:3])[0]))
-            if not metric and sprior is not None and cfg.scale_prior_weight > 0:
-                out.append(np.sqrt(cfg.scale_prior_weight) * (p[3] - sprior[0]) / sprior[1])
-            return np.array(out)
-
-        def resid(p):
-            rel = r - p[:2]
-            c, sn = np.cos(p[2]), np.sin(p[2])
-            lx = c * rel[:, 0] + sn * rel[:, 1]
-            ly = -sn * rel[:, 0] + c * rel[:, 1]
-            if metric:
-                return np.concatenate([(lx - q[:, 0]) / sp, (ly - q[:, 1]) / sp, prior_resid(p)])
-            s = np.exp(p[3])
-            db = geo.wrap_angle(np.arctan2(ly, lx) - qb)
-            dr = np.log(np.hypot(lx, ly) + s * eps) - np.log(s * (qr + eps))
-            return np.concatenate([db / sb, dr / sr, prior_resid(p)])
-
-        if metric:
-            sol = least_squares(lambda p3: resid(np.r_[p3, 0.0]), p0[:3], loss="soft_l1", f_scale=1.0,
-                                method="trf", max_nfev=50)
-            return np.r_[sol.x, 0.0]
-        sol = least_squares(resid, p0, loss="soft_l1", f_scale=1.0, method="trf", max_nfev=50)
-        return sol.x
+        Objective: bearing + weak log-range residuals (positions for metric maps) of the matched
+        inliers, plus the priors for depth maps; soft-L1 weights (IRLS), analytic Jacobians, a
+        little Levenberg damping; matches re-associated ``refine_rounds`` times. Returns refined (t (C,2), theta (C,), s (C,)).
+        """
+        cfg = self.cfg
+        C, m = len(t), self.m
+        p = np.column_stack([t, theta, np.log(np.maximum(s, 1e-9))]).astype(float)
+        tau2 = cfg.tau ** 2
+        sb, sr, sp, eps = self.sb, cfg.refine_log_range_sigma, cfg.position_sigma_m, self.eps_q
+        use_prior = self.prior is not None and cfg.prior_weight > 0 and not self.metric
+        use_heading = use_prior and self.prior_heading is not None and cfg.prior_heading_sigma_deg > 0
+        use_scale = not self.metric and self.scale_prior is not None and cfg.scale_prior_weight > 0
+        npar = 3 if self.metric else 4
+        for _ in range(cfg.refine_rounds):
+            cost = self.costs(p[:, :2], p[:, 2], np.exp(p[:, 3]))  # (C, M, K)
+            best = cost.argmin(axis=2)
+            inl = np.take_along_axis(cost, best[..., None], axis=2)[..., 0] < tau2  # (C, M)
+            R = self.r[self.cand[np.arange(m)[None], best]]  # (C, M, 2) matched candidates
+            if use_prior:  # the prior camera each hypothesis is tied to, fixed for this round
+                if use_heading:
+                    k = min(cfg.prior_knn, self.prior.n)
+                    d, j = self.prior.query(p[:, :2], k=k)
+                    d, j = d.reshape(C, k), j.reshape(C, k)
+                    dth = geo.wrap_angle(self.prior_heading[j] - p[:, 2:3])
+                    sel = np.argmin((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, 1)
+                    jj = j[np.arange(C), sel]
+                else:
+                    jj = self.prior.query(p[:, :2], k=1)[1]
+                cam = self.prior.data[jj]
+            for _ in range(iters):
+                rel = R - p[:, None, :2]
+                c, sn = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
+                if self.metric:
+                    lx = c * rel[..., 0] + sn * rel[..., 1]
+                    ly = -sn * rel[..., 0] + c * rel[..., 1]
+                    e1, e2 = (lx - self.q[None, :, 0]) / sp, (ly - self.q[None, :, 1]) / sp
+                    J1 = np.stack([-c.repeat(m, 1), -sn.repeat(m, 1), ly], -1) / sp
+                    J2 = np.stack([sn.repeat(m, 1), -c.repeat(m, 1), -lx], -1) / sp
+                else:
+                    rho2 = np.maximum((rel ** 2).sum(-1), 1e-12)
+                    rho = np.sqrt(rho2)
+                    phi = np.arctan2(rel[..., 1], rel[..., 0])
+                    e1 = geo.wrap_angle(phi - p[:, 2:3] - self.q_bear[None]) / sb
+                    J1 = np.stack([rel[..., 1] / rho2, -rel[..., 0] / rho2, -np.ones_like(rho), np.zeros_like(rho)],
+                                  -1) / sb
+                    sc = np.exp(p[:, 3:4])
+                    e2 = (np.log(rho + sc * eps) - np.log(sc * (self.q_range[None] + eps))) / sr
+                    g = 1.0 / (rho + sc * eps)
+                    J2 = np.stack([-rel[..., 0] / rho * g, -rel[..., 1] / rho * g, np.zeros_like(rho),
+                                   sc * eps * g - 1.0], -1) / sr
+                E = np.concatenate([e1, e2], 1)  # (C, 2M)
+                J = np.concatenate([J1, J2], 1)[..., :npar]  # (C, 2M, P)
+                W = np.concatenate([inl, inl], 1) / np.sqrt(1.0 + E ** 2)  # soft-L1 IRLS weights
+                extra_e, extra_j = [], []
+                if use_prior:
+                    wpr = np.sqrt(cfg.prior_weight)
+                    for a in range(2):
+                        jrow = np.zeros((C, npar)); jrow[:, a] = wpr / cfg.prior_sigma_m
+                        extra_e.append(wpr * (p[:, a] - cam[:, a]) / cfg.prior_sigma_m); extra_j.append(jrow)
+                    if use_heading:
+                        sh = np.radians(cfg.prior_heading_sigma_deg)
+                        jrow = np.zeros((C, npar)); jrow[:, 2] = wpr / sh
+                        extra_e.append(wpr * geo.wrap_angle(p[:, 2] - self.prior_heading[jj]) / sh); extra_j.append(jrow)
+                if use_scale:
+                    mu, sd = self.scale_prior
+                    ws = np.sqrt(cfg.scale_prior_weight)
+                    jrow = np.zeros((C, npar)); jrow[:, 3] = ws / sd
+                    extra_e.append(ws * (p[:, 3] - mu) / sd); extra_j.append(jrow)
+                if extra_e:
+                    E = np.concatenate([E, np.stack(extra_e, 1)], 1)
+                    J = np.concatenate([J, np.stack(extra_j, 1)], 1)
+                    ex = np.stack(extra_e, 1)
+                    # robust too (soft-L1 on the prior's total), so the data can overrule a far prior
+                    W = np.concatenate([W, np.repeat(1.0 / np.sqrt(1.0 + (ex ** 2).sum(1, keepdims=True)),
+                                                     len(extra_e), 1)], 1)
+                JW = J * W[..., None]
+                H = np.einsum("crp,crq->cpq", JW, J) + 1e-6 * np.eye(npar)[None]
+                gvec = np.einsum("crp,cr->cp", JW, E)
+                ok = inl.sum(1) >= 2
+                try:
+                    step = -np.linalg.solve(H, gvec[..., None])[..., 0]
+                except np.linalg.LinAlgError:
+                    step = np.zeros((C, npar))
+                step = np.where(ok[:, None] & np.isfinite(step).all(1, keepdims=True), step, 0.0)
+                p[:, :npar] += step
+                if np.abs(step).max(initial=0.0) < 1e-10:
+                    break
+        return p[:, :2].copy(), geo.wrap_angle(p[:, 2]), np.exp(p[:, 3]) if not self.metric else np.ones(C)
 
 
 def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: SolverConfig | dict | None = None,
@@ -374,21 +413,22 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     cost = np.concatenate(cand_cost)
     t_all, th_all, s_all = np.concatenate(cand_t), np.concatenate(cand_th), np.concatenate(cand_s)
     order = np.argsort(cost, kind="stable")
-    results = []
-    seen: list[np.ndarray] = []
-    for w in order:
-        if len(results) >= cfg.top_k:
+    chosen: list[int] = []
+    for w in order:  # the top_k distinct hypotheses (not within 1 m / 2 deg of a better one)
+        if len(chosen) >= cfg.top_k:
             break
-        # skip near-duplicate hypotheses (same pose within 1 m / 2 deg)
-        if any(np.hypot(*(t_all[w] - p[:2])) < 1.0 and abs(geo.wrap_angle(th_all[w] - p[2])) < np.radians(2)
-               for p in seen):
+        if any(np.hypot(*(t_all[w] - t_all[v])) < 1.0 and abs(geo.wrap_angle(th_all[w] - th_all[v])) < np.radians(2)
+               for v in chosen):
             continue
-        seen.append(np.r_[t_all[w], th_all[w]])
-        t, th, s = pb.refine(t_all[w], th_all[w], s_all[w])
-        if prior is not None and prior.query(t, k=1)[0] > 2 * cfg.prior_radius_m:
+        chosen.append(int(w))
+    ch = np.array(chosen, int)
+    t_r, th_r, s_r = pb.refine_batch(t_all[ch], th_all[ch], s_all[ch])
+    c_r, inl_r, match_r = pb.score(t_r, th_r, s_r)
+    results = []
+    for k in range(len(ch)):
+        if not np.all(np.isfinite(t_r[k])) or (prior is not None and prior.query(t_r[k], k=1)[0] > 2 * cfg.prior_radius_m):
             continue
-        c, inl, match = pb.score(t[None], np.array([th]), np.array([s]))
-        results.append((float(c[0]), t, th, s, inl[0], match[0]))
+        results.append((float(c_r[k]), t_r[k], float(th_r[k]), float(s_r[k]), inl_r[k], match_r[k]))
     if not results:
         return None
     results.sort(key=lambda z: z[0])

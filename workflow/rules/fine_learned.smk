@@ -14,8 +14,9 @@ def fine_cfg():
 def fine_runs():
     """Run names {method}_{map_type}_{proposal} from config fine.runs (methods x map types x proposals)."""
     runs = fine_cfg().get("runs", {})
-    return [f"{m}_{t}_{p}" for m in runs.get("methods", ["geo"]) for t in runs.get("map_types", ["gt", "depth"])
+    grid = [f"{m}_{t}_{p}" for m in runs.get("methods", ["geo"]) for t in runs.get("map_types", ["gt", "depth"])
             for p in runs.get("proposals", ["gtbb"])]
+    return grid + [r for r in runs.get("extra", []) if r not in grid]
 
 
 def fine_eval_inputs(wildcards):
@@ -40,6 +41,11 @@ def fine_model_name(wildcards):
     return FINE_MODELS[wildcards.model]
 
 
+def fine_train_params(wildcards):
+    """fine.train, updated by fine.train_overrides[{model}] (e.g. fewer epochs for the slower GATs)."""
+    return {**fine_cfg().get("train", {}), **fine_cfg().get("train_overrides", {}).get(wildcards.model, {})}
+
+
 rule fine_train:
     input:
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
@@ -49,7 +55,7 @@ rule fine_train:
         history="results/fine/models/{model}_{map_type}/history.parquet",
     params:
         model=fine_model_name,
-        train=fine_cfg().get("train", {}),
+        train=fine_train_params,
     wildcard_constraints:
         model="|".join(FINE_MODELS),
         map_type="gt|depth",
