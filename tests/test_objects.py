@@ -1,0 +1,172 @@
+"""Objects stage: clustering, boxes, PLY I/O, label transfer and the reproduction audit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import data_root
+from flatlandia import geo, io
+from flatlandia import objects as O
+from flatlandia.errors import InputError
+
+ROOT = data_root()
+CLASS_CLOUD_SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
+
+
+def _blob(rng, centre, n, sd=0.1):
+    return rng.normal(centre, sd, size=(n, 3))
+
+
+def test_clusters_two_classes_known_answer():
+    rng = np.random.default_rng(0)
+    # SfM units = 0.5 m: two sign blobs 10 m apart, one pole blob, one isolated pole point, background
+    a, b, c = _blob(rng, [0, 0, 0], 20), _blob(rng, [20, 0, 0], 15), _blob(rng, [0, 20, 0], 8)
+    lone = np.array([[40.0, 40, 0]])
+    bg = rng.uniform(-50, 50, size=(50, 3))
+    pts = np.vstack([a, b, c, lone, bg])
+    labels = np.array(["sign"] * 35 + ["pole"] * 9 + [O.BACKGROUND] * 50, dtype=object)
+    df = O.cluster_objects(pts, labels, metres_per_unit=0.5)
+    assert list(df.columns) == O.OBJECT_COLUMNS
+    assert sorted(df["n_points"]) == [8, 15, 20]
+    got = df.sort_values("n_points")[["cx", "cy", "cz"]].to_numpy()
+    np.testing.assert_allclose(got, [c.mean(0), b.mean(0), a.mean(0)], atol=1e-12)
+    assert set(df["macro_class"]) == {"sign", "pole"}
+
+
+def test_split_merged_neighbours():
+    rng = np.random.default_rng(1)
+    # two poles 1.5 m apart joined by a thin bridge: one DBSCAN cluster at eps 1 m, split at 0.5 m
+    p1 = _blob(rng, [0, 0, 0], 30, 0.05)
+    p2 = _blob(rng, [4.0, 0, 0], 30, 0.05)
+    bridge = np.column_stack([np.linspace(0.3, 3.7, 5), np.zeros(5), np.zeros(5)])
+    pts = np.vstack([p1, p2, bridge])
+    labels = np.array(["pole"] * len(pts), dtype=object)
+    merged = O.cluster_objects(pts, labels, 1.0, O.ClusterParams(eps_m=1.0, split_extent_m=100))
+    assert len(merged) == 1
+    split = O.cluster_objects(pts, labels, 1.0, O.ClusterParams(eps_m=1.0, split_extent_m=3.0))
+    assert len(split) == 2
+
+
+def test_oriented_box_known_answer():
+    rng = np.random.default_rng(2)
+    local = rng.uniform(-1, 1, size=(500, 3)) * [4, 1, 0.25]
+    rot = geo.rot2(0.7)
+    r3 = np.eye(3)
+    r3[:2, :2] = rot
+    pts = local @ r3.T + [10, 5, 1]
+    centre, extent, r = O.oriented_box(pts)
+    assert np.linalg.det(r) == pytest.approx(1.0)
+    np.testing.assert_allclose(extent, [8, 2, 0.5], atol=0.05)
+    np.testing.assert_allclose(centre, [10, 5, 1], atol=0.05)
+    assert abs(abs(r[:, 0] @ r3[:, 0]) - 1) < 1e-3
+
+
+def test_boxes_ply_round_trip(tmp_path):
+    import open3d as o3d
+
+    rng = np.random.default_rng(3)
+    pts = np.vstack([_blob(rng, [0, 0, 0], 10), _blob(rng, [30, 0, 0], 10)])
+    df = O.cluster_objects(pts, np.array(["light"] * 20, dtype=object), 0.5)
+    out = tmp_path / "objects.ply"
+    O.write_boxes_ply(df, out)
+    mesh = o3d.io.read_triangle_mesh(str(out))
+    assert len(mesh.vertices) == 16 and len(mesh.triangles) == 24
+    v = np.asarray(mesh.vertices)
+    for k, row in enumerate(df.itertuples(index=False)):
+        np.testing.assert_allclose(v[8 * k:8 * k + 8].mean(0), [row.box_cx, row.box_cy, row.box_cz], atol=1e-9)
+    # every cluster point lies inside its box
+    obb = o3d.geometry.OrientedBoundingBox.create_from_points(o3d.utility.Vector3dVector(v[:8]))
+    assert len(obb.get_point_indices_within_bounding_box(o3d.utility.Vector3dVector(pts[:10]))) >= 9
+
+
+def test_ascii_ply_with_class_id(tmp_path):
+    p = tmp_path / "c.ply"
+    p.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+                 "property uchar class_id\nend_header\n0 0 0 24\n1 1 1 255\n")
+    pts, labels = O.read_classified_cloud(p)
+    assert pts.shape == (2, 3) and list(labels) == ["light", O.BACKGROUND]
+
+
+def test_bad_input(tmp_path):
+    with pytest.raises(InputError, match="no classified points"):
+        O.cluster_objects(np.zeros((5, 3)), np.array([O.BACKGROUND] * 5, dtype=object), 1.0, source="x.ply")
+    with pytest.raises(InputError, match="NaN"):
+        O.cluster_objects(np.array([[np.nan, 0, 0], [0, 0, 0]]), np.array(["sign"] * 2, dtype=object), 1.0)
+    # a class with a single point: a documented empty result, not a crash
+    one = O.cluster_objects(np.zeros((1, 3)), np.array(["sign"], dtype=object), 1.0)
+    assert len(one) == 0 and list(one.columns) == O.OBJECT_COLUMNS
+    bad = tmp_path / "bad.ply"
+    bad.write_text("not a ply")
+    with pytest.raises(InputError, match="not a PLY"):
+        O.read_classified_cloud(bad)
+    weird = tmp_path / "weird.ply"
+    weird.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
+                     "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n0 0 0 1 2 3\n")
+    with pytest.raises(InputError, match="colour"):
+        O.read_classified_cloud(weird)
+    with pytest.raises(InputError, match="missing"):
+        O.read_classified_cloud(tmp_path / "absent.ply")
+
+
+def test_class_prior_uses_other_scenes_only():
+    light = O.MACRO_BY_NAME["light"].classes[0]
+    store, adv = O.CLASSES.index("object--sign--store"), O.CLASSES.index("object--sign--advertisement")
+    prior = O.class_prior([np.array([store, store, adv]), np.array([adv])])
+    assert prior["sign"] == adv  # 2 vs 2: a tie goes to the lower id (advertisement 15 < store 17)
+    prior = O.class_prior([np.array([store, store, adv])])
+    assert prior["sign"] == store and prior["light"] == light
+
+
+def test_audit_known_answer():
+    ref = np.array([[0, 0], [10, 0], [20, 0.0]])
+    ours = np.array([[0.01, 0], [10.3, 0], [23, 0], [50, 50.0]])
+    row = O.audit_scene("t", ours, np.array(["a", "a", "a", "a"], dtype=object), ref,
+                        np.array(["a", "a", "a"], dtype=object))
+    assert (row["within_0.05m"], row["within_0.5m"], row["within_2m"], row["matched"]) == (1, 2, 2, 2)
+    assert row["extra"] == 2 and row["published"] == 3 and row["ours"] == 4
+    # a different macro-class never matches
+    row = O.audit_scene("t", ours[:1], np.array(["b"], dtype=object), ref[:1], np.array(["a"], dtype=object))
+    assert row["matched"] == 0
+
+
+# ----------------------------------------------------------------------- real published data
+
+
+def test_macro_table_matches_measurement():
+    """The MACRO_CLASSES table agrees with the colours measured on scene 12 and 13."""
+    for scene in ("12", "13"):
+        pts, labels = O.read_classified_cloud(ROOT / f"maps/{scene}/class_segmented_point_cloud.ply")
+        t = io.read_transformations(ROOT / f"maps/{scene}/transformations.json")
+        ll, cl = io.read_reference_map(ROOT / f"individual_reference_maps/map_{scene}.json")
+        counts = O.colour_class_counts(geo.sfm_to_lonlat(pts, t), labels, ll, cl, geo.frame_for(ll))
+        agree = sum(r.count for r in counts.itertuples() if O.MACRO_OF_CLASS[r.class_id] == r.macro_class)
+        assert agree / counts["count"].sum() >= 0.9
+
+
+@pytest.fixture(scope="module")
+def audit_rows():
+    rows = [O.audit_published_scene(ROOT, s)[0] for s in CLASS_CLOUD_SCENES]
+    return pd.DataFrame(rows)
+
+
+def test_reproduction_real(audit_rows):
+    df = audit_rows
+    assert df["published"].sum() == 854
+    frac = df["within_0.5m"].sum() / df["published"].sum()
+    # Measured (eps 1 m, min 3 points): 78% of the published objects within 0.5 m. The issue's
+    # target is 90% with <= 10% extra objects; not reached yet (see the module notes): this
+    # guards the measured level against regressions.
+    assert frac >= 0.75
+    assert df["within_0.05m"].sum() / df["published"].sum() >= 0.45
+    # without scene 2, whose cloud is almost entirely coloured, extras measured 47%
+    rest = df[df["scene"] != "2"]
+    assert (rest["ours"].sum() - rest["within_0.5m"].sum()) / rest["published"].sum() <= 0.5
+
+
+@pytest.mark.xfail(reason="issue 3 target (>= 90% within 0.5 m, <= 10% extra) not reached by DBSCAN alone", strict=True)
+def test_reproduction_target(audit_rows):
+    df = audit_rows
+    assert df["within_0.5m"].sum() / df["published"].sum() >= 0.9
+    assert (df["ours"].sum() - df["within_0.5m"].sum()) / df["published"].sum() <= 0.1

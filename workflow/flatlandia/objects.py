@@ -1,0 +1,516 @@
+"""Objects from a classified SfM point cloud: cluster per macro-class -> 3D boxes -> object map.
+
+Measured on the published data (../shared/DATA.md and the audit in tests/test_objects.py):
+
+- The published ``class_segmented_point_cloud.ply`` files colour points by 6 *macro-classes*
+  (grey (51, 51, 51) is background). Which of the 42 classes each colour holds was measured by
+  taking, for every published reference object of the 12 scenes with a class cloud, the colour
+  of the nearest non-grey cloud point (854 objects). :data:`MACRO_CLASSES` lists, per colour,
+  the classes whose majority fell on it (e.g. street-light: yellow 119, magenta 12, red 4);
+  classes never seen in a class-cloud scene are placed by meaning (a marking with the markings,
+  a traffic light with the traffic lights). :func:`colour_class_counts` redoes the measurement.
+- Clustering runs in metres: one SfM unit is ``s`` degrees (``scaling_factor_sfm_to_gps`` of
+  the published chain, isotropic in degrees), and one degree of latitude is about
+  :data:`METRES_PER_DEGREE` m, so ``metres_per_unit = s * 111320`` (the east-west direction of
+  the published chain is off by cos(lat) anyway; the clustering uses the latitude scale).
+- A reference object is the mean of the points of one object (DATA.md), so the centroid we
+  report is the plain mean of the cluster's points (not the box centre).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import geo
+from .classes import CLASSES, N_CLASSES
+from .errors import InputError
+from .io import atomic_path
+
+#: Metres per degree of latitude (mean, WGS84); used to turn the chain's scale into metres.
+METRES_PER_DEGREE = 111_320.0
+#: Colour of background points in the published class clouds.
+BACKGROUND_RGB = (51, 51, 51)
+#: Label given to background points.
+BACKGROUND = ""
+
+
+@dataclass(frozen=True)
+class MacroClass:
+    name: str
+    rgb: tuple[int, int, int]
+    classes: tuple[int, ...]  # ids into classes.CLASSES
+
+
+def _ids(*labels: str) -> tuple[int, ...]:
+    return tuple(CLASSES.index(lab) for lab in labels)
+
+
+#: Colour -> macro-class -> member classes (measured majority colour per class, see module doc).
+MACRO_CLASSES: tuple[MacroClass, ...] = (
+    MacroClass("light", (255, 255, 0), _ids("object--street-light")),
+    MacroClass("manhole", (255, 255, 255), _ids("object--manhole")),
+    MacroClass("sign", (255, 0, 0), _ids(
+        "banner", "object--sign--advertisement", "object--sign--information", "object--sign--store",
+        "object--traffic-sign", "object--traffic-sign--direction", "object--bench")),
+    MacroClass("traffic_light", (0, 0, 255), _ids(
+        "object--traffic-sign--information-parking", "object--traffic-light--general-upright",
+        "object--traffic-light--general-horizontal", "object--traffic-light--general-single",
+        "object--traffic-light--general-other", "object--traffic-light--pedestrians",
+        "object--traffic-light--cyclists")),
+    MacroClass("pole", (255, 0, 255), _ids(
+        "object--support--traffic-sign-frame", "object--support--pole", "object--junction-box",
+        "object--water-valve", "object--bike-rack", "object--catch-basin", "object--cctv-camera",
+        "object--fire-hydrant", "object--mailbox", "object--parking-meter", "object--phone-booth")),
+    MacroClass("marking_trash", (0, 255, 0), _ids(
+        "driveway", "marking--discrete--arrow--left", "marking--discrete--arrow--right",
+        "marking--discrete--arrow--split-left-or-straight",
+        "marking--discrete--arrow--split-right-or-straight", "marking--discrete--arrow--straight",
+        "crosswalk-plain", "crosswalk-zebra", "give-way-row", "give-way-single", "stop-line",
+        "marking--discrete--symbol--bicycle", "marking--discrete--text", "other-marking",
+        "object--trash-can")),
+)
+MACRO_BY_RGB = {m.rgb: m for m in MACRO_CLASSES}
+MACRO_BY_NAME = {m.name: m for m in MACRO_CLASSES}
+#: 42-class id -> macro-class name.
+MACRO_OF_CLASS = {c: m.name for m in MACRO_CLASSES for c in m.classes}
+
+
+def macro_of_class(class_ids: np.ndarray) -> np.ndarray:
+    """Macro-class name of each 42-class id (background label for 255 / unknown ids)."""
+    return np.array([MACRO_OF_CLASS.get(int(c), BACKGROUND) for c in np.asarray(class_ids).reshape(-1)],
+                    dtype=object)
+
+
+def metres_per_unit(transformations: dict) -> float:
+    """Metres per SfM unit implied by the published chain's degree scale."""
+    return float(transformations["to_mapillary"]["scaling_factor_sfm_to_gps"]) * METRES_PER_DEGREE
+
+
+# --------------------------------------------------------------------------- PLY reading
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _read_ply_vertices(path: Path) -> pd.DataFrame:
+    """The vertex element of a PLY file (ascii or binary little/big endian) as a DataFrame."""
+    if not path.exists():
+        raise InputError(path, "file is missing")
+    raw = path.read_bytes()
+    end = raw.find(b"end_header")
+    if not raw.startswith(b"ply") or end < 0:
+        raise InputError(path, "not a PLY file (no 'ply' magic or no end_header)")
+    nl = raw.find(b"\n", end)
+    header = raw[:end].decode("ascii", errors="replace").splitlines()
+    body = raw[nl + 1:]
+    fmt, elements, current = None, [], None
+    for line in header:
+        tok = line.split()
+        if not tok:
+            continue
+        if tok[0] == "format":
+            fmt = tok[1]
+        elif tok[0] == "element":
+            current = {"name": tok[1], "count": int(tok[2]), "props": []}
+            elements.append(current)
+        elif tok[0] == "property" and current is not None:
+            if tok[1] == "list":
+                current["props"].append((tok[4], "list", tok[2], tok[3]))
+            else:
+                if tok[1] not in _PLY_TYPES:
+                    raise InputError(path, f"unsupported PLY property type {tok[1]!r}")
+                current["props"].append((tok[2], _PLY_TYPES[tok[1]]))
+    if not elements or elements[0]["name"] != "vertex":
+        raise InputError(path, "PLY has no leading 'vertex' element")
+    vert = elements[0]
+    if any(p[1] == "list" for p in vert["props"]):
+        raise InputError(path, "list properties on vertices are not supported")
+    names = [p[0] for p in vert["props"]]
+    for need in ("x", "y", "z"):
+        if need not in names:
+            raise InputError(path, f"PLY vertices lack property {need!r} (have {names})")
+    n = vert["count"]
+    if fmt == "ascii":
+        lines = body.decode("ascii", errors="replace").split("\n")[:n]
+        try:
+            arr = np.array([[float(v) for v in ln.split()[:len(names)]] for ln in lines], dtype=float)
+        except ValueError as e:
+            raise InputError(path, f"malformed ASCII vertex line ({e})") from e
+        if arr.shape != (n, len(names)):
+            raise InputError(path, f"header promises {n} vertices, found {len(arr)} complete lines")
+        return pd.DataFrame(arr, columns=names)
+    if fmt not in ("binary_little_endian", "binary_big_endian"):
+        raise InputError(path, f"unsupported PLY format {fmt!r}")
+    order = "<" if fmt == "binary_little_endian" else ">"
+    dt = np.dtype([(p[0], order + p[1]) for p in vert["props"]])
+    if len(body) < n * dt.itemsize:
+        raise InputError(path, f"truncated: {n} vertices need {n * dt.itemsize} bytes, file has {len(body)}")
+    v = np.frombuffer(body, dtype=dt, count=n)
+    return pd.DataFrame({k: v[k].astype(float) for k in names})
+
+
+def read_classified_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a classified point cloud -> (points (N, 3) float, macro-class label (N,) object array).
+
+    Two kinds are understood: the published class clouds (colour = macro-class, grey (51,51,51)
+    background) and our own clouds with an integer ``class_id`` vertex property (42-class id,
+    255 background), whose classes are folded into macro-classes. Unknown colours raise.
+    """
+    path = Path(path)
+    v = _read_ply_vertices(path)
+    pts = v[["x", "y", "z"]].to_numpy(float)
+    if "class_id" in v.columns:
+        labels = macro_of_class(v["class_id"].to_numpy().astype(int))
+    else:
+        cols = [c for c in ("red", "green", "blue") if c in v.columns]
+        if len(cols) != 3:
+            raise InputError(path, "PLY has neither a class_id property nor red/green/blue colours")
+        rgb = v[cols].to_numpy().astype(int)
+        keys, inv = np.unique(rgb, axis=0, return_inverse=True)
+        names = []
+        for k in map(tuple, keys):
+            if k == BACKGROUND_RGB:
+                names.append(BACKGROUND)
+            elif k in MACRO_BY_RGB:
+                names.append(MACRO_BY_RGB[k].name)
+            else:
+                raise InputError(path, f"colour {k} is neither background {BACKGROUND_RGB} nor a macro-class "
+                                       f"colour {sorted(MACRO_BY_RGB)}")
+        labels = np.array(names, dtype=object)[inv.reshape(-1)]
+    return pts, labels
+
+
+# --------------------------------------------------------------------------- clustering
+
+
+@dataclass(frozen=True)
+class ClusterParams:
+    """Clustering settings, all lengths in metres."""
+
+    eps_m: float = 1.0           # DBSCAN neighbourhood radius
+    min_points: int = 3          # DBSCAN core-point neighbourhood size (the point included)
+    min_cluster_points: int = 3  # clusters with fewer points are dropped (not objects)
+    split_extent_m: float = 4.0  # clusters longer than this are re-clustered ...
+    split_eps_factor: float = 0.5  # ... with eps * this factor (merged same-class neighbours)
+
+
+def oriented_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PCA box of points (N>=1, 3): (centre (3,), extent (3,) full side lengths, rotation (3,3)).
+
+    Columns of the rotation are the box axes (largest extent first), det +1; a point p of the
+    box frame maps to centre + R @ p.
+    """
+    pts = np.asarray(points, float).reshape(-1, 3)
+    mean = pts.mean(0)
+    if len(pts) < 2:
+        return mean, np.zeros(3), np.eye(3)
+    _, _, vt = np.linalg.svd(pts - mean, full_matrices=False)
+    rot = np.eye(3)
+    rot[:, :vt.shape[0]] = vt.T
+    if vt.shape[0] == 2:  # two points: complete the frame
+        rot[:, 2] = np.cross(rot[:, 0], rot[:, 1])
+    if np.linalg.det(rot) < 0:
+        rot[:, 2] *= -1
+    local = (pts - mean) @ rot
+    lo, hi = local.min(0), local.max(0)
+    centre = mean + rot @ ((lo + hi) / 2)
+    return centre, hi - lo, rot
+
+
+def _dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
+    from sklearn.cluster import DBSCAN
+
+    return DBSCAN(eps=eps, min_samples=min_points).fit_predict(points)
+
+
+def _clusters_of_class(pts: np.ndarray, mpu: float, p: ClusterParams) -> list[np.ndarray]:
+    """Index arrays of the objects of one macro-class (points already of that class)."""
+    if len(pts) == 0:
+        return []
+    lab = _dbscan(pts, p.eps_m / mpu, p.min_points)
+    out: list[np.ndarray] = []
+    for k in np.unique(lab[lab >= 0]):
+        idx = np.flatnonzero(lab == k)
+        if len(idx) < p.min_cluster_points:
+            continue
+        extent = np.ptp(pts[idx], axis=0).max() * mpu if len(idx) > 1 else 0.0
+        if extent > p.split_extent_m and p.split_eps_factor < 1:
+            sub = _dbscan(pts[idx], p.eps_m * p.split_eps_factor / mpu, p.min_points)
+            parts = [idx[sub == j] for j in np.unique(sub[sub >= 0])]
+            parts = [q for q in parts if len(q) >= p.min_cluster_points]
+            if len(parts) >= 2:
+                out.extend(parts)
+                continue
+        out.append(idx)
+    return out
+
+
+OBJECT_COLUMNS = ["object_id", "macro_class", "n_points", "cx", "cy", "cz",
+                  "box_cx", "box_cy", "box_cz", "box_ex", "box_ey", "box_ez",
+                  *[f"box_r{i}{j}" for i in range(3) for j in range(3)], "extent_max_m"]
+
+
+def cluster_objects(points: np.ndarray, labels: np.ndarray, metres_per_unit: float,
+                    params: ClusterParams | None = None, source: str = "cloud") -> pd.DataFrame:
+    """Cluster each macro-class separately into objects; one row per object (SfM coordinates).
+
+    Raises :class:`InputError` (naming ``source``) for NaN coordinates, a non-positive scale or a
+    cloud without classified points. A class whose points all fall in clusters smaller than
+    ``min_cluster_points`` (e.g. a single point) yields no object: that is a documented empty
+    result for the class, not an error.
+    """
+    p = params or ClusterParams()
+    pts = np.asarray(points, float)
+    labels = np.asarray(labels, dtype=object).reshape(-1)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) != len(labels):
+        raise InputError(source, f"points must be (N, 3) with one label each, got {pts.shape} and {labels.shape}")
+    if not np.isfinite(pts).all():
+        bad = int((~np.isfinite(pts).all(1)).sum())
+        raise InputError(source, f"{bad} point(s) with NaN/inf coordinates")
+    if not (np.isfinite(metres_per_unit) and metres_per_unit > 0):
+        raise InputError(source, f"metres per SfM unit must be positive, got {metres_per_unit}")
+    if p.eps_m <= 0 or p.min_points < 1 or p.min_cluster_points < 1:
+        raise ValueError(f"bad clustering parameters {p}")
+    fg = labels != BACKGROUND
+    if not fg.any():
+        raise InputError(source, f"no classified points: all {len(pts)} points are background")
+    rows = []
+    for name in sorted(set(labels[fg])):
+        cls_idx = np.flatnonzero(labels == name)
+        for idx in _clusters_of_class(pts[cls_idx], metres_per_unit, p):
+            sub = pts[cls_idx[idx]]
+            c, e, r = oriented_box(sub)
+            m = sub.mean(0)
+            rows.append([name, len(sub), *m, *c, *e, *r.reshape(-1), float(e.max() * metres_per_unit)])
+    df = pd.DataFrame(rows, columns=OBJECT_COLUMNS[1:])
+    df.insert(0, "object_id", np.arange(len(df), dtype=np.int64))
+    df["n_points"] = df["n_points"].astype(np.int64)
+    return df
+
+
+def box_corners(row) -> np.ndarray:
+    """The 8 corners (8, 3) of an object's box (open3d's corner order is not needed by viewers)."""
+    c = np.array([row.box_cx, row.box_cy, row.box_cz])
+    e = np.array([row.box_ex, row.box_ey, row.box_ez]) / 2
+    r = np.array([[getattr(row, f"box_r{i}{j}") for j in range(3)] for i in range(3)])
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    return c + (signs * e) @ r.T
+
+
+#: 12 triangles of a box over the corner order of :func:`box_corners` (index = 4*sx + 2*sy + sz).
+_BOX_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                       [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+
+
+def write_boxes_ply(objects: pd.DataFrame, path: str | Path) -> None:
+    """Binary PLY of the boxes (8 vertices + 12 triangles each, coloured by macro-class), atomic."""
+    n = len(objects)
+    vdt = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    fdt = np.dtype([("n", "u1"), ("v", "<u4", (3,))])
+    verts = np.zeros(8 * n, vdt)
+    faces = np.zeros(12 * n, fdt)
+    for k, row in enumerate(objects.itertuples(index=False)):
+        corners = box_corners(row)
+        rgb = MACRO_BY_NAME[row.macro_class].rgb if row.macro_class in MACRO_BY_NAME else (128, 128, 128)
+        sl = slice(8 * k, 8 * k + 8)
+        verts["x"][sl], verts["y"][sl], verts["z"][sl] = corners.T
+        verts["red"][sl], verts["green"][sl], verts["blue"][sl] = rgb
+        faces["n"][12 * k:12 * k + 12] = 3
+        faces["v"][12 * k:12 * k + 12] = _BOX_FACES + 8 * k
+    header = ("ply\nformat binary_little_endian 1.0\ncomment Flatlandia objects: 8 vertices + 12 triangles per box\n"
+              f"element vertex {8 * n}\nproperty double x\nproperty double y\nproperty double z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+              f"element face {12 * n}\nproperty list uchar uint vertex_indices\nend_header\n")
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            f.write(header.encode("ascii"))
+            f.write(verts.tobytes())
+            f.write(faces.tobytes())
+
+
+# --------------------------------------------------------------------------- labels and maps
+
+
+def colour_class_counts(cloud_lonlat: np.ndarray, cloud_labels: np.ndarray, ref_lonlat: np.ndarray,
+                        ref_classes: np.ndarray, frame: geo.MetricFrame) -> pd.DataFrame:
+    """Measure the colour <-> class relation: macro-class of the nearest classified point per object.
+
+    Returns one row per (class_id, macro_class) with a count and the median distance (m).
+    """
+    from scipy.spatial import cKDTree
+
+    fg = np.asarray(cloud_labels, dtype=object) != BACKGROUND
+    if not fg.any():
+        raise ValueError("no classified points to measure colours on")
+    tree = cKDTree(frame.to_xy(np.asarray(cloud_lonlat)[fg]))
+    d, j = tree.query(frame.to_xy(ref_lonlat))
+    df = pd.DataFrame({"class_id": np.asarray(ref_classes, int),
+                       "macro_class": np.asarray(cloud_labels, dtype=object)[fg][j], "dist_m": d})
+    return df.groupby(["class_id", "macro_class"], as_index=False).agg(count=("dist_m", "size"),
+                                                                       median_dist_m=("dist_m", "median"))
+
+
+def class_prior(other_scene_classes: list[np.ndarray]) -> dict[str, int]:
+    """Label transfer: per macro-class, the most frequent of its 42 classes in *other* scenes' maps.
+
+    Only class labels of other scenes are used (never this scene's map, never positions). Ties
+    go to the lower class id; a macro-class absent from all other maps gets its first member.
+    """
+    counts = np.zeros(N_CLASSES, dtype=int)
+    for cl in other_scene_classes:
+        cl = np.asarray(cl, int)
+        counts += np.bincount(cl[(cl >= 0) & (cl < N_CLASSES)], minlength=N_CLASSES)
+    prior = {}
+    for m in MACRO_CLASSES:
+        members = np.array(m.classes)
+        prior[m.name] = int(members[np.argmax(counts[members])]) if counts[members].any() else int(members[0])
+    return prior
+
+
+def objects_reference_map(objects: pd.DataFrame, transformations: dict, frame: geo.MetricFrame,
+                          prior: dict[str, int] | None = None) -> pd.DataFrame:
+    """Our objects as a reference map: lon/lat (published chain) + metric x/y + a 42-class label.
+
+    Positions come only from our clustered centroids pushed through the chain; ``prior`` (from
+    :func:`class_prior`) names the 42-class given to each macro-class (-1 / '' without one).
+    """
+    cen = objects[["cx", "cy", "cz"]].to_numpy(float).reshape(-1, 3)
+    lonlat = geo.sfm_to_lonlat(cen, transformations) if len(cen) else np.zeros((0, 2))
+    xy = frame.to_xy(lonlat) if len(cen) else np.zeros((0, 2))
+    prior = prior or {}
+    cid = np.array([prior.get(m, -1) for m in objects["macro_class"]], dtype=np.int64)
+    return pd.DataFrame({
+        "object_id": objects["object_id"].to_numpy(np.int64),
+        "macro_class": objects["macro_class"].astype(str).to_numpy(),
+        "class_id": cid,
+        "class_label": [CLASSES[c] if c >= 0 else "" for c in cid],
+        "n_points": objects["n_points"].to_numpy(np.int64),
+        "lon": lonlat[:, 0], "lat": lonlat[:, 1], "x_m": xy[:, 0], "y_m": xy[:, 1],
+    })
+
+
+# --------------------------------------------------------------------------- reproduction audit
+
+AUDIT_THRESHOLDS_M = (0.05, 0.5, 2.0)
+
+
+def published_macro_classes(ref_xy: np.ndarray, ref_classes: np.ndarray, cloud_xy: np.ndarray | None = None,
+                            cloud_labels: np.ndarray | None = None, max_dist_m: float = 2.0) -> np.ndarray:
+    """Macro-class of each published object: the label of the nearest classified cloud point
+    (the objects were made from those points) when one lies within ``max_dist_m``, else the
+    macro-class of its 42-class label."""
+    out = macro_of_class(ref_classes)
+    if cloud_xy is not None and cloud_labels is not None:
+        from scipy.spatial import cKDTree
+
+        fg = np.asarray(cloud_labels, dtype=object) != BACKGROUND
+        if fg.any():
+            d, j = cKDTree(np.asarray(cloud_xy)[fg]).query(ref_xy)
+            near = d <= max_dist_m
+            out[near] = np.asarray(cloud_labels, dtype=object)[fg][j[near]]
+    return out
+
+
+def audit_scene(scene: str, ours_xy: np.ndarray, ours_macro: np.ndarray, ref_xy: np.ndarray,
+                ref_macro: np.ndarray, radius_m: float = 2.0,
+                thresholds: tuple[float, ...] = AUDIT_THRESHOLDS_M) -> dict:
+    """Match our objects to the published ones (same macro-class, Hungarian on metric distance,
+    pairs farther than ``radius_m`` never match) and count the matches within each threshold."""
+    from scipy.optimize import linear_sum_assignment
+
+    ours_xy, ref_xy = np.asarray(ours_xy, float).reshape(-1, 2), np.asarray(ref_xy, float).reshape(-1, 2)
+    ours_macro, ref_macro = np.asarray(ours_macro, dtype=object), np.asarray(ref_macro, dtype=object)
+    dists = []
+    for name in sorted(set(ref_macro) | set(ours_macro)):
+        a, b = np.flatnonzero(ref_macro == name), np.flatnonzero(ours_macro == name)
+        if len(a) == 0 or len(b) == 0:
+            continue
+        d = np.linalg.norm(ref_xy[a, None] - ours_xy[None, b], axis=2)
+        big = radius_m * 10 + d.max() + 1
+        r, c = linear_sum_assignment(np.where(d <= radius_m, d, big))
+        ok = d[r, c] <= radius_m
+        dists.extend(d[r[ok], c[ok]])
+    dists = np.array(dists)
+    row = {"scene": str(scene), "published": int(len(ref_xy)), "ours": int(len(ours_xy)),
+           "matched": int(len(dists))}
+    for t in thresholds:
+        row[f"within_{t:g}m"] = int((dists <= t).sum())
+    row["median_dist_m"] = float(np.median(dists)) if len(dists) else float("nan")
+    t_mid = thresholds[1] if len(thresholds) > 1 else thresholds[0]
+    row["extra"] = int(len(ours_xy) - (dists <= t_mid).sum())
+    row["frac_within_0.5m"] = row.get("within_0.5m", 0) / max(1, len(ref_xy))
+    return row
+
+
+def plot_audit(ours_xy: np.ndarray, ref_xy: np.ndarray, path: str | Path, title: str) -> None:
+    """Ours over theirs, in metres."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 7), dpi=100)
+    ax.scatter(ref_xy[:, 0], ref_xy[:, 1], s=40, facecolor="none", edgecolor="k", label=f"published ({len(ref_xy)})")
+    ax.scatter(ours_xy[:, 0], ours_xy[:, 1], s=8, color="tab:red", label=f"ours ({len(ours_xy)})")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east (m)")
+    ax.set_ylabel("y north (m)")
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", bbox_inches="tight")
+    plt.close(fig)
+
+
+def audit_published_scene(root: str | Path, scene: str, params: ClusterParams | None = None) -> tuple[dict, pd.DataFrame]:
+    """Run the whole chain on one published scene and audit it (used by tests and the audit rule)."""
+    from . import io
+
+    root = Path(root)
+    pts, labels = read_classified_cloud(root / "maps" / scene / "class_segmented_point_cloud.ply")
+    t = io.read_transformations(root / "maps" / scene / "transformations.json")
+    ref_ll, ref_cl = io.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
+    frame = geo.frame_for(ref_ll)  # frame only; no published position places an object
+    objs = cluster_objects(pts, labels, metres_per_unit(t), params, source=str(root / "maps" / scene))
+    ours = objects_reference_map(objs, t, frame)
+    fg = labels != BACKGROUND
+    cloud_xy = frame.to_xy(geo.sfm_to_lonlat(pts[fg], t))
+    ref_xy = frame.to_xy(ref_ll)
+    ref_macro = published_macro_classes(ref_xy, ref_cl, cloud_xy, labels[fg])
+    row = audit_scene(scene, ours[["x_m", "y_m"]].to_numpy(), ours["macro_class"].to_numpy(), ref_xy, ref_macro)
+    return row, ours
+
+
+def plot_audit_grid(panels: list[tuple[str, np.ndarray, np.ndarray]], path: str | Path) -> None:
+    """One panel per scene: (title, ours_xy, published_xy), ours (red dots) over theirs (circles)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = max(1, len(panels))
+    cols = min(4, n)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 4 * rows), dpi=90, squeeze=False)
+    for ax in axes.ravel():
+        ax.set_visible(False)
+    for ax, (title, ours_xy, ref_xy) in zip(axes.ravel(), panels):
+        ax.set_visible(True)
+        ax.scatter(ref_xy[:, 0], ref_xy[:, 1], s=30, facecolor="none", edgecolor="k", label=f"published ({len(ref_xy)})")
+        ax.scatter(ours_xy[:, 0], ours_xy[:, 1], s=5, color="tab:red", label=f"ours ({len(ours_xy)})")
+        ax.set_aspect("equal")
+        ax.set_title(title, fontsize=9)
+        ax.legend(fontsize=6)
+        ax.tick_params(labelsize=6)
+    fig.supxlabel("x east (m)")
+    fig.supylabel("y north (m)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", bbox_inches="tight")
+    plt.close(fig)
