@@ -15,6 +15,7 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/queries.smk"
 include: "workflow/rules/images.smk"
+include: "workflow/rules/coarse.smk"
 include: "workflow/rules/fine.smk"
 include: "workflow/rules/tables.smk"
 

@@ -79,7 +79,7 @@ def images_fetch_params(wildcards):
 wildcard_constraints:
     scene="|".join(map(str, SCENES_SHEET["scene"])),
     map_type="gt|depth",
-    proposal="gtbb|whole",
+    proposal="gtbb|whole|coarse-sim|coarse-trip|coarse-simtrip",
 
 
 # ---------------------------------------------------------------- data root
@@ -134,13 +134,9 @@ def products_of_the_run():
            "results/tables/recovery.parquet", "results/tables/availability.parquet"]
         + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
         + per_scene("results/{scene}/sfm/sfm_summary.png", images_scenes())
-        + ["results/tables/fine_solver.parquet"]
+        + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
+        + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
     )
-
-
-def fine_solver_summaries():
-    return expand("results/fine/solver_{map_type}_{proposal}/summary.json",
-                  map_type=config["fine"]["map_types"], proposal=config["fine"]["proposals"])
 
 
 def all_targets():
