@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pandas as pd
 import pycolmap
 import pytest
 
-from flatlandia import classify
+from flatlandia import classify, georef, imagequeries, io
+from flatlandia import objects as O
+from flatlandia.classes import CLASSES
 from snakemake_runner import smk
 
 
@@ -15,6 +19,7 @@ from snakemake_runner import smk
 def lund_run(repo, flat_root, tmp_path_factory):
     wd = tmp_path_factory.mktemp("lund")
     res = smk(repo, wd, "--cores", "2", "results/lund/sfm/classified_points.parquet", "results/lund/sfm/sfm_summary.png",
+              "results/lund/queries/queries.parquet", "results/lund/maps/reference_map.geojson",
               "--config", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd
@@ -80,3 +85,97 @@ def test_views_from_the_lund_model(lund_run):
         assert np.allclose(v.viewing_direction, img.viewing_direction(), atol=1e-6)
         uv, z = imagequeries.project(v, np.array([model.points3D[i].xyz for i in v.obs_point_ids[:20]]))
         assert (z > 0).all() and np.median(np.linalg.norm(uv - v.obs_xy[:20], axis=1)) < 5  # pixels
+
+
+@pytest.mark.slow
+def test_lund_gps_alignment(lund_run):
+    al = json.loads((lund_run / "results/lund/align/alignment.json").read_text())
+    stats = pd.read_parquet(lund_run / "results/lund/sfm/sfm_stats.parquet").iloc[0]
+    assert al["cameras_with_gps"] == stats["registered"]  # every Lund image is geotagged
+    assert al["median_residual_m"] < 7.0  # the issue's target; consumer GPS errs by ~5 m
+    assert al["inliers"] >= 0.8 * al["cameras_with_gps"]
+    assert 0.1 < al["metres_per_sfm_unit"] < 100
+    assert "compass_median_diff_deg" in al  # reported, not trusted (Lund's compasses disagree)
+
+
+@pytest.mark.slow
+def test_lund_offline_backend_gives_a_documented_empty_map(lund_run):
+    wd = lund_run
+    meta = io.read_parquet_metadata(wd / "results/lund/objects/objects.parquet")
+    assert "no SfM point carries an object class" in meta["empty_because"]
+    assert len(pd.read_parquet(wd / "results/lund/objects/objects.parquet")) == 0
+    assert len(pd.read_parquet(wd / "results/lund/maps/reference_map.parquet")) == 0
+    q = pd.read_parquet(wd / "results/lund/queries/queries.parquet")
+    assert len(q) == 0 and {"token", "x_m", "theta_deg", "gt_local_xy_m", "split"} <= set(q.columns)
+    assert "object points, 0 objects" in (wd / "logs/images_objects/lund.log").read_text()
+
+
+def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=14):
+    """Label images the test makes: a few groups of real SfM points co-visible in one image,
+    painted with object classes around every observation of their points in every image."""
+    views = imagequeries.views_from_colmap(model)
+    best = max(views, key=lambda v: len(v.obs_point_ids))
+    ids = best.obs_point_ids
+    xyz = np.array([model.points3D[int(i)].xyz for i in ids])
+    track = np.array([model.points3D[int(i)].track.length() for i in ids])
+    # seeds spread across the best image: farthest-point sampling among well-tracked points
+    cand = np.flatnonzero(track >= 3)
+    chosen = [cand[np.argmax(track[cand])]]
+    while len(chosen) < n_objects:
+        d = np.min(np.linalg.norm(best.obs_xy[cand][:, None] - best.obs_xy[chosen][None], axis=2), axis=1)
+        chosen.append(cand[np.argmax(d)])
+    classes = [CLASSES.index(c) for c in ("object--support--pole", "object--street-light", "object--traffic-sign",
+                                          "object--support--pole", "object--street-light")]
+    groups = {}
+    for k, c in enumerate(chosen):
+        near = ids[np.linalg.norm(xyz - xyz[c], axis=1) < radius_sfm]
+        for pid in near:
+            groups[int(pid)] = classes[k % len(classes)]
+    maps = {}
+    for img in model.images.values():
+        cam = model.cameras[img.camera_id]
+        m = np.full((cam.height, cam.width), 255, dtype=np.uint8)
+        yy, xx = np.mgrid[-radius_px:radius_px + 1, -radius_px:radius_px + 1]
+        disk = yy ** 2 + xx ** 2 <= radius_px ** 2
+        for p2 in img.points2D:
+            if p2.has_point3D() and int(p2.point3D_id) in groups:
+                x, y = int(round(p2.xy[0])), int(round(p2.xy[1]))
+                ys, xs = y + yy[disk], x + xx[disk]
+                ok = (ys >= 0) & (ys < cam.height) & (xs >= 0) & (xs < cam.width)
+                m[ys[ok], xs[ok]] = groups[int(p2.point3D_id)]
+        maps[img.name] = m
+    return maps, len(set(groups))
+
+
+@pytest.mark.slow
+def test_lund_with_label_images_gives_objects_and_queries(lund_run):
+    """The images back half on the real Lund model with label images made here."""
+    wd = lund_run
+    model = pycolmap.Reconstruction(str(wd / "results/lund/sfm/model"))
+    alignment = json.loads((wd / "results/lund/align/alignment.json").read_text())
+    maps, _ = _painted_label_maps(model, radius_sfm=0.8 / alignment["metres_per_sfm_unit"])
+    pts = classify.point_votes(model, maps)
+    assert (pts["class_id"] != 255).sum() >= 20
+    objs, member = georef.scene_objects("lund", pts, alignment, O.ClusterParams(eps_m=1.0), CLASSES)
+    assert len(objs) >= 3 and set(objs["class_id"]) <= {CLASSES.index("object--support--pole"),
+                                                       CLASSES.index("object--street-light"),
+                                                       CLASSES.index("object--traffic-sign")}
+    cams = np.array([v.centre for v in imagequeries.views_from_colmap(model)])
+    cam_xy = georef.map_points(alignment, cams)
+    d = np.linalg.norm(objs[["x_m", "y_m"]].to_numpy()[:, None] - cam_xy[None], axis=2).min(1)
+    assert (d < 60).all()  # objects sit along the walk, in metres on the aligned map
+    objs["corners"] = [O.box_corners(r).tolist() for r in objs.itertuples(index=False)]
+    point_object = {int(p): int(o) for p, o in zip(pts["point3D_id"], member) if o >= 0}
+    point_xyz = {int(pid): np.asarray(p.xyz) for pid, p in model.points3D.items()}
+    q = imagequeries.scene_queries("lund", imagequeries.views_from_colmap(model), objs, point_object, point_xyz,
+                                   np.asarray(alignment["A"]), np.asarray(alignment["b"]),
+                                   dict(zip(objs["object_id"], objs[["x_m", "y_m"]].to_numpy())),
+                                   dict(zip(objs["object_id"], objs["class_id"])))
+    assert len(q) >= 1
+    for r in q.itertuples(index=False):
+        gt = np.asarray(r.gt_local_xy_m)
+        assert gt.shape == (r.n_objects, 2) and (gt[:, 0] > 0).mean() >= 0.5  # objects mostly ahead (+x)
+        dep = np.asarray(r.depth_local_xy_m)
+        ok = np.isfinite(dep).all(1)
+        ang = np.degrees(np.abs(np.arctan2(dep[ok, 1], dep[ok, 0]) - np.arctan2(gt[ok, 1], gt[ok, 0])))
+        assert np.median(np.minimum(ang, 360 - ang)) < 10  # sparse depth keeps the bearings

@@ -1,5 +1,6 @@
 # Shared helpers: config validation, the scene sheet, input paths. No lambdas in rules.
 import os
+import re
 from pathlib import Path
 
 import pandas as pd
@@ -48,6 +49,13 @@ def published_scenes():
     return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "flatlandia"]
 
 
+def class_cloud_scenes():
+    """Published scenes that ship a class-segmented point cloud (the objects stage starts from it)."""
+    if FLAT_FETCH:
+        return published_scenes()
+    return [s for s in published_scenes() if (FLAT_ROOT / f"maps/{s}/class_segmented_point_cloud.ply").exists()]
+
+
 def published_cities():
     return {s: SCENES_SHEET.loc[s, "city"] for s in published_scenes()}
 
@@ -74,6 +82,16 @@ def images_dir(wildcards):
 def images_fetch_params(wildcards):
     row = SCENES_SHEET.loc[wildcards.scene]
     return {"url": row.get("url", ""), "subfolder": row.get("subfolder", "")}
+
+
+def scene_regex(source):
+    """Regex matching the scene ids of the sheet with this source (never matches when none)."""
+    ids = [re.escape(s) for s in SCENES_SHEET.loc[SCENES_SHEET["source"] == source, "scene"]]
+    return "|".join(ids) if ids else "(?!x)x"
+
+
+PUBLISHED_SCENE = scene_regex("flatlandia")
+IMAGES_SCENE = scene_regex("images")
 
 
 wildcard_constraints:
@@ -134,8 +152,16 @@ def products_of_the_run():
            "results/tables/recovery.parquet", "results/tables/availability.parquet"]
         + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
         + per_scene("results/{scene}/sfm/sfm_summary.png", images_scenes())
+        + per_scene("results/{scene}/align/alignment.json", images_scenes())
+        + per_scene("results/{scene}/objects/objects.ply", images_scenes())
+        + per_scene("results/{scene}/maps/reference_map.geojson", images_scenes())
+        + per_scene("results/{scene}/queries/queries.parquet", images_scenes())
         + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
         + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
+        + per_scene("results/{scene}/objects/objects.parquet", class_cloud_scenes())
+        + per_scene("results/{scene}/objects/objects.ply", class_cloud_scenes())
+        + per_scene("results/{scene}/align/alignment.json", class_cloud_scenes())
+        + (["results/tables/reference_map_reproduction.parquet"] if class_cloud_scenes() else [])
     )
 
 

@@ -36,6 +36,8 @@ rule ingest:
 
 
 rule reference_map:
+    wildcard_constraints:
+        scene=PUBLISHED_SCENE,
     input:
         unpack(scene_data_inputs),
         ingest="results/{scene}/ingest/ingest.json",

@@ -118,3 +118,89 @@ rule plot_sfm:
         "../../envs/flatlandia.yaml"
     script:
         "../scripts/plot_sfm.py"
+
+
+# ---- back half: GPS alignment -> objects -> reference map -> queries (shares flatlandia.objects)
+rule images_align:
+    wildcard_constraints:
+        scene=IMAGES_SCENE,
+    input:
+        model="results/{scene}/sfm/model",
+        cameras="results/{scene}/sfm/cameras.parquet",
+    output:
+        json="results/{scene}/align/alignment.json",
+    params:
+        align=config["images"]["align"],
+        seed=config["seed"],
+    log:
+        "logs/images_align/{scene}.log",
+    benchmark:
+        "benchmarks/images_align/{scene}.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/images_align.py"
+
+
+rule images_objects:
+    wildcard_constraints:
+        scene=IMAGES_SCENE,
+    input:
+        points="results/{scene}/sfm/classified_points.parquet",
+        alignment="results/{scene}/align/alignment.json",
+    output:
+        parquet="results/{scene}/objects/objects.parquet",
+        ply="results/{scene}/objects/objects.ply",
+        members="results/{scene}/objects/point_objects.parquet",
+    params:
+        cluster=config["objects"]["cluster"],
+    log:
+        "logs/images_objects/{scene}.log",
+    benchmark:
+        "benchmarks/images_objects/{scene}.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/images_objects.py"
+
+
+rule images_reference_map:
+    wildcard_constraints:
+        scene=IMAGES_SCENE,
+    input:
+        objects="results/{scene}/objects/objects.parquet",
+    output:
+        parquet="results/{scene}/maps/reference_map.parquet",
+        geojson="results/{scene}/maps/reference_map.geojson",
+    log:
+        "logs/images_reference_map/{scene}.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/images_reference_map.py"
+
+
+rule images_queries:
+    wildcard_constraints:
+        scene=IMAGES_SCENE,
+    input:
+        model="results/{scene}/sfm/model",
+        alignment="results/{scene}/align/alignment.json",
+        objects="results/{scene}/objects/objects.parquet",
+        members="results/{scene}/objects/point_objects.parquet",
+        reference_map="results/{scene}/maps/reference_map.parquet",
+    output:
+        queries="results/{scene}/queries/queries.parquet",
+    params:
+        min_objects=config["images"]["min_objects"],
+        min_points=config["images"]["min_points"],
+        seed=config["seed"],
+        split=config["split"],
+    log:
+        "logs/images_queries/{scene}.log",
+    benchmark:
+        "benchmarks/images_queries/{scene}.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/images_queries.py"

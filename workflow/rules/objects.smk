@@ -40,6 +40,8 @@ def audit_inputs(wildcards):
 
 
 rule objects:
+    wildcard_constraints:
+        scene=PUBLISHED_SCENE,
     input:
         unpack(objects_inputs),
     output:
@@ -58,6 +60,8 @@ rule objects:
 
 
 rule align:
+    wildcard_constraints:
+        scene=PUBLISHED_SCENE,
     input:
         unpack(align_inputs),
     output:

@@ -2,6 +2,8 @@
 
 
 rule recover:
+    wildcard_constraints:
+        scene=PUBLISHED_SCENE,
     input:
         unpack(scene_data_inputs),
         ingest="results/{scene}/ingest/ingest.json",
@@ -21,6 +23,8 @@ rule recover:
 
 
 rule queries:
+    wildcard_constraints:
+        scene=PUBLISHED_SCENE,
     input:
         unpack(scene_data_inputs),
         recovered="results/{scene}/queries/recovered.parquet",

@@ -1,0 +1,193 @@
+"""Images scenes: from a classified SfM model with geotagged cameras to a GPS-aligned object map.
+
+Street-level crowd photos are taken upright, so the cameras' image-down axes agree on gravity
+even when the camera centres lie on one line (a walk along a street) and a plane fit through
+them is degenerate. The ground plane is therefore the plane normal to the cameras' mean "up"
+axis; camera centres projected on it are aligned to their GPS positions by the robust
+similarity of :mod:`flatlandia.align` (no reflection: the up axis fixes handedness). The
+result is an affine map of SfM points onto the metric map, ``xy = A @ X + b`` (A: 2x3), as
+:mod:`flatlandia.imagequeries` expects. Altitude is kept as a 1D fit along the up axis.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from . import align, geo
+from . import objects as O
+from .errors import InputError
+
+NOT_AN_OBJECT = 255
+
+
+def camera_up(rotations: np.ndarray, max_angle_deg: float = 30.0) -> np.ndarray:
+    """World up direction from upright cameras: minus their mean image-down axis (rows 1 of R).
+
+    ``rotations`` are cam_from_world (N, 3, 3). Cameras whose down axis is more than
+    ``max_angle_deg`` off the first estimate (tilted shots) are left out of the second.
+    """
+    down = np.asarray(rotations, float).reshape(-1, 3, 3)[:, 1, :]
+    m = down.mean(0)
+    if np.linalg.norm(m) < 1e-9:
+        raise ValueError("the cameras' down axes cancel out: no common up direction")
+    m /= np.linalg.norm(m)
+    keep = down @ m > np.cos(np.radians(max_angle_deg))
+    if keep.sum() >= 1:
+        m = down[keep].mean(0)
+        m /= np.linalg.norm(m)
+    return -m
+
+
+def plane_basis(up: np.ndarray) -> np.ndarray:
+    """Rows e1, e2 of an orthonormal basis of the plane normal to ``up`` with e1 x e2 = up.
+
+    Right-handed in-plane axes keep counter-clockwise angles counter-clockwise on the map.
+    """
+    up = np.asarray(up, float) / np.linalg.norm(up)
+    helper = np.eye(3)[int(np.argmin(np.abs(up)))]
+    e1 = np.cross(helper, up)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(up, e1)
+    return np.vstack([e1, e2])
+
+
+def compass_to_theta(heading_deg: np.ndarray) -> np.ndarray:
+    """Compass heading (degrees clockwise from north) -> radians counter-clockwise from east."""
+    return np.radians(90.0 - np.asarray(heading_deg, float))
+
+
+def fit_gps_alignment(centres: np.ndarray, rotations: np.ndarray, lonlat: np.ndarray,
+                      altitude: np.ndarray | None = None, compass_deg: np.ndarray | None = None,
+                      threshold_m: float = 15.0, iterations: int = 2000, seed: int = 0,
+                      use_heading: bool = False, heading_threshold_deg: float = 45.0,
+                      source: str = "cameras") -> dict:
+    """Align SfM cameras to their GPS positions; returns the affine map and its residuals.
+
+    ``centres`` (N, 3) and ``rotations`` (N, 3, 3, cam_from_world) of the cameras that have GPS
+    ``lonlat`` (N, 2). ``threshold_m`` is the RANSAC inlier distance (consumer GPS errs by
+    5-10 m). The compass is compared with the aligned viewing directions and only used in the
+    fit when ``use_heading`` (crowd compasses are often wrong).
+    """
+    centres = np.asarray(centres, float).reshape(-1, 3)
+    lonlat = np.asarray(lonlat, float).reshape(-1, 2)
+    if len(centres) != len(lonlat):
+        raise InputError(source, f"{len(centres)} cameras but {len(lonlat)} GPS positions")
+    ok = np.isfinite(centres).all(1) & np.isfinite(lonlat).all(1)
+    if ok.sum() < 3:
+        raise InputError(source, f"only {int(ok.sum())} registered camera(s) with GPS: at least 3 are needed "
+                                 "to align the model to GPS")
+    rot = np.asarray(rotations, float).reshape(-1, 3, 3)
+    up = camera_up(rot[ok])
+    P = plane_basis(up)
+    frame = geo.frame_for(lonlat[ok])
+    dst = frame.to_xy(lonlat[ok])
+    src = centres[ok] @ P.T
+    view_dirs = rot[ok][:, 2, :] @ P.T  # camera +z axes in the plane
+    src_theta = np.arctan2(view_dirs[:, 1], view_dirs[:, 0])
+    dst_theta = None
+    if compass_deg is not None:
+        comp = np.asarray(compass_deg, float).reshape(-1)[ok]
+        dst_theta = compass_to_theta(comp)
+    heading_fit = use_heading and dst_theta is not None and np.isfinite(dst_theta).all()
+    sim = align.ransac_similarity(src, dst, threshold=threshold_m, iterations=iterations, seed=seed,
+                                  allow_reflection=False, src_heading=src_theta if heading_fit else None,
+                                  dst_heading=dst_theta if heading_fit else None,
+                                  heading_threshold_deg=heading_threshold_deg, source=source)
+    A = sim.scale * sim.rotation @ P
+    b = np.asarray(sim.translation, float)
+    res = np.full(len(centres), np.nan)
+    res[ok] = np.linalg.norm(centres[ok] @ A.T + b - dst, axis=1)
+    inl = np.zeros(len(centres), bool)
+    inl[np.flatnonzero(ok)[sim.inliers]] = True
+    out = {
+        "A": A.tolist(), "b": b.tolist(), "up": up.tolist(), "frame_lon0": frame.lon0, "frame_lat0": frame.lat0,
+        "crs": frame.proj4, "metres_per_sfm_unit": float(sim.scale), "rotation_deg": sim.angle_deg(),
+        "cameras_with_gps": int(ok.sum()), "inliers": int(inl.sum()),
+        "median_residual_m": float(np.nanmedian(res)), "max_residual_m": float(np.nanmax(res)),
+        "inlier_median_residual_m": float(np.median(res[inl])) if inl.any() else float("nan"),
+        "residuals_m": [None if not np.isfinite(r) else float(r) for r in res], "inlier_mask": inl.tolist(),
+        "heading_used": bool(heading_fit),
+    }
+    if dst_theta is not None:
+        mapped = np.arctan2(*(view_dirs @ sim.rotation.T)[:, ::-1].T)
+        diff = np.degrees(np.abs(geo.wrap_angle(mapped - dst_theta)))
+        out["compass_median_diff_deg"] = float(np.nanmedian(diff))
+        out["compass_within_30deg"] = float(np.mean(diff[np.isfinite(diff)] < 30)) if np.isfinite(diff).any() else 0.0
+    if altitude is not None:
+        alt = np.asarray(altitude, float).reshape(-1)[ok]
+        h = sim.scale * (centres[ok] @ up)
+        good = np.isfinite(alt)
+        if good.any():
+            off = float(np.median(alt[good] - h[good]))
+            out["altitude_offset_m"] = off
+            out["altitude_median_residual_m"] = float(np.median(np.abs(alt[good] - h[good] - off)))
+    return out
+
+
+def map_points(alignment: dict, X: np.ndarray) -> np.ndarray:
+    """SfM points (N, 3) -> metric map xy (N, 2)."""
+    return np.asarray(X, float).reshape(-1, 3) @ np.asarray(alignment["A"]).T + np.asarray(alignment["b"])
+
+
+def frame_of(alignment: dict) -> geo.MetricFrame:
+    return geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
+
+
+def point_labels(points: pd.DataFrame) -> np.ndarray:
+    """Macro-class of each classified SfM point (background for 255 / non-object classes)."""
+    return O.macro_of_class(points["class_id"].to_numpy())
+
+
+def assign_points(xyz: np.ndarray, labels: np.ndarray, objects: pd.DataFrame, tol: float = 1e-6) -> np.ndarray:
+    """Object id of each point (-1 for none): same macro-class and inside the object's box.
+
+    Boxes are fitted to their cluster's points, so every clustered point lies inside its box
+    (up to ``tol`` in SfM units); where boxes of one class overlap the first object wins.
+    """
+    xyz = np.asarray(xyz, float).reshape(-1, 3)
+    out = np.full(len(xyz), -1, np.int64)
+    for row in objects.itertuples(index=False):
+        c = np.array([row.box_cx, row.box_cy, row.box_cz])
+        half = np.array([row.box_ex, row.box_ey, row.box_ez]) / 2 + tol
+        r = np.array([[getattr(row, f"box_r{i}{j}") for j in range(3)] for i in range(3)])
+        local = (xyz - c) @ r
+        inside = (np.abs(local) <= half).all(1) & (labels == row.macro_class) & (out < 0)
+        out[inside] = int(row.object_id)
+    return out
+
+
+def majority_class(class_ids: np.ndarray) -> int:
+    vals, counts = np.unique(np.asarray(class_ids, int), return_counts=True)
+    return int(vals[np.argmax(counts)])
+
+
+OBJECT_MAP_COLUMNS = ["scene", "object_id", "macro_class", "class_id", "class_label", "n_points", "cx", "cy", "cz",
+                      "lon", "lat", "x_m", "y_m"]
+
+
+def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: O.ClusterParams,
+                  class_labels: list[str], source: str = "points") -> tuple[pd.DataFrame, np.ndarray]:
+    """Cluster the classified SfM points of an images scene into objects on the aligned map.
+
+    Returns (objects with box columns, 42-class label and lon/lat/x/y; object id per point).
+    A model without object points gives an empty table: a documented outcome (e.g. the
+    offline segmentation backend labels no object classes), not an error.
+    """
+    xyz = points[["x", "y", "z"]].to_numpy(float)
+    labels = point_labels(points)
+    if not (labels != O.BACKGROUND).any():
+        empty = pd.DataFrame(columns=OBJECT_MAP_COLUMNS + [c for c in O.OBJECT_COLUMNS if c not in OBJECT_MAP_COLUMNS])
+        return empty, np.full(len(points), -1, np.int64)
+    objs = O.cluster_objects(xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source)
+    member = assign_points(xyz, labels, objs)
+    cls = points["class_id"].to_numpy(int)
+    objs["class_id"] = [majority_class(cls[member == oid]) if (member == oid).any() else NOT_AN_OBJECT
+                        for oid in objs["object_id"]]
+    objs["class_label"] = [class_labels[c] if c < len(class_labels) else "" for c in objs["class_id"]]
+    xy = map_points(alignment, objs[["cx", "cy", "cz"]].to_numpy())
+    ll = frame_of(alignment).to_lonlat(xy)
+    objs["lon"], objs["lat"], objs["x_m"], objs["y_m"] = ll[:, 0], ll[:, 1], xy[:, 0], xy[:, 1]
+    objs.insert(0, "scene", scene)
+    rest = [c for c in objs.columns if c not in OBJECT_MAP_COLUMNS]
+    return objs[OBJECT_MAP_COLUMNS + rest].reset_index(drop=True), member

@@ -1,0 +1,54 @@
+"""Rule images_queries: images of a scene that see >= 3 objects -> 3DoF poses, GT and depth local maps."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pycolmap
+
+from flatlandia import geo, imagequeries, io, localmaps, objects as O, runlog
+
+
+def main(smk, log):
+    scene = smk.wildcards.scene
+    rec = pycolmap.Reconstruction(smk.input.model)
+    views = imagequeries.views_from_colmap(rec)
+    alignment = json.loads(open(smk.input.alignment).read())
+    ref = pd.read_parquet(smk.input.reference_map)
+    objs = pd.read_parquet(smk.input.objects)
+    objs = objs[objs["object_id"].isin(ref["object_id"])].reset_index(drop=True)
+    members = pd.read_parquet(smk.input.members)
+    members = members[members["object_id"].isin(objs["object_id"])]
+    point_object = dict(zip(members["point3D_id"].astype(int), members["object_id"].astype(int)))
+    point_xyz = {int(pid): np.asarray(p.xyz, float) for pid, p in rec.points3D.items()}
+    objs["corners"] = [O.box_corners(r).tolist() for r in objs.itertuples(index=False)]
+    # queries index the reference map by its row (obj_idx), as the published scenes do
+    idx_of = dict(zip(ref["object_id"].astype(int), ref["obj_idx"].astype(int)))
+    objs["object_id"] = objs["object_id"].map(idx_of)
+    point_object = {k: idx_of[v] for k, v in point_object.items()}
+    obj_xy = {int(r.obj_idx): np.array([r.x_m, r.y_m]) for r in ref.itertuples(index=False)}
+    obj_class = dict(zip(ref["obj_idx"].astype(int), ref["class_id"].astype(int)))
+    A, b = np.asarray(alignment["A"], float), np.asarray(alignment["b"], float)
+    q = imagequeries.scene_queries(scene, views, objs, point_object, point_xyz, A, b, obj_xy, obj_class,
+                                   min_objects=int(smk.params.min_objects), min_points=int(smk.params.min_points))
+    frame = geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
+    if len(q):
+        ll = frame.to_lonlat(q[["x_m", "y_m"]].to_numpy(float))
+        q.insert(5, "lon", ll[:, 0])
+        q.insert(6, "lat", ll[:, 1])
+        q["depth_local_xy"] = [localmaps.normalise_depth_map(np.asarray(d, float))[0].tolist()
+                               for d in q["depth_local_xy_m"]]
+        split = localmaps.split_queries(q["token"].tolist(), int(smk.params.seed),
+                                        tuple(smk.params.split[k] for k in ("train", "val", "test")), salt=scene)
+        q["split"] = q["token"].map(split)
+    else:
+        q = q.assign(lon=pd.Series(dtype=float), lat=pd.Series(dtype=float), depth_local_xy=pd.Series(dtype=object),
+                     split=pd.Series(dtype=str))
+    meta = {"scene": scene, "source": "images", "crs": frame.proj4, "views": len(views),
+            "min_objects": int(smk.params.min_objects), "depth_backend": "sparse SfM depth"}
+    io.write_parquet(q, smk.output.queries, meta)
+    log.info("scene %s: %d of %d registered images see >= %d objects -> %d queries", scene, len(q), len(views),
+             int(smk.params.min_objects), len(q))
+
+
+runlog.run(main, snakemake)  # noqa: F821
