@@ -18,6 +18,7 @@ include: "workflow/rules/images.smk"
 include: "workflow/rules/objects.smk"
 include: "workflow/rules/coarse.smk"
 include: "workflow/rules/fine.smk"
+include: "workflow/rules/report.smk"
 include: "workflow/rules/tables.smk"
 
 

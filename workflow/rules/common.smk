@@ -155,6 +155,7 @@ def products_of_the_run():
         + per_scene("results/{scene}/align/alignment.json", images_scenes())
         + per_scene("results/{scene}/objects/objects.ply", images_scenes())
         + per_scene("results/{scene}/maps/reference_map.geojson", images_scenes())
+        + per_scene("results/{scene}/maps/reference_map.png", images_scenes())
         + per_scene("results/{scene}/queries/queries.parquet", images_scenes())
         + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
         + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
@@ -166,4 +167,4 @@ def products_of_the_run():
 
 
 def all_targets():
-    return products_of_the_run() + ["results/manifest.parquet"]
+    return products_of_the_run() + report_figures() + ["results/manifest.parquet"]

@@ -85,7 +85,8 @@ rule reproduction_audit:
         unpack(audit_inputs),
     output:
         parquet="results/tables/reference_map_reproduction.parquet",
-        png="results/tables/reference_map_reproduction.png",
+        png=report("results/tables/reference_map_reproduction.png", caption="../report/reference_map_reproduction.rst",
+                   category="Reference maps"),
     params:
         scenes=class_cloud_scenes(),
         radius_m=config.get("objects", {}).get("audit_radius_m", 2.0),

@@ -50,9 +50,19 @@ rule availability_table:
         "../scripts/availability_table.py"
 
 
+def result_tables():
+    """Every result table of the run (Parquet); `snakemake tables` builds just these."""
+    return [p for p in products_of_the_run() if p.startswith("results/tables/") and p.endswith(".parquet")]
+
+
+rule tables:
+    input:
+        result_tables(),
+
+
 rule manifest:
     input:
-        products_of_the_run(),
+        products_of_the_run() + report_figures(),
     output:
         parquet="results/manifest.parquet",
     log:

@@ -33,7 +33,7 @@ def main(smk, log):
         io.write_parquet(rows, path, {"loss": coarse.LOSSES[loss], "config": models[coarse.LOSSES[loss]][1].to_dict(),
                                       "split": "test"})
     table = coarse.summarise(per_query)
-    timing = coarse.time_one_query(*next(iter(models.values())), ds, ds.samples[0]) if ds.samples else {}
+    timing = coarse.time_one_query(next(iter(models.values()))[0], ds, ds.samples[0]) if ds.samples else {}
     meta = {"table": "coarse_localization", "columns": {c: {"unit": u, "meaning": m} for c, u, m in coarse.TABLE_COLUMNS},
             "query_time": timing}
     io.write_parquet(table, smk.output.table, meta)

@@ -1,0 +1,82 @@
+# Report figures (issue 7): training curves, fine error CDFs and Fig. 8, a coarse-score heat map.
+# Captions in workflow/report/; `snakemake --report results/report.html` collects them.
+
+
+def fine_trained_models():
+    """(model, map_type) of every learned fine run of the config (geo needs no training)."""
+    out = []
+    for run in fine_runs():
+        method, map_type, _ = run.rsplit("_", 2)
+        if method != "geo" and (method, map_type) not in out:
+            out.append((method, map_type))
+    return out
+
+
+def heatmap_scene():
+    """The scene of the coarse heat map: config report.heatmap_scene, else the first published scene."""
+    wanted = str(config.get("report", {}).get("heatmap_scene", ""))
+    scenes = published_scenes()
+    return wanted if wanted in scenes else (scenes[0] if scenes else None)
+
+
+def report_figures():
+    if not published_scenes():
+        return []
+    out = ["results/figures/training_curves.png", "results/figures/fine_error_cdf.png",
+           "results/figures/fine_error_vs_objects.png"]
+    return out + [f"results/figures/coarse_scores_{heatmap_scene()}.png"]
+
+
+rule figures_training:
+    input:
+        coarse=expand("results/coarse/{loss}/training.parquet", loss=coarse_losses()),
+        fine=[f"results/fine/models/{m}_{t}/history.parquet" for m, t in fine_trained_models()],
+    output:
+        png=report("results/figures/training_curves.png", caption="../report/training_curves.rst", category="Training"),
+    params:
+        coarse_labels=coarse_losses(),
+        fine_labels=[f"{m} ({t} maps)" for m, t in fine_trained_models()],
+    log:
+        "logs/figures_training/all.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/figures_training.py"
+
+
+rule figures_fine_errors:
+    input:
+        errors=expand("results/fine/{run}/errors.parquet", run=fine_runs()),
+        queries=per_scene("results/{scene}/queries/queries.parquet"),
+    output:
+        cdf=report("results/figures/fine_error_cdf.png", caption="../report/fine_error_cdf.rst", category="Fine localization"),
+        vs_objects=report("results/figures/fine_error_vs_objects.png", caption="../report/fine_error_vs_objects.rst",
+                          category="Fine localization"),
+    params:
+        runs=fine_runs(),
+    log:
+        "logs/figures_fine_errors/all.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/figures_fine_errors.py"
+
+
+rule figures_coarse_heatmap:
+    input:
+        models=expand("results/coarse/{loss}/model.pt", loss=coarse_losses()),
+        reference_map="results/{scene}/maps/reference_map.parquet",
+        queries="results/{scene}/queries/queries.parquet",
+        similarity="results/{scene}/coarse/similarity.parquet",
+    output:
+        png=report("results/figures/coarse_scores_{scene}.png", caption="../report/coarse_scores.rst",
+                   category="Coarse localization", labels={"scene": "{scene}"}),
+    params:
+        losses=coarse_losses(),
+        map_type=config.get("report", {}).get("heatmap_map_type", "depth"),
+    log:
+        "logs/figures_coarse_heatmap/{scene}.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    script:
+        "../scripts/figures_coarse_heatmap.py"
