@@ -125,8 +125,16 @@ def sparse_depth_point(view: View, box: list[float], point_xyz: dict[int, np.nda
 
 def scene_queries(scene: str, views: list[View], objects: pd.DataFrame, point_object: dict[int, int],
                   point_xyz: dict[int, np.ndarray], A: np.ndarray, b: np.ndarray, obj_xy: dict[int, np.ndarray],
-                  obj_class: dict[int, int], min_objects: int = 3, min_points: int = 2) -> pd.DataFrame:
-    """The queries table of an images scene, in the published scenes' schema (see README)."""
+                  obj_class: dict[int, int], min_objects: int = 3, min_points: int = 2,
+                  lift=None) -> pd.DataFrame:
+    """The queries table of an images scene, in the published scenes' schema (see README).
+
+    ``lift(view, box)`` gives a detection's world point for the depth local map (default: the
+    sparse SfM depth; see :mod:`flatlandia.depth` for the monocular backend).
+    """
+    if lift is None:
+        def lift(view, box):
+            return sparse_depth_point(view, box, point_xyz)
     rows = []
     for v in views:
         det = detections(v, objects, point_object, min_points)
@@ -137,7 +145,7 @@ def scene_queries(scene: str, views: list[View], objects: pd.DataFrame, point_ob
         gt = geo.world_to_local(np.array([obj_xy[i] for i in ids]), cam_xy, theta)
         depth = []
         for box in det["box"]:
-            X = sparse_depth_point(v, box, point_xyz)
+            X = lift(v, box)
             depth.append([np.nan, np.nan] if X is None else geo.world_to_local((A @ X + b)[None], cam_xy, theta)[0])
         depth = np.asarray(depth, float)
         rows.append({

@@ -194,6 +194,8 @@ rule images_queries:
     params:
         min_objects=config["images"]["min_objects"],
         min_points=config["images"]["min_points"],
+        depth=config["images"]["depth"],
+        images_dir=images_dir,
         seed=config["seed"],
         split=config["split"],
     log:

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pycolmap
 
-from flatlandia import geo, imagequeries, io, localmaps, objects as O, runlog
+from flatlandia import depth, geo, imagequeries, io, localmaps, objects as O, runlog
 
 
 def main(smk, log):
@@ -29,8 +29,12 @@ def main(smk, log):
     obj_xy = {int(r.obj_idx): np.array([r.x_m, r.y_m]) for r in ref.itertuples(index=False)}
     obj_class = dict(zip(ref["obj_idx"].astype(int), ref["class_id"].astype(int)))
     A, b = np.asarray(alignment["A"], float), np.asarray(alignment["b"], float)
+    dcfg = dict(smk.params.depth)
+    lift = depth.make_lifter(dcfg["backend"], point_xyz, images_dir=smk.params.images_dir,
+                             weights=dcfg.get("weights"), inverse=bool(dcfg.get("inverse", True)))
     q = imagequeries.scene_queries(scene, views, objs, point_object, point_xyz, A, b, obj_xy, obj_class,
-                                   min_objects=int(smk.params.min_objects), min_points=int(smk.params.min_points))
+                                   min_objects=int(smk.params.min_objects), min_points=int(smk.params.min_points),
+                                   lift=lift)
     frame = geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
     if len(q):
         ll = frame.to_lonlat(q[["x_m", "y_m"]].to_numpy(float))
@@ -45,7 +49,7 @@ def main(smk, log):
         q = q.assign(lon=pd.Series(dtype=float), lat=pd.Series(dtype=float), depth_local_xy=pd.Series(dtype=object),
                      split=pd.Series(dtype=str))
     meta = {"scene": scene, "source": "images", "crs": frame.proj4, "views": len(views),
-            "min_objects": int(smk.params.min_objects), "depth_backend": "sparse SfM depth"}
+            "min_objects": int(smk.params.min_objects), "depth_backend": dcfg["backend"]}
     io.write_parquet(q, smk.output.queries, meta)
     log.info("scene %s: %d of %d registered images see >= %d objects -> %d queries", scene, len(q), len(views),
              int(smk.params.min_objects), len(q))

@@ -1,0 +1,110 @@
+"""Depth of detections for the depth local maps of images scenes.
+
+Two backends behind one call, ``lift(view, box) -> world point or None``:
+- ``sparse`` (offline default): the detection centre lifted to the median camera depth of the
+  SfM points observed inside the detection (:func:`flatlandia.imagequeries.sparse_depth_point`);
+- ``transformers``: a monocular depth model (DPT, MiDaS, Depth-Anything, ...) loaded with
+  ``transformers`` from a local folder the user provides (nothing is downloaded). Such models
+  predict depth up to scale (or inverse depth up to scale), so each image's prediction is
+  scaled to the SfM depths of the points it observes (one robust factor per image), then the
+  detection centre is lifted with the median scaled depth inside the box.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .errors import InputError
+from .imagequeries import View, sparse_depth_point
+
+
+def fit_scale(pred_at_points: np.ndarray, sfm_depth: np.ndarray, inverse: bool) -> float:
+    """Robust factor a with depth = a * pred (or a / pred for inverse-depth models).
+
+    The median of per-point ratios ignores the outliers that monocular predictions have at
+    depth edges. NaN when no point has a positive prediction and depth.
+    """
+    p = np.asarray(pred_at_points, float)
+    d = np.asarray(sfm_depth, float)
+    ok = np.isfinite(p) & np.isfinite(d) & (p > 0) & (d > 0)
+    if not ok.any():
+        return float("nan")
+    return float(np.median(d[ok] * p[ok]) if inverse else np.median(d[ok] / p[ok]))
+
+
+def scaled_depth(pred: np.ndarray, scale: float, inverse: bool) -> np.ndarray:
+    pred = np.asarray(pred, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(pred > 0, scale / pred, np.nan) if inverse else scale * pred
+
+
+def lift_box(view: View, box: list[float], depth_map: np.ndarray) -> np.ndarray | None:
+    """World point of a detection: its centre pixel's ray at the box's median (scaled) depth."""
+    h, w = depth_map.shape
+    x0, y0, x1, y1 = (int(np.clip(round(v), 0, m)) for v, m in zip(box, (w, h, w, h)))
+    patch = depth_map[y0:max(y1, y0 + 1), x0:max(x1, x0 + 1)]
+    patch = patch[np.isfinite(patch) & (patch > 0)]
+    if patch.size == 0:
+        return None
+    z = float(np.median(patch))
+    ray = np.linalg.solve(view.K, np.array([(box[0] + box[2]) / 2, (box[1] + box[3]) / 2, 1.0]))
+    return view.R.T @ (ray * z / ray[2] - view.t)
+
+
+class MonocularDepth:
+    """A local ``transformers`` depth-estimation checkpoint; predictions scaled per image to SfM."""
+
+    def __init__(self, weights: str | Path | None, inverse: bool = True):
+        if not weights:
+            raise InputError("config images.depth.weights", "the transformers depth backend needs a local "
+                                                            "checkpoint folder; nothing is downloaded")
+        self.weights = Path(weights)
+        if not (self.weights / "config.json").exists():
+            raise InputError(self.weights, "not a transformers checkpoint folder (no config.json); nothing is downloaded")
+        try:
+            from transformers import AutoImageProcessor, AutoModelForDepthEstimation
+        except ImportError as e:  # pragma: no cover - transformers is pinned in envs/requirements.txt
+            raise InputError(self.weights, f"the transformers depth backend needs `pip install transformers` ({e})") from e
+        self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True)
+        self.model = AutoModelForDepthEstimation.from_pretrained(self.weights, local_files_only=True).eval()
+        self.inverse = inverse
+
+    def predict(self, image_path: str | Path) -> np.ndarray:
+        import torch
+        from PIL import Image
+
+        img = Image.open(image_path).convert("RGB")
+        with torch.no_grad():
+            out = self.model(**self.processor(images=img, return_tensors="pt")).predicted_depth
+        out = torch.nn.functional.interpolate(out[:, None], size=img.size[::-1], mode="bicubic", align_corners=False)
+        return out[0, 0].numpy().astype(float)
+
+    def scaled_map(self, view: View, image_path: str | Path, point_xyz: dict[int, np.ndarray]) -> np.ndarray:
+        pred = self.predict(image_path)
+        h, w = pred.shape
+        X = np.array([point_xyz[int(i)] for i in view.obs_point_ids]).reshape(-1, 3)
+        d = (X @ view.R.T + view.t)[:, 2]
+        c = np.clip(np.round(view.obs_xy[:, 0] - 0.5).astype(int), 0, w - 1)
+        r = np.clip(np.round(view.obs_xy[:, 1] - 0.5).astype(int), 0, h - 1)
+        return scaled_depth(pred, fit_scale(pred[r, c], d, self.inverse), self.inverse)
+
+
+def make_lifter(backend: str, point_xyz: dict[int, np.ndarray], images_dir: str | Path | None = None,
+                weights: str | None = None, inverse: bool = True) -> Callable[[View, list[float]], np.ndarray | None]:
+    """The ``lift(view, box)`` function of a backend (``sparse`` or ``transformers``)."""
+    if backend == "sparse":
+        return lambda view, box: sparse_depth_point(view, box, point_xyz)
+    if backend == "transformers":
+        model = MonocularDepth(weights, inverse=inverse)
+        cache: dict[str, np.ndarray] = {}
+
+        def lift(view: View, box: list[float]) -> np.ndarray | None:
+            if view.name not in cache:
+                cache[view.name] = model.scaled_map(view, Path(images_dir) / view.name, point_xyz)
+            return lift_box(view, box, cache[view.name])
+
+        return lift
+    raise InputError("config images.depth.backend", f"unknown depth backend {backend!r} (sparse, transformers)")
