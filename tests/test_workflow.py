@@ -49,10 +49,10 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
     stats = pd.read_parquet(wd / "results/tables/dataset_stats.parquet")
     assert list(stats["city"]) == ["Lisbon", "Paris", "all"]
     assert stats.set_index("city").loc["all", "total_queries"] == 15
-    fine = pd.read_parquet(wd / "results/tables/fine_localization.parquet").set_index(["method", "map_type", "proposal"])
-    assert fine.loc[("geo", "gt", "gtbb"), "median_m"] < 1e-6  # GT local maps are exact rigid copies
-    assert fine.loc[("geo", "depth", "gtbb"), "queries"] == fine.loc[("geo", "gt", "gtbb"), "queries"] > 0
-    assert {"mlp", "geo"} <= set(fine.index.get_level_values("method"))
+    fine = pd.read_parquet(wd / "results/tables/fine_localization.parquet").set_index("run")
+    assert fine.loc["geo_gt_gtbb", "median_m"] < 1e-6  # GT local maps are exact rigid copies
+    assert fine.loc["geo_depth_gtbb", "queries"] == fine.loc["geo_gt_gtbb", "queries"] > 0
+    assert {"mlp_depth_gtbb", "geo_depth_coarse-simtrip", "geo_depth_whole"} <= set(fine.index)
     coarse = pd.read_parquet(wd / "results/tables/coarse_localization.parquet")
     assert len(coarse) > 0 and coarse["success"].between(0, 1).all()
     avail = pd.read_parquet(wd / "results/tables/availability.parquet").set_index("scene")
