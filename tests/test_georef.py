@@ -115,3 +115,11 @@ def test_scene_without_object_points_is_an_empty_result():
                  "frame_lon0": FRAME.lon0, "frame_lat0": FRAME.lat0}
     objs, member = georef.scene_objects("t", pts, alignment, O.ClusterParams(), CLASSES)
     assert objs.empty and (member == -1).all() and {"x_m", "class_id", "box_cx"} <= set(objs.columns)
+
+
+def test_cameras_far_from_their_gps_are_flagged(walk):
+    far = georef.gps_outliers(walk["centres"], walk["R"], walk["lonlat"], max_residual_m=50.0)
+    assert set(np.flatnonzero(far)) == {4, 17}  # the two wild fixes, 100+ m off; GPS noise of 5 m is not
+    few = walk["lonlat"].copy()
+    few[2:] = np.nan
+    assert not georef.gps_outliers(walk["centres"], walk["R"], few, max_residual_m=50.0).any()

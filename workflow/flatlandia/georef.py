@@ -191,3 +191,18 @@ def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: O.C
     objs.insert(0, "scene", scene)
     rest = [c for c in objs.columns if c not in OBJECT_MAP_COLUMNS]
     return objs[OBJECT_MAP_COLUMNS + rest].reset_index(drop=True), member
+
+
+def gps_outliers(centres: np.ndarray, rotations: np.ndarray, lonlat: np.ndarray, max_residual_m: float,
+                 threshold_m: float = 15.0, seed: int = 0) -> np.ndarray:
+    """Cameras the SfM put far from their own GPS fix once the model is aligned to GPS.
+
+    Cameras without GPS are never flagged; with fewer than 3 geotagged cameras no alignment
+    exists and nothing is flagged (the caller logs it).
+    """
+    lonlat = np.asarray(lonlat, float).reshape(-1, 2)
+    if np.isfinite(lonlat).all(1).sum() < 3:
+        return np.zeros(len(lonlat), bool)
+    al = fit_gps_alignment(centres, rotations, lonlat, threshold_m=threshold_m, seed=seed)
+    res = np.array([np.nan if r is None else r for r in al["residuals_m"]], float)
+    return np.nan_to_num(res, nan=0.0) > max_residual_m

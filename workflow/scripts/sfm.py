@@ -3,9 +3,10 @@
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
-from flatlandia import io, runlog, sfm
+from flatlandia import georef, imagequeries, io, runlog, sfm
 
 
 def main(smk, log):
@@ -26,6 +27,14 @@ def main(smk, log):
     cams = sfm.camera_centres(rec)
     bad = sfm.height_outliers(cams[["x", "y", "z"]].to_numpy(), opts.height_mad_k)
     removed = cams.loc[bad, ["image_id", "name"]].assign(reason="off the street-level camera plane")
+    # cameras far from their own GPS fix once the model is aligned to GPS (georef: up axes + RANSAC)
+    views = {v.name: v for v in imagequeries.views_from_colmap(rec)}
+    kept = cams.loc[~bad].reset_index(drop=True)
+    gps = table.set_index("name").reindex(kept["name"])[["lon", "lat"]].to_numpy(float)
+    far = georef.gps_outliers(kept[["x", "y", "z"]].to_numpy(), np.array([views[n].R for n in kept["name"]]),
+                              gps, float(o.get("gps_max_residual_m", 50.0)), seed=int(smk.params.seed))
+    removed = pd.concat([removed, kept.loc[far, ["image_id", "name"]].assign(
+        reason=f"over {o.get('gps_max_residual_m', 50.0)} m from its GPS fix after aligning the model to GPS")])
     sfm.remove_cameras(rec, removed["image_id"].tolist())
     log.info("removed %d badly localised cameras; final bundle adjustment", len(removed))
     with runlog.native_output_to(smk.log[0]):
