@@ -110,41 +110,40 @@ def test_lund_offline_backend_gives_a_documented_empty_map(lund_run):
     assert "object points, 0 objects" in (wd / "logs/images_objects/lund.log").read_text()
 
 
-def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=14):
-    """Label images the test makes: a few groups of real SfM points co-visible in one image,
-    painted with object classes around every observation of their points in every image."""
+def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=12, min_sep_px=120):
+    """Label images the test makes: groups of real SfM points (dense spots co-visible in one
+    image, chosen far apart in it) painted with object classes around every observation of
+    their points in every image. Returns the label maps and the number of groups."""
     views = imagequeries.views_from_colmap(model)
     best = max(views, key=lambda v: len(v.obs_point_ids))
-    ids = best.obs_point_ids
-    xyz = np.array([model.points3D[int(i)].xyz for i in ids])
-    track = np.array([model.points3D[int(i)].track.length() for i in ids])
-    # seeds spread across the best image: farthest-point sampling among well-tracked points
-    cand = np.flatnonzero(track >= 3)
-    chosen = [cand[np.argmax(track[cand])]]
-    while len(chosen) < n_objects:
-        d = np.min(np.linalg.norm(best.obs_xy[cand][:, None] - best.obs_xy[chosen][None], axis=2), axis=1)
-        chosen.append(cand[np.argmax(d)])
-    classes = [CLASSES.index(c) for c in ("object--support--pole", "object--street-light", "object--traffic-sign",
-                                          "object--support--pole", "object--street-light")]
+    all_ids = np.array(list(model.points3D.keys()))
+    all_xyz = np.array([model.points3D[int(i)].xyz for i in all_ids])
+    xyz = np.array([model.points3D[int(i)].xyz for i in best.obs_point_ids])
+    dense = np.array([(np.linalg.norm(all_xyz - x, axis=1) < radius_sfm).sum() for x in xyz])
+    chosen = []
+    for k in np.argsort(-dense, kind="stable"):
+        if all(np.linalg.norm(best.obs_xy[k] - best.obs_xy[c]) > min_sep_px for c in chosen):
+            chosen.append(k)
+        if len(chosen) == n_objects:
+            break
+    classes = [CLASSES.index(c) for c in ("object--support--pole", "object--street-light", "object--traffic-sign")]
     groups = {}
-    for k, c in enumerate(chosen):
-        near = ids[np.linalg.norm(xyz - xyz[c], axis=1) < radius_sfm]
-        for pid in near:
-            groups[int(pid)] = classes[k % len(classes)]
+    for g, c in enumerate(chosen):
+        for pid in all_ids[np.linalg.norm(all_xyz - xyz[c], axis=1) < radius_sfm]:
+            groups.setdefault(int(pid), classes[g % len(classes)])
+    yy, xx = np.mgrid[-radius_px:radius_px + 1, -radius_px:radius_px + 1]
+    disk = yy ** 2 + xx ** 2 <= radius_px ** 2
     maps = {}
     for img in model.images.values():
         cam = model.cameras[img.camera_id]
         m = np.full((cam.height, cam.width), 255, dtype=np.uint8)
-        yy, xx = np.mgrid[-radius_px:radius_px + 1, -radius_px:radius_px + 1]
-        disk = yy ** 2 + xx ** 2 <= radius_px ** 2
         for p2 in img.points2D:
             if p2.has_point3D() and int(p2.point3D_id) in groups:
-                x, y = int(round(p2.xy[0])), int(round(p2.xy[1]))
-                ys, xs = y + yy[disk], x + xx[disk]
+                ys, xs = int(round(p2.xy[1])) + yy[disk], int(round(p2.xy[0])) + xx[disk]
                 ok = (ys >= 0) & (ys < cam.height) & (xs >= 0) & (xs < cam.width)
                 m[ys[ok], xs[ok]] = groups[int(p2.point3D_id)]
         maps[img.name] = m
-    return maps, len(set(groups))
+    return maps, len(chosen)
 
 
 @pytest.mark.slow
@@ -153,7 +152,7 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
     wd = lund_run
     model = pycolmap.Reconstruction(str(wd / "results/lund/sfm/model"))
     alignment = json.loads((wd / "results/lund/align/alignment.json").read_text())
-    maps, _ = _painted_label_maps(model, radius_sfm=0.8 / alignment["metres_per_sfm_unit"])
+    maps, _ = _painted_label_maps(model, radius_sfm=1.5 / alignment["metres_per_sfm_unit"])
     pts = classify.point_votes(model, maps)
     assert (pts["class_id"] != 255).sum() >= 20
     objs, member = georef.scene_objects("lund", pts, alignment, O.ClusterParams(eps_m=1.0), CLASSES)

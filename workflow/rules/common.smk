@@ -168,3 +168,73 @@ def products_of_the_run():
 
 def all_targets():
     return products_of_the_run() + report_figures() + ["results/manifest.parquet"]
+
+
+# ---------------------------------------------------------------- objects inputs
+def objects_inputs(wildcards):
+    s = wildcards.scene
+    return {
+        "cloud": flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply"),
+        "transformations": flatlandia_file(f"maps/{s}/transformations.json"),
+        "reference_map": flatlandia_file(f"individual_reference_maps/map_{s}.json"),
+        # label transfer uses the class labels of the *other* scenes' maps
+        "other_maps": [
+            flatlandia_file(f"individual_reference_maps/map_{o}.json")
+            for o in published_scenes()
+            if o != s
+        ],
+    }
+
+
+def align_inputs(wildcards):
+    s = wildcards.scene
+    return {
+        "cloud": flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply"),
+        "transformations": flatlandia_file(f"maps/{s}/transformations.json"),
+    }
+
+
+def objects_cluster_params(wildcards):
+    return dict(config.get("objects", {}).get("cluster", {}))
+
+
+def audit_inputs(wildcards):
+    scenes = class_cloud_scenes()
+    return {
+        "objects": expand("results/{scene}/objects/objects.parquet", scene=scenes),
+        "clouds": [flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply") for s in scenes],
+        "transformations": [flatlandia_file(f"maps/{s}/transformations.json") for s in scenes],
+        "reference_maps": [flatlandia_file(f"individual_reference_maps/map_{s}.json") for s in scenes],
+    }
+
+
+# ---------------------------------------------------------------- report inputs
+def fine_trained_models():
+    """(model, map_type) of every learned fine run of the config (geo needs no training)."""
+    out = []
+    for run in fine_runs():
+        method, map_type, _ = run.rsplit("_", 2)
+        if method != "geo" and (method, map_type) not in out:
+            out.append((method, map_type))
+    return out
+
+
+def heatmap_scene():
+    """The scene of the coarse heat map: config report.heatmap_scene, else the first published scene."""
+    wanted = str(config.get("report", {}).get("heatmap_scene", ""))
+    scenes = published_scenes()
+    return wanted if wanted in scenes else (scenes[0] if scenes else None)
+
+
+def report_figures():
+    if not published_scenes():
+        return []
+    out = ["results/figures/training_curves.png", "results/figures/fine_error_cdf.png",
+           "results/figures/fine_error_vs_objects.png"]
+    return out + [f"results/figures/coarse_scores_{heatmap_scene()}.png"]
+
+
+# ---------------------------------------------------------------- tables inputs
+def result_tables():
+    """Every result table of the run (Parquet); `snakemake tables` builds just these."""
+    return [p for p in products_of_the_run() if p.startswith("results/tables/") and p.endswith(".parquet")]

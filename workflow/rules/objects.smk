@@ -1,42 +1,5 @@
-# Objects from classified point clouds, alignment, and the audit against the published maps.
-# Draft: assumes FLAT_ROOT, flatlandia_file(relpath) and class_cloud_scenes() from common.smk.
-
-
-def objects_inputs(wildcards):
-    s = wildcards.scene
-    return {
-        "cloud": flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply"),
-        "transformations": flatlandia_file(f"maps/{s}/transformations.json"),
-        "reference_map": flatlandia_file(f"individual_reference_maps/map_{s}.json"),
-        # label transfer uses the class labels of the *other* scenes' maps
-        "other_maps": [
-            flatlandia_file(f"individual_reference_maps/map_{o}.json")
-            for o in published_scenes()
-            if o != s
-        ],
-    }
-
-
-def align_inputs(wildcards):
-    s = wildcards.scene
-    return {
-        "cloud": flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply"),
-        "transformations": flatlandia_file(f"maps/{s}/transformations.json"),
-    }
-
-
-def objects_cluster_params(wildcards):
-    return dict(config.get("objects", {}).get("cluster", {}))
-
-
-def audit_inputs(wildcards):
-    scenes = class_cloud_scenes()
-    return {
-        "objects": expand("results/{scene}/objects/objects.parquet", scene=scenes),
-        "clouds": [flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply") for s in scenes],
-        "transformations": [flatlandia_file(f"maps/{s}/transformations.json") for s in scenes],
-        "reference_maps": [flatlandia_file(f"individual_reference_maps/map_{s}.json") for s in scenes],
-    }
+# Objects from classified point clouds (published class clouds), principal plane, and the audit against
+# the published maps. Input functions live in common.smk.
 
 
 rule objects:

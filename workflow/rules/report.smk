@@ -2,31 +2,6 @@
 # Captions in workflow/report/; `snakemake --report results/report.html` collects them.
 
 
-def fine_trained_models():
-    """(model, map_type) of every learned fine run of the config (geo needs no training)."""
-    out = []
-    for run in fine_runs():
-        method, map_type, _ = run.rsplit("_", 2)
-        if method != "geo" and (method, map_type) not in out:
-            out.append((method, map_type))
-    return out
-
-
-def heatmap_scene():
-    """The scene of the coarse heat map: config report.heatmap_scene, else the first published scene."""
-    wanted = str(config.get("report", {}).get("heatmap_scene", ""))
-    scenes = published_scenes()
-    return wanted if wanted in scenes else (scenes[0] if scenes else None)
-
-
-def report_figures():
-    if not published_scenes():
-        return []
-    out = ["results/figures/training_curves.png", "results/figures/fine_error_cdf.png",
-           "results/figures/fine_error_vs_objects.png"]
-    return out + [f"results/figures/coarse_scores_{heatmap_scene()}.png"]
-
-
 rule figures_training:
     input:
         coarse=expand("results/coarse/{loss}/training.parquet", loss=coarse_losses()),

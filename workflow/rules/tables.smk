@@ -50,11 +50,6 @@ rule availability_table:
         "../scripts/availability_table.py"
 
 
-def result_tables():
-    """Every result table of the run (Parquet); `snakemake tables` builds just these."""
-    return [p for p in products_of_the_run() if p.startswith("results/tables/") and p.endswith(".parquet")]
-
-
 rule tables:
     input:
         result_tables(),
