@@ -43,10 +43,24 @@ def test_split_merged_neighbours():
     bridge = np.column_stack([np.linspace(0.3, 3.7, 5), np.zeros(5), np.zeros(5)])
     pts = np.vstack([p1, p2, bridge])
     labels = np.array(["pole"] * len(pts), dtype=object)
-    merged = O.cluster_objects(pts, labels, 1.0, O.ClusterParams(eps_m=1.0, split_extent_m=100))
+    merged = O.cluster_objects(pts, labels, 1.0, O.ClusterParams(eps_m=1.0, eps_m_by_class={}))
     assert len(merged) == 1
-    split = O.cluster_objects(pts, labels, 1.0, O.ClusterParams(eps_m=1.0, split_extent_m=3.0))
+    split = O.cluster_objects(pts, labels, 1.0, O.ClusterParams(eps_m=1.0, eps_m_by_class={}, split_extent_m=3.0))
     assert len(split) == 2
+    # the default pole radius (0.4 m) already separates them: poles are clustered tighter
+    assert len(O.cluster_objects(pts, labels, 1.0)) == 2
+
+
+def test_per_class_radius():
+    p = O.ClusterParams()
+    assert p.eps_for("pole") == pytest.approx(0.40) and p.eps_for("sign") == pytest.approx(1.24)
+    assert p.eps_for("manhole") == p.eps_for("traffic_light") == pytest.approx(0.88)
+    # two sign points 1.0 m apart join (radius 1.24 m); the same two as poles do not (0.4 m)
+    pts = np.array([[0, 0, 0], [1.0, 0, 0], [0.5, 0.1, 0]])
+    assert len(O.cluster_objects(pts, np.array(["sign"] * 3, dtype=object), 1.0)) == 1
+    assert len(O.cluster_objects(pts, np.array(["pole"] * 3, dtype=object), 1.0)) == 0
+    with pytest.raises(ValueError):
+        O.cluster_objects(pts, np.array(["sign"] * 3, dtype=object), 1.0, O.ClusterParams(eps_m_by_class={"pole": 0}))
 
 
 def test_oriented_box_known_answer():
@@ -154,18 +168,23 @@ def audit_rows():
 def test_reproduction_real(audit_rows):
     df = audit_rows
     assert df["published"].sum() == 854
-    frac = df["within_0.5m"].sum() / df["published"].sum()
-    # Measured (eps 1 m, min 3 points): 78% of the published objects within 0.5 m. The issue's
-    # target is 90% with <= 10% extra objects; not reached yet (see the module notes): this
-    # guards the measured level against regressions.
-    assert frac >= 0.75
-    assert df["within_0.05m"].sum() / df["published"].sum() >= 0.45
-    # without scene 2, whose cloud is almost entirely coloured, extras measured 47%
+    pub = df["published"].sum()
+    # Measured with the default ClusterParams (DBSCAN 1.24 m, poles 0.40 m, manholes and traffic
+    # lights 0.88 m, >= 3 points, no split): 580 exact (67.9%), 669 within 0.5 m (78.3%),
+    # 715 within 2 m. The issue's target (90%, <= 10% extra) is not reached (module notes).
+    assert df["within_0.05m"].sum() / pub >= 0.67
+    assert df["within_0.5m"].sum() / pub >= 0.78
+    # without scene 2 (its cloud is 99.7% coloured): 81.6% within 0.5 m, 23.5% extra
     rest = df[df["scene"] != "2"]
-    assert (rest["ours"].sum() - rest["within_0.5m"].sum()) / rest["published"].sum() <= 0.5
+    assert rest["within_0.5m"].sum() / rest["published"].sum() >= 0.81
+    assert rest["extra"].sum() / rest["published"].sum() <= 0.24
+    # scenes whose published map keeps (almost) every cluster: few extras, >= 83% reproduced
+    for s in ("12", "14", "18"):
+        r = df[df["scene"] == s].iloc[0]
+        assert r["within_0.5m"] / r["published"] >= 0.83 and r["extra"] <= 3
 
 
-@pytest.mark.xfail(reason="issue 3 target (>= 90% within 0.5 m, <= 10% extra) not reached by DBSCAN alone", strict=True)
+@pytest.mark.xfail(reason="issue 3 target not reached: ~110 published objects come from image-based splits, scenes 2 and 4 drop clusters", strict=True)
 def test_reproduction_target(audit_rows):
     df = audit_rows
     assert df["within_0.5m"].sum() / df["published"].sum() >= 0.9

@@ -115,12 +115,56 @@ def remove_cameras(rec, image_ids: list[int]) -> None:
         rec.deregister_frame(rec.images[i].frame_id)
 
 
-def final_bundle_adjustment(rec) -> None:
+def gps_priors(rec, gps: pd.DataFrame, sigma_m: float = 5.0, alt_sigma_m: float = 10.0):
+    """COLMAP pose priors (position only) of the registered images that have GPS.
+
+    Positions are in the metric frame of the images' GPS (``geo.frame_for``: x east, y north,
+    altitude up, metres); the horizontal sigma is the image's reported GPS accuracy when
+    known. ``gps`` is indexed by image name with lon, lat, alt and optionally gps_accuracy_m.
+    Returns (priors, frame) or ([], None) with fewer than 3 geotagged images.
+    """
+    import pycolmap
+
+    from . import geo
+
+    rows = [(img, gps.loc[img.name]) for img in rec.images.values()
+            if img.has_pose and img.name in gps.index and np.isfinite(gps.loc[img.name, ["lon", "lat"]].astype(float)).all()]
+    if len(rows) < 3:
+        return [], None
+    frame = geo.frame_for(np.array([[float(r["lon"]), float(r["lat"])] for _, r in rows]))
+    alts = np.array([float(r["alt"]) if pd.notna(r.get("alt")) else np.nan for _, r in rows])
+    alt0 = float(np.nanmedian(alts)) if np.isfinite(alts).any() else 0.0
+    priors = []
+    for (img, r), alt in zip(rows, alts):
+        xy = frame.to_xy(np.array([[float(r["lon"]), float(r["lat"])]]))[0]
+        acc = float(r.get("gps_accuracy_m", np.nan)) if pd.notna(r.get("gps_accuracy_m", np.nan)) else sigma_m
+        s_alt = alt_sigma_m if np.isfinite(alt) else 1e3  # no altitude: effectively unconstrained
+        priors.append(pycolmap.PosePrior(
+            position=np.array([xy[0], xy[1], alt if np.isfinite(alt) else alt0]),
+            position_covariance=np.diag([acc ** 2, acc ** 2, s_alt ** 2]),
+            coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN, corr_data_id=img.data_id))
+    return priors, frame
+
+
+def final_bundle_adjustment(rec, priors=None, ransac_max_error_m: float = 15.0, seed: int = 0) -> bool:
+    """Bundle adjustment of the cleaned model; with GPS pose priors the model is first aligned to
+    them (RANSAC on camera positions) and then refined with their positions as soft constraints,
+    so it comes out metric, in the priors' frame. Returns whether priors were used."""
     import pycolmap
 
     opts = pycolmap.BundleAdjustmentOptions()
     opts.print_summary = False
-    pycolmap.bundle_adjustment(rec, opts)
+    if not priors:
+        pycolmap.bundle_adjustment(rec, opts)
+        return False
+    cfg = pycolmap.BundleAdjustmentConfig()
+    for iid in rec.reg_image_ids():
+        cfg.add_image(iid)
+    popts = pycolmap.PosePriorBundleAdjustmentOptions()
+    popts.alignment_ransac.max_error = float(ransac_max_error_m)
+    popts.alignment_ransac.random_seed = int(seed)
+    pycolmap.create_pose_prior_bundle_adjuster(opts, popts, cfg, priors, rec).solve()
+    return True
 
 
 def stats_table(rec, n_input: int, removed: pd.DataFrame) -> pd.DataFrame:

@@ -30,9 +30,10 @@ rule align:
     output:
         json="results/{scene}/align/alignment.json",
     params:
-        max_points=config.get("align", {}).get("max_points", 20000),
-        iterations=config.get("align", {}).get("iterations", 500),
-        seed=config.get("seed", 0),
+        max_points=20000,  # subsample for the frame origin (median point)
+        ground_scale_m=config["align"]["ground_scale_m"],
+        fallback_scale_m=config["align"]["fallback_scale_m"],
+        min_ground_points=config["align"]["min_ground_points"],
     log:
         "logs/align/{scene}.log",
     benchmark:

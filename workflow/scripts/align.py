@@ -13,11 +13,14 @@ from flatlandia import objects as O
 
 def main(smk, log):
     scene = smk.wildcards.scene
-    pts, _ = O.read_classified_cloud(smk.input.cloud)
+    pts, labels = O.read_classified_cloud(smk.input.cloud)
     t = io.read_transformations(smk.input.transformations)
     step = max(1, len(pts) // int(smk.params.max_points))
-    plane = A.fit_plane(pts[::step], iterations=int(smk.params.iterations), seed=int(smk.params.seed),
-                        source=str(smk.input.cloud))
+    # street plane through the ground classes (Cauchy IRLS, lengths in metres; see fit_ground_plane)
+    plane, plane_points = A.fit_ground_plane(
+        pts, labels, O.metres_per_unit(t), min_ground_points=int(smk.params.min_ground_points),
+        ground_scale_m=float(smk.params.ground_scale_m), fallback_scale_m=float(smk.params.fallback_scale_m),
+        source=str(smk.input.cloud))
     rpp = np.asarray(t["to_principal_plane"], float)
     r2 = np.asarray(t["to_mapillary"]["rotation"], float)
     pub_n = A.published_normal(rpp)
@@ -29,7 +32,7 @@ def main(smk, log):
     out = {
         "scene": scene,
         "method": "published chain (no camera GPS in the published data)",
-        "plane_source": "class point cloud (RANSAC + least squares)",
+        "plane_source": f"class point cloud, {plane_points} (Cauchy IRLS)",
         "plane_normal": plane.normal.tolist(),
         "plane_inlier_fraction": float(plane.inliers.mean()),
         "published_normal": pub_n.tolist(),

@@ -38,7 +38,10 @@ def main(smk, log):
     sfm.remove_cameras(rec, removed["image_id"].tolist())
     log.info("removed %d badly localised cameras; final bundle adjustment", len(removed))
     with runlog.native_output_to(smk.log[0]):
-        sfm.final_bundle_adjustment(rec)
+        priors, frame = (sfm.gps_priors(rec, table.set_index("name"), float(o.get("gps_prior_sigma_m", 5.0)),
+                                        float(o.get("gps_prior_alt_sigma_m", 10.0)))
+                         if o.get("gps_prior", True) else ([], None))
+        used = sfm.final_bundle_adjustment(rec, priors, seed=int(smk.params.seed))
     tmp = out.with_name(out.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -46,6 +49,10 @@ def main(smk, log):
     shutil.rmtree(out, ignore_errors=True)
     tmp.rename(out)
     stats = sfm.stats_table(rec, len(names), removed)
+    stats["gps_prior_images"] = len(priors) if used else 0
+    stats["model_frame"] = (f"metric, x east / y north / z up (m) around lon {frame.lon0}, lat {frame.lat0} "
+                            "(aligned to the GPS priors)") if used else "arbitrary SfM frame (no GPS priors)"
+    log.info("final bundle adjustment %s", f"with {len(priors)} GPS position priors" if used else "without priors")
     io.write_parquet(stats, smk.output.stats)
     io.write_parquet(sfm.camera_centres(rec).merge(table[["name", "lat", "lon", "alt", "heading"]], on="name"),
                      smk.output.cameras)
