@@ -42,7 +42,7 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert (wd / f"logs/recover/{scene}.log").read_text().count("queries recovered") == 1
         assert (wd / f"benchmarks/recover/{scene}.tsv").exists()
-    for t in ("dataset_stats", "recovery"):  # renderings hold one line per Parquet row
+    for t in ("dataset_stats", "recovery", "reference_map_reproduction"):  # renderings hold one line per Parquet row
         md = [ln for ln in (wd / f"results/tables/{t}.md").read_text().splitlines() if ln.startswith("| ")]
         assert len(md) == 1 + len(pd.read_parquet(wd / f"results/tables/{t}.parquet"))
         assert (wd / f"results/tables/{t}.tex").read_text().startswith("\\begin{table}")

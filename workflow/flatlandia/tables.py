@@ -63,6 +63,18 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("paper_mlp_median_deg", "float", "deg", "the paper's MLP row, Table 4"),
         Column("paper_mlp_pct_10m_20deg", "float", "%", "the paper's MLP row, Table 4"),
     ],
+    "reference_map_reproduction": [
+        Column("scene", "str", "", "class-cloud scene id, or 'all'"),
+        Column("published", "int", "", "objects of the published reference map"),
+        Column("ours", "int", "", "objects we cluster from the scene's class point cloud"),
+        Column("matched", "int", "", "published objects matched to one of ours (same macro-class, Hungarian, within objects.audit_radius_m)"),
+        Column("within_0.05m", "int", "", "matched within 0.05 m"),
+        Column("within_0.5m", "int", "", "matched within 0.5 m"),
+        Column("within_2m", "int", "", "matched within 2 m"),
+        Column("median_dist_m", "float", "m", "median distance of the matches"),
+        Column("extra", "int", "", "our objects matched to no published object"),
+        Column("frac_within_0.5m", "float", "", "within_0.5m / published (target 0.9)"),
+    ],
     "recovery": [
         Column("scene", "str", "", "scene id, or 'all'"),
         Column("queries", "int", "", "published GT local maps"),

@@ -49,6 +49,9 @@ rule reproduction_audit:
         unpack(audit_inputs),
     output:
         parquet="results/tables/reference_map_reproduction.parquet",
+        markdown=report("results/tables/reference_map_reproduction.md", caption="../report/reference_map_reproduction.rst",
+                        category="Tables"),
+        latex="results/tables/reference_map_reproduction.tex",
         png=report("results/tables/reference_map_reproduction.png", caption="../report/reference_map_reproduction.rst",
                    category="Reference maps"),
     params:
