@@ -1,33 +1,7 @@
-# Coarse map localization (issue 4), draft: neighbourhood similarity per scene -> one GAT per loss
+# Coarse map localization (issue 4): neighbourhood similarity per scene -> one GAT per loss
 # (Sim | Trip | Sim+Trip) over every scene's train split -> proposals (N_LM | 2N_LM | R_30 | GT-BB)
-# and Table 3 on the test split. Needs `include: "workflow/rules/coarse.smk"` in the Snakefile
-# (after common.smk) and a `coarse:` section as in config/coarse.example.yaml. No lambdas in rules.
-
-COARSE_LOSSES = ["sim", "trip", "simtrip"]
-
-
-def coarse_cfg():
-    return config.get("coarse", {})
-
-
-def coarse_losses():
-    return coarse_cfg().get("losses", COARSE_LOSSES)
-
-
-def coarse_train_params(wildcards):
-    """coarse.train with the seed derived from the master seed (config seed + coarse.seed_offset)."""
-    train = dict(coarse_cfg().get("train", {}))
-    train["seed"] = int(config.get("seed", 0)) + int(coarse_cfg().get("seed_offset", 0))
-    return train
-
-
-def coarse_eval_seed(wildcards):
-    return int(config.get("seed", 0)) + int(coarse_cfg().get("seed_offset", 0))
-
-
-def coarse_eval_losses(wildcards):
-    return coarse_losses()
-
+# and Table 3 on the test split. Settings: the `coarse:` section of config/config.yaml (a short
+# default run); config/paper.yaml has the paper's 800 epochs. No lambdas in rules.
 
 rule coarse_similarity:
     input:
@@ -36,7 +10,7 @@ rule coarse_similarity:
     output:
         similarity="results/{scene}/coarse/similarity.parquet",
     params:
-        similarity=coarse_cfg().get("similarity", {}),
+        similarity=COARSE.get("similarity", {}),
     threads: 1
     log:
         "logs/coarse_similarity/{scene}.log",
@@ -60,7 +34,7 @@ rule coarse_train:
         model="results/coarse/{loss}/model.pt",
         history="results/coarse/{loss}/training.parquet",
     params:
-        train=coarse_train_params,
+        train=COARSE_TRAIN,
     wildcard_constraints:
         loss="|".join(COARSE_LOSSES),
     threads: 1
@@ -87,9 +61,11 @@ rule coarse_eval:
         proposals=expand("results/coarse/{loss}/proposals.parquet", loss=coarse_losses()),
         table="results/tables/coarse_localization.parquet",
         markdown="results/tables/coarse_localization.md",
+        rows_markdown="results/tables/coarse_localization_rows.md",
+        latex="results/tables/coarse_localization.tex",
     params:
-        losses=coarse_eval_losses,
-        seed=coarse_eval_seed,
+        losses=coarse_losses(),
+        seed=COARSE_SEED,
     threads: 1
     log:
         "logs/coarse_eval/all.log",

@@ -208,6 +208,63 @@ def audit_inputs(wildcards):
     }
 
 
+# ---------------------------------------------------------------- coarse (coarse.smk, report.smk)
+COARSE_LOSSES = ["sim", "trip", "simtrip"]
+COARSE = config.get("coarse", {})
+# training / baseline seed: the master seed + coarse.seed_offset
+COARSE_SEED = int(config.get("seed", 0)) + int(COARSE.get("seed_offset", 0))
+COARSE_TRAIN = {**COARSE.get("train", {}), "seed": COARSE_SEED}
+
+
+def coarse_losses():
+    """The losses of this run (config coarse.losses), each one trained model."""
+    return list(COARSE.get("losses", COARSE_LOSSES))
+
+
+# ---------------------------------------------------------------- fine (fine.smk, report.smk)
+FINE_MODELS = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+FINE_COARSE = {"coarse-sim": "Sim", "coarse-trip": "Trip", "coarse-simtrip": "Sim+Trip"}
+
+
+def fine_cfg():
+    return config.get("fine", {})
+
+
+def fine_runs():
+    """Run names {method}_{map_type}_{proposal} from config fine.runs (methods x map types x proposals)."""
+    runs = fine_cfg().get("runs", {})
+    grid = [f"{m}_{t}_{p}" for m in runs.get("methods", ["geo"]) for t in runs.get("map_types", ["gt", "depth"])
+            for p in runs.get("proposals", ["gtbb"])]
+    return grid + [r for r in runs.get("extra", []) if r not in grid]
+
+
+def fine_eval_inputs(wildcards):
+    inp = {"reference_maps": per_scene("results/{scene}/maps/reference_map.parquet"),
+           "queries": per_scene("results/{scene}/queries/queries.parquet")}
+    if wildcards.method != "geo":
+        inp["checkpoint"] = f"results/fine/models/{wildcards.method}_{wildcards.map_type}/checkpoint.pt"
+    if wildcards.proposal in FINE_COARSE:
+        loss = wildcards.proposal.split("-", 1)[1]
+        inp["coarse"] = f"results/coarse/{loss}/proposals.parquet"
+    return inp
+
+
+def fine_eval_params(wildcards):
+    p = wildcards.proposal
+    strategy = fine_cfg().get("coarse_strategy", "2N_LM")
+    label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
+    return {"method": wildcards.method, "proposal": p, "strategy": strategy, "strategy_label": label}
+
+
+def fine_model_name(wildcards):
+    return FINE_MODELS[wildcards.model]
+
+
+def fine_train_params(wildcards):
+    """fine.train, updated by fine.train_overrides[{model}] (e.g. fewer epochs for the slower GATs)."""
+    return {**fine_cfg().get("train", {}), **fine_cfg().get("train_overrides", {}).get(wildcards.model, {})}
+
+
 # ---------------------------------------------------------------- report inputs
 def fine_trained_models():
     """(model, map_type) of every learned fine run of the config (geo needs no training)."""
