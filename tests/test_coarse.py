@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 import torch
 
-from flatlandia import coarse, geo, graphs, io, localmaps, maps
+from flatlandia import coarse, geo, graphs, io, localmaps, maps, tables
 from flatlandia import similarity as sm
 from flatlandia.classes import CLASSES
 
@@ -117,6 +117,25 @@ def test_similarity_partial_match_and_wrong_classes():
     assert (out["d_p"] == 1.0).all() and (out["S"] == 0.0).all()
 
 
+def test_similarity_one_displaced_object_known_residual():
+    """Query = the 4 objects with object 3 moved 2 m: the best alignment keeps objects 0-2 exact
+    (found by the pair enumeration, no refit can do better on the mean of capped residuals by more
+    than the refit's own least squares), so d_p = 2 m / 4 objects / cap 5 m = 0.1 at most."""
+    cfg = sm.SimilarityConfig(radius_m=30.0, cap_m=5.0)
+    moved = QUERY_WORLD.copy()
+    moved[3] += [2.0, 0.0]
+    idx = sm.SceneIndex(QUERY_WORLD, QUERY_CLS, cfg)
+    out = sm.node_similarity(idx, _local(moved), QUERY_CLS)
+    assert (out["d_p"] <= 0.1 + 1e-9).all() and (out["d_p"] > 0.05).all()
+    assert (out["n_matched"] == 4).all()                 # the moved object still lands within cap_m
+    # moved beyond the cap: it counts as cap_m, the other three align exactly -> d_p = 1/4 exactly
+    moved[3] += [20.0, 0.0]
+    out = sm.node_similarity(idx, _local(moved), QUERY_CLS)
+    assert np.allclose(out["d_p"], 0.25, atol=1e-9) and (out["n_matched"] == 3).all()
+    for i in range(3):
+        assert out.loc[i, "d_s"] == pytest.approx(np.linalg.norm(QUERY_WORLD[:3] - QUERY_WORLD[i], axis=1).mean() / 30)
+
+
 def test_similarity_is_invariant_to_the_query_pose_and_bounded():
     rng = np.random.default_rng(3)
     ref_xy = rng.uniform(0, 80, (40, 2))
@@ -172,6 +191,44 @@ def test_draw_triplets_picks_unmatched_negatives():
     assert not set(ineg[2:] - 6) & {0, 2, 3} and len(set(ineg[2:])) == 3
 
 
+def test_draw_triplets_hard_negatives_are_the_best_ranked_unmatched():
+    smp = [coarse.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None)]
+    scores = np.array([0.9, 0.0, 0.2, 0.1, 0.5, 0.8])   # unmatched ranked 3 (0.1), 2 (0.2), 5, 0
+    ip, ineg = coarse.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=1.0)
+    assert ip.tolist() == [1, 4] and ineg.tolist() == [3, 2]
+    ip, ineg = coarse.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.5)
+    assert ineg[0] == 3 and ineg[1] in {0, 2, 5}           # one hard, one random among the rest
+    _, ineg0 = coarse.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.0)
+    _, ineg1 = coarse.draw_triplets(smp, [6], np.random.default_rng(0))
+    assert ineg0.tolist() == ineg1.tolist()                # fraction 0: the paper's random negatives
+
+
+def test_fused_scores_equal_separately_embedded_graphs():
+    rng = np.random.default_rng(0)
+    ref = _ref_table(rng.uniform(-60, 60, (30, 2)), rng.integers(0, 42, 30))
+    cfg = coarse.CoarseConfig(seed=0)
+    torch.manual_seed(0)
+    model = coarse.build_model(cfg).eval()
+    rg = graphs.reference_graph(ref)
+    qs = [graphs.query_graph(rng.uniform(0, 40, (m, 2)), rng.integers(0, 42, m)) for m in (3, 5, 12)]
+    with torch.no_grad():
+        fused = coarse.fused_scores(model, rg, qs)
+        ref_emb = coarse._embed(model, rg)
+        cached = coarse.fused_scores(model, None, qs, ref_emb=ref_emb)
+        qb = graphs.batch(qs)
+        node, qpos = np.tile(np.arange(30), 3), np.repeat(np.arange(3), 30)
+        sep = coarse.scores(model, ref_emb, qb, node, qpos).reshape(3, 30)
+    assert fused.shape == (3, 30)
+    assert torch.allclose(fused, sep, atol=1e-5) and torch.allclose(cached, sep, atol=1e-5)
+
+
+def test_cosine_schedule_and_config_checks():
+    with pytest.raises(ValueError):
+        coarse.CoarseConfig(lr_schedule="step")
+    d = coarse.CoarseConfig().to_dict()
+    assert d["lr_schedule"] in ("constant", "cosine") and 0 <= d["hard_negatives"] <= 1
+
+
 # ----------------------------------------------------------------------------- proposals and metrics
 
 XY = np.array([[0.0, 0.0], [10.0, 0.0], [25.0, 0.0], [40.0, 0.0], [0.0, 29.0], [100.0, 100.0]])
@@ -211,6 +268,8 @@ def test_summarise_and_markdown_have_the_paper_beside():
     assert (r.paper_precision, r.paper_recall, r.paper_success) == coarse.PAPER_TABLE3[("Sim+Trip", "R_30", "gt")]
     md = coarse.render_markdown(t)
     assert "| Sim+Trip | R_30 | 0.375 / 0.500 / 0.500 | 0.148 / 0.543 / 0.600 |" in md
+    tables.check_schema(t, "coarse_localization")          # the schema-checked writer accepts it
+    assert [c.name for c in tables.SCHEMAS["coarse_localization"]] == list(t.columns)
 
 
 def test_config_rejects_unknown_keys_and_losses():
@@ -265,6 +324,10 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
             assert t.loc[("Sim+Trip", strat, mt), "success"] > t.loc[("random", strat, mt), "success"]
             assert t.loc[("Sim+Trip", strat, mt), "recall"] > t.loc[("random", strat, mt), "recall"]
     assert t.loc[("-", "GT-BB", "gt"), "success"] == 1.0
+    # the validation criterion (computed without DataFrames) = the per-query metrics' means
+    crit = np.mean([t.loc[("Sim+Trip", "2N_LM", mt), "recall"] if k == 0 else t.loc[("Sim+Trip", "R_30", mt), "success"]
+                    for mt in ("gt", "depth") for k in (0, 1)])
+    assert coarse.validation_metric(res["model"], ds, ds.split("test"), cfg) == pytest.approx(crit, abs=1e-12)
     # checkpoint round trip, with the resolved config
     path = tmp_path / "model.pt"
     coarse.save_checkpoint(res, path)
