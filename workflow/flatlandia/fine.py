@@ -421,6 +421,12 @@ def load_checkpoint(path) -> tuple[nn.Module, FineConfig]:
     return model, cfg
 
 
+def checkpoint_info(path) -> dict:
+    """The bookkeeping of a checkpoint: config, best epoch and validation median, training seconds."""
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    return {k: ck.get(k) for k in ("config", "best_epoch", "best_val_median_m", "seconds")}
+
+
 def evaluate_model(model: nn.Module, cfg: FineConfig, ref: pd.DataFrame, queries: pd.DataFrame,
                    proposals: pd.DataFrame, method: str | None = None) -> pd.DataFrame:
     """Per-query error rows (same columns as the solver's) for one scene; query time is the

@@ -121,9 +121,17 @@ def summarise(errors: pd.DataFrame) -> dict:
     out["gross_pct"] = float(100 * np.mean(em > GROSS_M)) if len(e) else float("nan")
     out["mean_query_s"] = float(e["seconds"].mean()) if len(e) else float("nan")
     out["median_query_s"] = float(e["seconds"].median()) if len(e) else float("nan")
-    if "error_paper_m" in e:
-        out["median_paper_m"] = float(np.median(e["error_paper_m"].to_numpy(float))) if len(e) else float("nan")
+    if "error_paper_m" in e:  # the paper's convention: local-map units x 215, same thresholds
+        pu = e["error_paper_m"].to_numpy(float)
+        out["median_pu"] = float(np.median(pu)) if len(e) else float("nan")
+        for m, d in THRESHOLDS:
+            out[f"pct_pu_{m:g}m_{d:g}deg"] = float(100 * np.mean((pu < m) & (ed < d))) if len(e) else float("nan")
     return out
+
+
+def ref_map_kb(ref: pd.DataFrame) -> float:
+    """Size of a reference map as the methods read it: 2 x float32 + a class byte per object, kB."""
+    return 9 * len(ref) / 1000
 
 
 def json_safe(d: dict) -> dict:
@@ -144,11 +152,13 @@ def local_map(row, map_type: str) -> np.ndarray:
 def evaluate_solver(ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.DataFrame, map_type: str,
                     config: dict | None = None, prior_xy: np.ndarray | None = None,
                     scale_prior: tuple[float, float] | None = None, method: str = "solver",
-                    progress: Callable | None = None) -> pd.DataFrame:
+                    progress: Callable | None = None, prior_seen: list | None = None) -> pd.DataFrame:
     """Run the geometric solver on every query of one scene; one row of errors per query.
 
     ``proposals`` has the shape scene, token, strategy, proposal (reference obj_idx); queries
-    without a proposal row get an empty proposal (counted as failures).
+    without a proposal row get an empty proposal (counted as failures). ``prior_seen``: per prior
+    camera (rows of ``prior_xy``), the reference ``obj_idx`` it saw (training queries' ``ref_idx``),
+    for the solver's co-visibility cost.
     """
     cfg = solver.SolverConfig.from_dict(config)
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
@@ -156,6 +166,11 @@ def evaluate_solver(ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.Data
     pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}
     lat = float(ref["lat"].mean())
     props = {str(t): (s, p) for t, s, p in zip(proposals["token"], proposals["strategy"], proposals["proposal"])}
+    seen = None
+    if prior_seen is not None and prior_xy is not None:
+        seen = np.zeros((len(prior_seen), len(ref_xy)), bool)
+        for k, objs in enumerate(prior_seen):
+            seen[k, [pos[int(o)] for o in objs if int(o) in pos]] = True
     rows = []
     items = list(queries.itertuples(index=False))
     for r in (progress(items) if progress else items):
@@ -164,7 +179,8 @@ def evaluate_solver(ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.Data
         q = local_map(r, map_type)
         t0 = time.perf_counter()
         sol = solver.solve(q, np.asarray(r.classes), ref_xy[idx], ref_cls[idx], metric=(map_type == "gt"),
-                           config=cfg, prior_xy=prior_xy, scale_prior=scale_prior) if len(idx) >= 2 else None
+                           config=cfg, prior_xy=prior_xy, scale_prior=scale_prior,
+                           prior_seen=seen[:, idx] if seen is not None else None) if len(idx) >= 2 else None
         dt = time.perf_counter() - t0
         rows.append(_row(r, map_type, strategy, method, sol, dt, idx, ref_cls, lat, pos, ref))
     return pd.DataFrame(rows)
@@ -193,58 +209,114 @@ def _row(r, map_type, strategy, method, sol, dt, idx, ref_cls, lat, pos, ref):
 # ----------------------------------------------------------------------------- tables
 
 _TH_COLS = [f"pct_{m:g}m_{d:g}deg" for m, d in THRESHOLDS]
+_PU_COLS = [f"pct_pu_{m:g}m_{d:g}deg" for m, d in THRESHOLDS]
+
+
+#: method slugs (rule wildcards) and their display names
+METHOD_LABELS = {"geo": "geometric solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+
+
+def paper_row(label: str, map_type: str, strategy: str):
+    """(name, values) of the paper's row beside ours: Table 4 by model (its best, MLP, for the
+    solver) for GT-BB; Table 5's best (MLP, Sim+Trip 2N_LM) for coarse proposals and the whole map.
+    values = (4 threshold %, median "m", median deg, query ms); NaN where the paper gives none."""
+    nan = float("nan")
+    if strategy == "GT-BB":
+        p = PAPER_TABLE4.get((label, map_type))
+        name = label
+        if p is None:
+            p, name = PAPER_TABLE4[("MLP", map_type)], "MLP (best)"
+        qt = 1000 * PAPER_QT_S if name.startswith("MLP") and not name.startswith("MLP+") else nan
+        return f"Table 4 {name}", (*p, qt)
+    p5 = PAPER_TABLE5.get(("MLP", "Sim+Trip", map_type))
+    if p5 is None:
+        return "", (nan,) * 7
+    return "Table 5 MLP Sim+Trip 2N_LM (best)", (nan, nan, nan, nan, p5[0], p5[1], 1000 * PAPER_QT_S)
 
 
 def table_rows(summaries: list[dict]) -> pd.DataFrame:
-    """One row per (method, map_type, strategy) summary, the paper's values beside (Table 4/5)."""
+    """The ``fine_localization`` table (schema in tables.SCHEMAS): one row per run summary, the
+    paper's row beside it."""
+    nan = float("nan")
     rows = []
     for s in summaries:
-        paper4 = PAPER_TABLE4.get((s.get("method"), s.get("map_type"))) if s.get("strategy") == "GT-BB" else None
-        row = dict(s)
-        row["paper_pct"] = " / ".join(f"{v:g}" for v in paper4[:4]) if paper4 else ""
-        row["paper_median_m"] = paper4[4] if paper4 else float("nan")
-        row["paper_median_deg"] = paper4[5] if paper4 else float("nan")
+        run = s.get("run", "")
+        method = s.get("method_slug") or (run.rsplit("_", 2)[0] if run else "")
+        label = METHOD_LABELS.get(method, s.get("method", method))
+        strategy = s.get("strategy", "")
+        name, p = paper_row(label, s.get("map_type", ""), strategy)
+
+        def f(k, scale=1.0):
+            v = s.get(k)
+            return nan if v is None else float(v) * scale
+
+        row = {"run": run, "method": method, "method_label": label, "map_type": s.get("map_type", ""),
+               "proposal": s.get("proposal", run.rsplit("_", 1)[-1] if run else ""), "strategy": strategy,
+               "queries": int(s.get("queries", 0)), "median_m": f("median_m"), "median_deg": f("median_deg")}
+        row.update({c: f(c) for c in _TH_COLS})
+        row.update(failure_pct=f("failure_pct"), no_pose_pct=f("no_pose_pct"), gross_pct=f("gross_pct"),
+                   median_query_ms=f("median_query_s", 1000), mean_query_ms=f("mean_query_s", 1000),
+                   train_s=f("train_s") if s.get("train_s") is not None else 0.0, epochs=int(s.get("epochs") or 0),
+                   n_parameters=int(s.get("n_parameters") or 0), model_mb=float(s.get("model_mb") or 0.0),
+                   ref_map_kb=f("ref_map_kb"), median_pu=f("median_pu"))
+        row.update({c: f(c) for c in _PU_COLS})
+        row["paper_row"] = name
+        row.update({f"paper_{c}": float(v) for c, v in zip(_TH_COLS, p[:4])})
+        row.update(paper_median_pu=float(p[4]), paper_median_deg=float(p[5]), paper_query_ms=float(p[6]))
         rows.append(row)
-    return pd.DataFrame(rows)
+    from .tables import SCHEMAS
+
+    cols = [c.name for c in SCHEMAS["fine_localization"]]
+    return pd.DataFrame(rows, columns=cols)
 
 
-def render_markdown(df: pd.DataFrame) -> str:
-    """Tables 4 (GT-BB) and 5 (other proposals) laid out like the paper, our values beside its."""
+def render_markdown(df: pd.DataFrame, note: str = "") -> str:
+    """Tables 4 (GT-BB) and 5 (coarse proposals, whole map) laid out like the paper, its values beside ours."""
+
+    def fmt(v, spec):
+        return "–" if v is None or not np.isfinite(v) else format(v, spec)
 
     def cell(r):
-        pct = " / ".join(f"{r[c]:.1f}" for c in _TH_COLS)
-        return (f"{pct}; {r['median_m']:.2f} m ({r.get('median_paper_m', float('nan')):.2f} pu); "
-                f"{r['median_deg']:.1f}°; {1000 * r['mean_query_s']:.0f} ms; F {r['failure_pct']:.1f}%; "
-                f"gross {r['gross_pct']:.1f}%")
+        pct = " / ".join(fmt(r[c], ".1f") for c in _TH_COLS)
+        out = (f"{pct}; {fmt(r['median_m'], '.2f')} m ({fmt(r['median_pu'], '.2f')} pu); {fmt(r['median_deg'], '.1f')}°; "
+               f"QT {fmt(r['median_query_ms'], '.1f')} ms; F {fmt(r['failure_pct'], '.1f')}%; "
+               f"gross {fmt(r['gross_pct'], '.1f')}%")
+        if r["epochs"]:
+            out += f"; train {fmt(r['train_s'] / 60, '.1f')} min ({r['epochs']} ep)"
+        return out
+
+    def paper_cell(r):
+        if not r["paper_row"]:
+            return "—"
+        pre = "" if r["paper_row"].endswith(r["method_label"]) else r["paper_row"].split(" ", 2)[-1] + ": "
+        pct = " / ".join(fmt(r[f"paper_{c}"], "g") for c in _TH_COLS) + "; " if np.isfinite(r[f"paper_{_TH_COLS[0]}"]) else ""
+        qt = f"; {fmt(r['paper_query_ms'], 'g')} ms" if np.isfinite(r["paper_query_ms"]) else ""
+        return f'{pre}{pct}{fmt(r["paper_median_pu"], "g")} "m"; {fmt(r["paper_median_deg"], "g")}°{qt}'
 
     out = ["# Fine 3DoF localization (test split)", "",
-           "Cells: % within (0.5 m, 2°) / (1 m, 5°) / (5 m, 10°) / (10 m, 20°); median error in true metres "
-           "(in brackets, `pu`: the paper's convention, local-map units x 215); median degrees; mean query time; "
-           "F% (proposal holds fewer than 3 objects of the query's classes); gross errors (> 30 m).",
-           "The paper's columns are its own figures, whose metres are units x 215. GT local maps are exact "
+           "Cells: % within (0.5 m, 2°) / (1 m, 5°) / (5 m, 10°) / (10 m, 20°) in true metres; median error in true "
+           "metres (in brackets, `pu`: the paper's convention, local-map units x 215); median degrees; median query "
+           "time (one CPU thread); F% (proposal holds fewer than 3 objects of the query's classes); gross errors "
+           "(> 30 m); training time (one CPU thread) for learned models.",
+           "The paper's columns are its own figures, whose metres are units x 215 (\"m\"). GT local maps are exact "
            "rigid copies of the reference map: on them the task is pure registration.", ""]
+    if note:
+        out += [note, ""]
     for title, mask in (("Table 4 (GT-BB proposals)", df["strategy"] == "GT-BB"),
                         ("Table 5 (coarse proposals and whole map)", df["strategy"] != "GT-BB")):
         part = df[mask]
         if part.empty:
             continue
         out += [f"## {title}", "", "| method | proposal | GT maps (ours) | GT maps (paper) | depth maps (ours) | "
-                "depth maps (paper) |", "|---|---|---|---|---|---|"]
-        for (method, strategy), g in part.groupby(["method", "strategy"], sort=False):
+                "depth maps (paper) | params / model / map |", "|---|---|---|---|---|---|---|"]
+        for (label, strategy), g in part.groupby(["method_label", "strategy"], sort=False):
             cells = []
             for mt in ("gt", "depth"):
                 r = g[g["map_type"] == mt]
-                cells.append(cell(r.iloc[0]) if len(r) else "—")
-                p = PAPER_TABLE4.get((method, mt)) if strategy == "GT-BB" else None
-                best = ""
-                if p is None and strategy == "GT-BB":  # not a paper method: its best row (MLP)
-                    p, best = PAPER_TABLE4[("MLP", mt)], "best (MLP): "
-                if p is None:
-                    p5 = PAPER_TABLE5.get(("MLP", "Sim+Trip", mt)) if strategy != "GT-BB" else None
-                    cells.append(f'best (MLP, Sim+Trip 2N_LM): {p5[0]} "m"; {p5[1]}°' if p5 else "—")
-                else:
-                    cells.append(best + " / ".join(f"{v:g}" for v in p[:4]) + f'; {p[4]} "m"; {p[5]}°'
-                                 + (f"; {1000 * PAPER_QT_S:.0f} ms" if method == "MLP" else ""))
-            out.append(f"| {method} | {strategy} | {cells[0]} | {cells[1]} | {cells[2]} | {cells[3]} |")
+                cells += [cell(r.iloc[0]), paper_cell(r.iloc[0])] if len(r) else ["—", "—"]
+            r0 = g.iloc[0]
+            size = (f"{r0['n_parameters']:,} / {r0['model_mb']:.2f} MB / {r0['ref_map_kb']:.2f} kB" if r0["n_parameters"]
+                    else f"– / – / {r0['ref_map_kb']:.2f} kB")
+            out.append(f"| {label} | {strategy} | " + " | ".join(cells) + f" | {size} |")
         out.append("")
     return "\n".join(out) + "\n"

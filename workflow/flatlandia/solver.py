@@ -57,6 +57,10 @@ class SolverConfig:
     prior_heading_sigma_deg: float = 0.0  # >0 and prior headings given: joint (position, heading) prior
     prior_knn: int = 8                  # prior cameras considered per hypothesis for the joint prior
     scale_prior_weight: float = 1.0     # depth maps: weight of the log-scale prior (when one is given)
+    covis_weight: float = 0.0           # >0 and prior_seen given: cost per matched object that no prior camera
+                                        #   near the pose saw (co-visibility from the training split)
+    covis_radius_m: float = 10.0        # prior cameras within this of the pose count for co-visibility
+    covis_metric: bool = False          # apply co-visibility to metric (GT) maps too
     pair_len_tol_m: float = 0.5         # GT maps: same-class pairs must agree in length to this
     chunk: int = 8192
     early_stop: bool = True             # stop hypothesising once a hypothesis explains every object
@@ -90,6 +94,7 @@ class _Problem:
         self.prior = prior                  # cKDTree of plausible camera positions, or None
         self.prior_heading = None           # headings (rad) of the prior cameras, or None
         self.scale_prior = scale_prior      # (mean, std) of log(metres per local unit), or None
+        self.seen = None                    # (P, N) bool: prior camera p saw candidate n (training split), or None
         self.q = np.asarray(q, float).reshape(-1, 2)
         self.qc = np.asarray(q_cls).astype(int).ravel()
         self.r = np.asarray(r, float).reshape(-1, 2)
@@ -151,6 +156,20 @@ class _Problem:
             out += self.cfg.scale_prior_weight * np.minimum(((np.log(s) - mu) / sd) ** 2, tau2)
         return out
 
+    def covis_cost(self, t, inl, match) -> np.ndarray:
+        """(C,) co-visibility cost: ``covis_weight`` per inlier whose candidate no prior camera within
+        ``covis_radius_m`` of the pose saw together with the most of the others (best single camera)."""
+        cfg = self.cfg
+        if (self.seen is None or cfg.covis_weight <= 0 or self.prior is None
+                or (self.metric and not cfg.covis_metric)):
+            return np.zeros(len(t))
+        k = min(cfg.prior_knn, self.prior.n)
+        d, j = self.prior.query(t, k=k)
+        d, j = d.reshape(len(t), k), j.reshape(len(t), k)
+        seen = self.seen[j[..., None], match[:, None, :]] & inl[:, None, :]  # (C, k, M)
+        cnt = np.where(d <= cfg.covis_radius_m, seen.sum(-1), 0).max(axis=1)
+        return cfg.covis_weight * (inl.sum(1) - cnt)
+
     def score(self, t, theta, s):
         """MSAC cost (C,), inlier mask (C, M) and best candidate (C, M) per hypothesis."""
         cost = self.costs(t, theta, s)
@@ -158,8 +177,9 @@ class _Problem:
         bc = np.take_along_axis(cost, best[..., None], axis=2)[..., 0]
         tau2 = self.cfg.tau ** 2
         inl = bc < tau2
-        total = np.minimum(bc, tau2).sum(axis=1) + self.prior_cost(t, s, theta)
-        return total, inl, self.cand[np.arange(self.m)[None], best]
+        match = self.cand[np.arange(self.m)[None], best]
+        total = np.minimum(bc, tau2).sum(axis=1) + self.prior_cost(t, s, theta) + self.covis_cost(t, inl, match)
+        return total, inl, match
 
     # ------------------------------------------------------------------ hypotheses
     def pair_hypotheses(self, i: int, j: int):
@@ -355,7 +375,8 @@ class _Problem:
 
 
 def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: SolverConfig | dict | None = None,
-          prior_xy: np.ndarray | None = None, scale_prior: tuple[float, float] | None = None) -> Solution | None:
+          prior_xy: np.ndarray | None = None, scale_prior: tuple[float, float] | None = None,
+          prior_seen: np.ndarray | None = None) -> Solution | None:
     """Camera pose in the reference frame, or None when no hypothesis can be formed.
 
     ``query_xy``: (M, 2) local map; ``query_cls``: (M,) classes; ``ref_xy``/``ref_cls``: the
@@ -364,7 +385,9 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     cameras; a third column, their headings in radians, enables the joint pose prior when
     ``prior_heading_sigma_deg`` > 0) or None: hypotheses farther than ``prior_radius_m`` are dropped and the distance
     to the nearest one is a soft cost; ``scale_prior``: (mean, std) of log(metres per local
-    unit) for depth maps (see :func:`fit_priors`). Inlier indices refer to rows of ``ref_xy``.
+    unit) for depth maps (see :func:`fit_priors`); ``prior_seen``: (P, N) booleans, prior camera p
+    saw reference row n (the matched objects of training queries), for the co-visibility cost
+    (``covis_weight``). Inlier indices refer to rows of ``ref_xy``.
     """
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
     prior_arr = np.asarray(prior_xy, float).reshape(len(prior_xy), -1) if prior_xy is not None else None
@@ -372,6 +395,8 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     pb = _Problem(query_xy, query_cls, ref_xy, ref_cls, metric, cfg, prior, scale_prior)
     if prior is not None and prior_arr.shape[1] >= 3:
         pb.prior_heading = prior_arr[:, 2]
+    if prior is not None and prior_seen is not None:
+        pb.seen = np.asarray(prior_seen, bool).reshape(len(prior_arr), len(pb.r))
     if pb.m < 2 or len(pb.r) < 2:
         return None
     cand_cost, cand_t, cand_th, cand_s = [], [], [], []

@@ -45,9 +45,10 @@ def main(smk, log):
     model = cfg = None
     if method != "geo":
         model, cfg = fine.load_checkpoint(smk.input.checkpoint)
-    parts = []
+    parts, map_kb = [], []
     for ref_path, q_path in zip(smk.input.reference_maps, smk.input.queries):
         ref, q = pd.read_parquet(ref_path), qs[q_path]
+        map_kb.append(fe.ref_map_kb(ref))
         test = q[q["split"] == "test"]
         props = proposals_for(smk, ref, test, coarse)
         if method == "geo":
@@ -66,11 +67,13 @@ def main(smk, log):
             "geo": geo_cfg if method == "geo" else None, "model_config": cfg.to_dict() if cfg else None}
     io.write_parquet(errors, smk.output.errors, meta)
     summary = fe.summarise(errors)
-    summary.update(method=str(errors["method"].iloc[0]), map_type=mt, strategy=smk.params.p['strategy_label'],
-                   run=run_name(smk))
+    summary.update(method=str(errors["method"].iloc[0]), method_slug=method, map_type=mt,
+                   proposal=smk.params.p['proposal'], strategy=smk.params.p['strategy_label'], run=run_name(smk),
+                   ref_map_kb=float(np.mean(map_kb)) if map_kb else float("nan"), train_s=0.0, epochs=0)
     if model is not None:
-        summary["n_parameters"] = fine.n_parameters(model)
-        summary["model_mb"] = os.path.getsize(smk.input.checkpoint) / 1e6
+        info = fine.checkpoint_info(smk.input.checkpoint)
+        summary.update(n_parameters=fine.n_parameters(model), model_mb=os.path.getsize(smk.input.checkpoint) / 1e6,
+                       train_s=float(info.get("seconds") or 0.0), epochs=int(cfg.epochs))
     io.write_json(fe.json_safe(summary), smk.output.summary)
     log.info("%s: %s", run_name(smk), summary)
 
