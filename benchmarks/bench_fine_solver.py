@@ -1,4 +1,4 @@
-"""Geometric solver experiments on the real test split (reads results/ or a copy of it).
+"""Geometric solver experiments on the real test (or validation: --split val) split (reads results/ or a copy of it).
 
     python benchmarks/bench_fine_solver.py --root results --map depth --proposal gtbb [--every 2] [--set key=value ...]
 
@@ -40,7 +40,8 @@ def main(argv=None):
     ap.add_argument("--root", default="results")
     ap.add_argument("--map", default="depth")
     ap.add_argument("--proposal", default="gtbb")
-    ap.add_argument("--every", type=int, default=1, help="every n-th test query (subset)")
+    ap.add_argument("--every", type=int, default=1, help="every n-th query (subset)")
+    ap.add_argument("--split", default="test", help="queries to evaluate: test, or val to tune without the test split")
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--set", nargs="*", default=[], help="solver overrides key=value (YAML values)")
     ap.add_argument("--save", default="")
@@ -61,7 +62,7 @@ def main(argv=None):
     parts = []
     t0 = time.perf_counter()
     for s, ref, q in scenes:
-        test = q[q["split"] == "test"].iloc[::a.every]
+        test = q[q["split"] == a.split].iloc[::a.every]
         if not len(test):
             continue
         if a.proposal == "gtbb":
@@ -71,17 +72,13 @@ def main(argv=None):
         else:
             p = coarse[(coarse["scene"].astype(str) == s) & (coarse["strategy"] == geo_cfg.get("strategy", "2N_LM"))]
             props = p[p["token"].astype(str).isin(test["token"].astype(str))]
-        prior = None
-        if geo_cfg.get("camera_prior", True):
-            tr = q[q["split"] == "train"]
-            prior = np.column_stack([tr["x_m"], tr["y_m"], np.radians(tr["theta_deg"])])
-        seen = list(q.loc[q["split"] == "train", "ref_idx"]) if prior is not None else None
+        prior, seen = fe.training_priors(q, geo_cfg)
         e = fe.evaluate_solver(ref, test, props, a.map, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
                                prior_seen=seen)
         parts.append(e)
     e = pd.concat(parts, ignore_index=True)
     s = fe.summarise(e)
-    print(f"{a.map} {a.proposal} {' '.join(a.set)}: n={s['queries']} median {s['median_m']:.2f} m / "
+    print(f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}: n={s['queries']} median {s['median_m']:.2f} m / "
           f"{s['median_deg']:.2f} deg; % " + " / ".join(f"{s[c]:.1f}" for c in fe._TH_COLS)
           + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; QT median "
           f"{1000 * s['median_query_s']:.1f} ms mean {1000 * s['mean_query_s']:.1f} ms p90 "

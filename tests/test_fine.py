@@ -90,6 +90,36 @@ def test_solver_synthetic_noise_and_outliers(seed):
     assert sum(matched.get(k) == vis[k] for k in range(1, len(vis))) >= 6  # the others are
 
 
+@pytest.mark.parametrize("seen_copy", [0, 1])
+def test_covisibility_prior_breaks_a_repeated_pattern(seen_copy):
+    """Two identical copies of a street scene 200 m apart, a training camera in front of each:
+    geometry alone cannot tell them apart; the co-visibility cost picks the copy whose objects the
+    nearby training camera saw."""
+    rng = np.random.default_rng(3)
+    pattern = np.column_stack([rng.uniform(8, 40, 6), rng.uniform(-15, 15, 6)])
+    cls = rng.integers(0, 4, 6)
+    ref = np.vstack([pattern, pattern + [200.0, 0.0]])
+    ref_cls = np.concatenate([cls, cls])
+    depth = pattern / np.median(np.linalg.norm(pattern, axis=1))      # camera at a copy's origin, heading 0
+    prior = np.array([[0.0, 0.0, 0.0], [200.0, 0.0, 0.0]])
+    seen = np.zeros((2, 12), bool)
+    seen[seen_copy, 6 * seen_copy:6 * seen_copy + 6] = True             # only one camera saw its copy
+    cfg = {"covis_weight": 2.0}
+    s = solver.solve(depth, cls, ref, ref_cls, metric=False, config=cfg, prior_xy=prior, prior_seen=seen)
+    assert np.hypot(s.x - 200.0 * seen_copy, s.y) < 1e-3 and abs(geo.wrap_angle(s.theta)) < 1e-6
+    assert sorted(m for _, m in s.inliers) == list(range(6 * seen_copy, 6 * seen_copy + 6))
+
+
+def test_training_priors_come_from_the_training_split_only(scene):
+    _, q = scene
+    prior, seen = fe.training_priors(q, {"covis_weight": 2.0})
+    train = q[q["split"] == "train"]
+    assert len(prior) == len(seen) == len(train)
+    assert np.allclose(prior[:, :2], train[["x_m", "y_m"]].to_numpy())
+    assert fe.training_priors(q, {"camera_prior": False}) == (None, None)
+    assert fe.training_priors(q, {})[1] is None                          # no co-visibility cost: no sets
+
+
 def test_solver_returns_none_without_candidates():
     assert solver.solve(np.array([[1.0, 0.0], [2.0, 1.0]]), [1, 2], np.zeros((0, 2)), np.zeros(0, int)) is None
 

@@ -52,6 +52,19 @@ def gtbb_indices(ref_xy: np.ndarray, matched, cam_xy, enlarge: float = 0.10) -> 
     return np.flatnonzero(np.all(np.abs(ref_xy - centre) <= half + 1e-9, axis=1))
 
 
+def training_priors(queries: pd.DataFrame, config: dict | None = None):
+    """The solver's priors from one scene's training split: (prior cameras (P, 3) as x, y, heading
+    in radians, or None when ``camera_prior`` is off; per prior camera the reference ``obj_idx`` it
+    saw, for the co-visibility cost, or None). Test queries never contribute."""
+    cfg = dict(config or {})
+    if not cfg.get("camera_prior", True):
+        return None, None
+    tr = queries[queries["split"] == "train"]
+    prior = np.column_stack([tr["x_m"], tr["y_m"], np.radians(tr["theta_deg"])]).astype(float)
+    seen = [np.asarray(v, int) for v in tr["ref_idx"]] if float(cfg.get("covis_weight", 0)) > 0 else None
+    return prior, seen
+
+
 def gtbb_proposals(ref: pd.DataFrame, queries: pd.DataFrame, enlarge: float = 0.10) -> pd.DataFrame:
     """The oracle GT-BB proposal of every query (``proposal`` holds reference ``obj_idx``)."""
     ref_xy = ref[["x_m", "y_m"]].to_numpy()

@@ -52,11 +52,9 @@ def main(smk, log):
         test = q[q["split"] == "test"]
         props = proposals_for(smk, ref, test, coarse)
         if method == "geo":
-            prior = None
-            if geo_cfg.get("camera_prior", True):
-                tr = q[q["split"] == "train"]
-                prior = np.column_stack([tr["x_m"], tr["y_m"], np.radians(tr["theta_deg"])])
+            prior, seen = fe.training_priors(q, geo_cfg)
             parts.append(fe.evaluate_solver(ref, test, props, mt, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
+                                            prior_seen=seen,
                                             method="geometric solver",
                                             progress=runlog.progress(log, f"scene {ref['scene'].iloc[0]}")))
         else:
