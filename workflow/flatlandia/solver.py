@@ -104,6 +104,7 @@ class _Problem:
         self.m = len(self.q)
         self.q_bear = np.arctan2(self.q[:, 1], self.q[:, 0])
         self.q_range = np.linalg.norm(self.q, axis=1)
+        self.q_dir = np.column_stack([np.cos(self.q_bear), np.sin(self.q_bear)])
         self.same = [np.flatnonzero(self.rc == c) for c in self.qc]
         kmax = max([len(s) for s in self.same] + [1])
         self.cand = np.zeros((self.m, kmax), int)
@@ -126,7 +127,9 @@ class _Problem:
             d2 = (lx - self.q[None, :, 0, None]) ** 2 + (ly - self.q[None, :, 1, None]) ** 2
             cost = d2 / self.cfg.position_sigma_m ** 2
         else:
-            db = geo.wrap_angle(np.arctan2(ly, lx) - self.q_bear[None, :, None])
+            # bearing difference as one arctan2 of (cross, dot) with the query direction: no wrap needed
+            cq, sq = self.q_dir[None, :, 0, None], self.q_dir[None, :, 1, None]
+            db = np.arctan2(ly * cq - lx * sq, lx * cq + ly * sq)
             rr = np.hypot(lx, ly)
             dr = np.log(rr + s[:, None, None] * self.eps_q) - np.log(s[:, None, None] * (self.q_range[None, :, None]
                                                                                          + self.eps_q))
@@ -414,6 +417,30 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
                 break
             yield pb.pair_hypotheses(i, j)
 
+    pending: list[tuple] = []          # prior-gated batches waiting to be scored together
+
+    def flush():
+        """Score the pending batches in one pass (fewer, larger array operations) and keep each
+        batch's top_k, as if scored one by one."""
+        nonlocal best_so_far
+        if not pending:
+            return
+        t = np.concatenate([b[0] for b in pending])
+        th = np.concatenate([b[1] for b in pending])
+        s = np.concatenate([b[2] for b in pending])
+        cost = np.concatenate([pb.score(t[o:o + cfg.chunk], th[o:o + cfg.chunk], s[o:o + cfg.chunk])[0]
+                               for o in range(0, len(t), cfg.chunk)])
+        start = 0
+        for bt, _, _ in pending:
+            for o in range(0, len(bt), cfg.chunk):    # top_k per batch chunk, as before
+                lo, hi = start + o, start + min(o + cfg.chunk, len(bt))
+                top = lo + np.argsort(cost[lo:hi], kind="stable")[:cfg.top_k]
+                cand_cost.append(cost[top]); cand_t.append(t[top]); cand_th.append(th[top]); cand_s.append(s[top])
+                best_so_far = min(best_so_far, float(cost[top[0]]) if len(top) else np.inf)
+            start += len(bt)
+        pending.clear()
+
+    n_pending = 0
     for n_batch, h in enumerate(batches()):
         if n_hyp >= cfg.max_hyp:
             break
@@ -423,16 +450,17 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
         if prior is not None and len(t):
             near = prior.query(t, k=1, distance_upper_bound=cfg.prior_radius_m)[0] <= cfg.prior_radius_m
             t, th, s = t[near], th[near], s[near]
-        for o in range(0, len(t), cfg.chunk):
-            tt, hh, ss = t[o:o + cfg.chunk], th[o:o + cfg.chunk], s[o:o + cfg.chunk]
-            cost, _, _ = pb.score(tt, hh, ss)
-            top = np.argsort(cost, kind="stable")[:cfg.top_k]
-            cand_cost.append(cost[top]); cand_t.append(tt[top]); cand_th.append(hh[top]); cand_s.append(ss[top])
-            best_so_far = min(best_so_far, float(cost[top[0]]) if len(top) else np.inf)
+        if len(t):
+            pending.append((t, th, s))
+            n_pending += len(t)
         n_hyp += len(t)
-        # early stop (GT maps): every object explained to within a sigma
+        # GT maps: score every batch at once for the early stop (every object explained within a sigma)
+        if metric or n_pending >= cfg.chunk:
+            flush()
+            n_pending = 0
         if cfg.early_stop and metric and best_so_far < pb.m and n_batch >= 1:
             break
+    flush()
     if not cand_cost:
         return None
     cost = np.concatenate(cand_cost)
