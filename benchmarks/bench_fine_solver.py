@@ -81,7 +81,7 @@ def main(argv=None):
     print(f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}: n={s['queries']} median {s['median_m']:.2f} m / "
           f"{s['median_deg']:.2f} deg; % " + " / ".join(f"{s[c]:.1f}" for c in fe._TH_COLS)
           + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; QT median "
-          f"{1000 * s['median_query_s']:.1f} ms mean {1000 * s['mean_query_s']:.1f} ms p90 "
+          f"{1000 * s['median_query_s']:.1f} ms (CPU {1000 * s['median_query_cpu_s']:.1f} ms) mean {1000 * s['mean_query_s']:.1f} ms p90 "
           f"{1000 * e['seconds'].quantile(0.9):.0f} ms; wall {time.perf_counter() - t0:.0f} s")
     if a.save:
         e.to_parquet(a.save)

@@ -104,7 +104,6 @@ class _Problem:
         self.m = len(self.q)
         self.q_bear = np.arctan2(self.q[:, 1], self.q[:, 0])
         self.q_range = np.linalg.norm(self.q, axis=1)
-        self.q_dir = np.column_stack([np.cos(self.q_bear), np.sin(self.q_bear)])
         self.same = [np.flatnonzero(self.rc == c) for c in self.qc]
         kmax = max([len(s) for s in self.same] + [1])
         self.cand = np.zeros((self.m, kmax), int)
@@ -115,22 +114,27 @@ class _Problem:
         self.sb = np.radians(cfg.bearing_sigma_deg)
         # small-range guards (objects at the camera): log of (range + eps)
         self.eps_q = 0.02 * max(float(np.median(self.q_range)), 1e-9)
+        cand_xy = self.r[self.cand] if len(self.r) else np.zeros(self.cand.shape + (2,))
+        self.r_cand_x, self.r_cand_y = cand_xy[..., 0].copy(), cand_xy[..., 1].copy()  # (M, K)
 
     # ------------------------------------------------------------------ costs
     def costs(self, t: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         """(C, M, K) normalised squared residuals of every query object vs its same-class candidates."""
-        rel = self.r[self.cand][None] - t[:, None, None, :]  # (C, M, K, 2)
-        c, sn = np.cos(theta)[:, None, None], np.sin(theta)[:, None, None]
-        lx = c * rel[..., 0] + sn * rel[..., 1]  # world -> camera frame
-        ly = -sn * rel[..., 0] + c * rel[..., 1]
+        rx = self.r_cand_x[None] - t[:, 0, None, None]  # (C, M, K) world offsets of the candidates
+        ry = self.r_cand_y[None] - t[:, 1, None, None]
         if self.metric:
+            c, sn = np.cos(theta)[:, None, None], np.sin(theta)[:, None, None]
+            lx = c * rx + sn * ry  # world -> camera frame
+            ly = c * ry - sn * rx
             d2 = (lx - self.q[None, :, 0, None]) ** 2 + (ly - self.q[None, :, 1, None]) ** 2
             cost = d2 / self.cfg.position_sigma_m ** 2
         else:
-            # bearing difference as one arctan2 of (cross, dot) with the query direction: no wrap needed
-            cq, sq = self.q_dir[None, :, 0, None], self.q_dir[None, :, 1, None]
-            db = np.arctan2(ly * cq - lx * sq, lx * cq + ly * sq)
-            rr = np.hypot(lx, ly)
+            # bearing error: angle between the candidate's world offset and the query object's
+            # direction turned into the world (theta + bearing), one arctan2, no wrap needed
+            wb = theta[:, None] + self.q_bear[None]  # (C, M)
+            ux, uy = np.cos(wb)[..., None], np.sin(wb)[..., None]
+            db = np.arctan2(ux * ry - uy * rx, ux * rx + uy * ry)
+            rr = np.hypot(rx, ry)
             dr = np.log(rr + s[:, None, None] * self.eps_q) - np.log(s[:, None, None] * (self.q_range[None, :, None]
                                                                                          + self.eps_q))
             cost = (db / self.sb) ** 2 + (dr / self.cfg.log_range_sigma) ** 2

@@ -76,6 +76,7 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("gross_pct", "float", "%", "position error over 30 m (true metres)"),
         Column("median_query_ms", "float", "ms", "median time per query, one CPU thread (wall clock)"),
         Column("mean_query_ms", "float", "ms", "mean time per query, one CPU thread (wall clock)"),
+        Column("median_query_cpu_ms", "float", "ms", "median CPU time per query (process time: robust to other load on the machine)"),
         Column("train_s", "float", "s", "training wall time (learned models; 0 for the solver), 1 CPU thread"),
         Column("epochs", "int", "", "training epochs (0 for the solver)"),
         Column("n_parameters", "int", "", "trainable parameters (0 for the solver)"),
