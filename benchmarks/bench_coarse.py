@@ -158,13 +158,14 @@ def main() -> None:
     ap.add_argument("--save", type=Path, default=None, help="save the trained checkpoint here (not under results/)")
     ap.add_argument("--queries", type=int, default=50, help="test queries timed")
     ap.add_argument("--skip", nargs="*", default=[], choices=["similarity", "training", "query", "table"])
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (the rules use 1 per job)")
     args = ap.parse_args()
-    torch.set_num_threads(1)
+    torch.set_num_threads(args.threads)
     scenes = args.scenes or sorted((p.parent.parent.name for p in args.results.glob("*/coarse/similarity.parquet")),
                                    key=lambda s: (len(s), s))
     cfg = merged_coarse_config(args.config)
     print(f"# Coarse localization benchmark: {len(scenes)} scenes, config {[str(p) for p in args.config]}, "
-          f"1 thread")
+          f"{args.threads} thread(s)")
     if "similarity" not in args.skip:
         bench_similarity(scenes, args.results, cfg)
     if "training" not in args.skip:
