@@ -7,6 +7,7 @@ import re
 import shutil
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import pandas as pd
@@ -42,8 +43,10 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert (wd / f"logs/recover/{scene}.log").read_text().count("queries recovered") == 1
         assert (wd / f"benchmarks/recover/{scene}.tsv").exists()
-    for t in ("dataset_stats", "recovery", "reference_map_reproduction"):  # renderings hold one line per Parquet row
-        md = [ln for ln in (wd / f"results/tables/{t}.md").read_text().splitlines() if ln.startswith("| ")]
+    for t, flat in (("dataset_stats", "dataset_stats"), ("recovery", "recovery"),  # one line per Parquet row
+                    ("reference_map_reproduction", "reference_map_reproduction"),
+                    ("coarse_localization", "coarse_localization_rows"), ("fine_localization", "fine_localization_rows")):
+        md = [ln for ln in (wd / f"results/tables/{flat}.md").read_text().splitlines() if ln.startswith("| ")]
         assert len(md) == 1 + len(pd.read_parquet(wd / f"results/tables/{t}.parquet"))
         assert (wd / f"results/tables/{t}.tex").read_text().startswith("\\begin{table}")
     stats = pd.read_parquet(wd / "results/tables/dataset_stats.parquet")
@@ -82,6 +85,17 @@ def test_rerun_is_a_no_op(run_two_scenes, repo, flat_root):
     res = smk(repo, run_two_scenes, "-n", "all", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
     assert res.returncode == 0
     assert "Nothing to be done" in res.stdout + res.stderr
+
+
+@pytest.mark.slow
+def test_report_holds_every_figure(run_two_scenes, repo, flat_root):
+    wd = run_two_scenes
+    res = smk(repo, wd, "--report", "results/report.zip", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    names = "\n".join(zipfile.ZipFile(wd / "results/report.zip").namelist())
+    for figure in ("reference_map.png", "training_curves.png", "fine_error_cdf.png", "fine_error_vs_objects.png",
+                   "coarse_scores_", "reference_map_reproduction.png"):
+        assert figure in names, figure
 
 
 def test_dry_run_lists_the_full_dag(repo, flat_root, tmp_path):
