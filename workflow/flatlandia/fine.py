@@ -151,6 +151,60 @@ def samples_from_queries(ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd
     return out, queries.reset_index(drop=True)
 
 
+# ----------------------------------------------------------------------------- dense batches (MLP models)
+
+@dataclass
+class DenseMaps:
+    """Padded per-query tensors (query objects, region objects, target) for the MLP models.
+
+    Why: collating torch-geometric batches at every step costs about as much as the MLP step; the
+    whole split is padded once and a batch is a row selection, trimmed to its longest map.
+    """
+
+    q_cls: torch.Tensor   # (N, Lq) class ids (0 on padding)
+    q_xy: torch.Tensor    # (N, Lq, 2) query objects, normalised camera frame
+    q_mask: torch.Tensor  # (N, Lq) True on real objects
+    r_cls: torch.Tensor   # (N, Lr)
+    r_xy: torch.Tensor    # (N, Lr, 2) region objects, normalised region frame
+    r_mask: torch.Tensor  # (N, Lr)
+    y: torch.Tensor       # (N, 3) target pose
+
+    @property
+    def num_graphs(self) -> int:
+        return int(self.y.shape[0])
+
+    def __len__(self) -> int:
+        return self.num_graphs
+
+    def __getitem__(self, idx) -> "DenseMaps":
+        idx = torch.as_tensor(idx, dtype=torch.long)
+        lq = max(int(self.q_mask[idx].sum(1).max()), 1) if len(idx) else 1
+        lr = max(int(self.r_mask[idx].sum(1).max()), 1) if len(idx) else 1
+        return DenseMaps(self.q_cls[idx, :lq], self.q_xy[idx, :lq], self.q_mask[idx, :lq],
+                         self.r_cls[idx, :lr], self.r_xy[idx, :lr], self.r_mask[idx, :lr], self.y[idx])
+
+
+def dense_maps(samples) -> DenseMaps:
+    """Pad a list of samples (or a torch-geometric batch of them) into :class:`DenseMaps`."""
+    b = samples if isinstance(samples, Batch) else Batch.from_data_list(list(samples))
+    n = int(b.num_graphs)
+    qm = b.is_q
+    parts = []
+    for m in (qm, ~qm):
+        xy, mask = to_dense_batch(b.local[m], b.batch[m], batch_size=n)
+        cls, _ = to_dense_batch(b.cls[m], b.batch[m], batch_size=n)
+        if xy.shape[1] == 0:  # no object of this kind in any sample: one padded column
+            xy, mask, cls = xy.new_zeros(n, 1, 2), mask.new_zeros(n, 1), cls.new_zeros(n, 1)
+        parts += [cls, xy, mask]
+    return DenseMaps(*parts, y=b.y)
+
+
+def _masked_max(h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Max over dim 1 of (B, L, d) where mask (B, L) is True; 0 for rows without any."""
+    z = h.masked_fill(~mask[..., None], float("-inf")).max(dim=1).values
+    return torch.where(torch.isfinite(z), z, torch.zeros_like(z))
+
+
 # ----------------------------------------------------------------------------- models
 
 def _mlp(sizes: list[int], last_relu: bool = True) -> nn.Sequential:
@@ -172,9 +226,7 @@ def _masked_attention_pool(att: nn.MultiheadAttention, h: torch.Tensor, index: t
     pad = pad.clone()
     pad[empty, 0] = False  # graphs without rows attend to one zero row (result masked below)
     a, _ = att(dense, dense, dense, key_padding_mask=pad, need_weights=False)
-    z = dense + a
-    z = z.masked_fill(~mask[..., None], float("-inf")).max(dim=1).values
-    return torch.where(torch.isfinite(z), z, torch.zeros_like(z))
+    return _masked_max(dense + a, mask)
 
 
 def _edge_geom(pos: torch.Tensor, ei: torch.Tensor) -> torch.Tensor:
@@ -210,16 +262,17 @@ class MLPModel(_Base):
         self.att = nn.MultiheadAttention(h, cfg.heads, batch_first=True) if attention else None
 
     def forward(self, batch) -> torch.Tensor:
-        n_graphs = int(batch.num_graphs)
-        x = self.node_features(batch)
-        qm = batch.is_q
-        bq, br = batch.batch[qm], batch.batch[~qm]
-        psi_q = scatter(self.pi_q(x[qm]), bq, dim=0, dim_size=n_graphs, reduce="max")
-        z = self.sigma3(torch.cat([psi_q[br], self.pi_r(x[~qm])], dim=1))
+        d = batch if isinstance(batch, DenseMaps) else dense_maps(batch)
+        n_graphs, n_r = d.r_mask.shape
+        xq = torch.cat([nn.functional.one_hot(d.q_cls, N_CLASSES).float(), d.q_xy], dim=2)
+        psi_q = _masked_max(self.pi_q(xq), d.q_mask)
+        g, col = d.r_mask.nonzero(as_tuple=True)  # region objects, packed (no work on padding)
+        xr = torch.cat([nn.functional.one_hot(d.r_cls[g, col], N_CLASSES).float(), d.r_xy[g, col]], dim=1)
+        z = self.sigma3(torch.cat([psi_q[g], self.pi_r(xr)], dim=1))
         if self.att is not None:
-            psi = _masked_attention_pool(self.att, z, br, n_graphs)
+            psi = _masked_attention_pool(self.att, z, g, n_graphs)
         else:
-            psi = scatter(z, br, dim=0, dim_size=n_graphs, reduce="max")
+            psi = scatter(z, g, dim=0, dim_size=n_graphs, reduce="max")
         return self.head(psi)
 
 
@@ -298,25 +351,28 @@ def pose_loss(pred: torch.Tensor, target: torch.Tensor, angle_weight: float = 1.
 
 def augment(batch, cfg: FineConfig, gen: torch.Generator):
     """Random rigid roto-translation of every region (and its target pose); query maps unchanged
-    but for an optional random scale of depth maps. Returns a new batch."""
-    b = copy.copy(batch)
+    but for an optional random scale of depth maps. Takes a graph batch or :class:`DenseMaps`
+    (same random draws for the same samples); returns a new one."""
     n_graphs = int(batch.num_graphs)
     phi = (torch.rand(n_graphs, generator=gen) * 2 - 1) * math.radians(cfg.aug_rotate_deg)
     tr = (torch.rand(n_graphs, 2, generator=gen) * 2 - 1) * cfg.aug_translate
     c, s = torch.cos(phi), torch.sin(phi)
     rot = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # (B, 2, 2)
-    g = batch.batch
-    loc = batch.local
-    moved = torch.einsum("nij,nj->ni", rot[g], loc) + tr[g]
-    if cfg.map_type == "depth" and cfg.aug_depth_scale > 0:
-        sc = torch.exp(torch.randn(n_graphs, generator=gen) * cfg.aug_depth_scale)
-        qloc = loc * sc[g][:, None]
-    else:
-        qloc = loc
-    b.local = torch.where(batch.is_q[:, None], qloc, moved)
+    scale = (torch.exp(torch.randn(n_graphs, generator=gen) * cfg.aug_depth_scale)
+             if cfg.map_type == "depth" and cfg.aug_depth_scale > 0 else None)
     y = batch.y.clone()
     y[:, :2] = torch.einsum("bij,bj->bi", rot, y[:, :2]) + tr
     y[:, 2] = torch.atan2(torch.sin(y[:, 2] + phi), torch.cos(y[:, 2] + phi))
+    if isinstance(batch, DenseMaps):
+        r_xy = torch.einsum("bij,blj->bli", rot, batch.r_xy) + tr[:, None]
+        q_xy = batch.q_xy * scale[:, None, None] if scale is not None else batch.q_xy
+        return DenseMaps(batch.q_cls, q_xy, batch.q_mask, batch.r_cls, r_xy, batch.r_mask, y)
+    b = copy.copy(batch)
+    g = batch.batch
+    loc = batch.local
+    moved = torch.einsum("nij,nj->ni", rot[g], loc) + tr[g]
+    qloc = loc * scale[g][:, None] if scale is not None else loc
+    b.local = torch.where(batch.is_q[:, None], qloc, moved)
     b.y = y
     return b
 
@@ -329,16 +385,26 @@ def set_determinism(seed: int) -> None:
     torch.use_deterministic_algorithms(True, warn_only=True)
 
 
-def _batches(samples: list[Data], batch_size: int, order: np.ndarray | None = None):
+def _is_dense(model: nn.Module) -> bool:
+    return isinstance(model, MLPModel)
+
+
+def _batches(samples, batch_size: int, order: np.ndarray | None = None):
+    """Batches of a sample list (torch-geometric) or row selections of :class:`DenseMaps`."""
     idx = np.arange(len(samples)) if order is None else order
     for k in range(0, len(idx), batch_size):
-        yield Batch.from_data_list([samples[i] for i in idx[k:k + batch_size]])
+        if isinstance(samples, DenseMaps):
+            yield samples[idx[k:k + batch_size]]
+        else:
+            yield Batch.from_data_list([samples[i] for i in idx[k:k + batch_size]])
 
 
 @torch.no_grad()
-def predict(model: nn.Module, samples: list[Data], batch_size: int = 256) -> np.ndarray:
-    """(N, 3) predictions in the normalised region frame (x, y, theta)."""
+def predict(model: nn.Module, samples, batch_size: int = 256) -> np.ndarray:
+    """(N, 3) predictions in the normalised region frame (x, y, theta); samples: a list or DenseMaps."""
     model.eval()
+    if _is_dense(model) and not isinstance(samples, DenseMaps) and len(samples):
+        samples = dense_maps(samples)
     out = [model(b) for b in _batches(samples, batch_size)]
     return torch.cat(out).numpy() if out else np.zeros((0, 3))
 
@@ -364,18 +430,22 @@ def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, l
     """
     set_determinism(cfg.seed)
     model = build_model(cfg)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.epochs, 1), eta_min=0.01 * cfg.lr)
              if cfg.lr_schedule == "cosine" else None)
     gen = torch.Generator().manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     history, best, best_state, best_epoch = [], float("inf"), None, -1
     t0 = time.perf_counter()
+    data, val_data = train_samples, val_samples
+    if _is_dense(model):  # padded once; a batch is a row selection
+        data = dense_maps(train_samples)
+        val_data = dense_maps(val_samples) if val_samples else val_samples
     epochs = range(cfg.epochs)
     for ep in (progress(epochs) if progress else epochs):
         model.train()
         tot, n = 0.0, 0
-        for batch in _batches(train_samples, cfg.batch_size, rng.permutation(len(train_samples))):
+        for batch in _batches(data, cfg.batch_size, rng.permutation(len(train_samples))):
             if cfg.augment:
                 batch = augment(batch, cfg, gen)
             opt.zero_grad()
@@ -388,7 +458,7 @@ def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, l
             sched.step()
         rec = {"epoch": ep, "train_loss": tot / max(n, 1)}
         if val_samples and (ep % cfg.eval_every == 0 or ep == cfg.epochs - 1):
-            e_m, e_deg = errors_metres(predict(model, val_samples), val_samples, cfg)
+            e_m, e_deg = errors_metres(predict(model, val_data), val_samples, cfg)
             rec.update(val_median_m=float(np.median(e_m)), val_median_deg=float(np.median(e_deg)))
             if rec["val_median_m"] < best:
                 best, best_epoch = rec["val_median_m"], ep
