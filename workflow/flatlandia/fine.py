@@ -60,7 +60,7 @@ class FineConfig:
     lr: float = 1e-3
     weight_decay: float = 0.0
     lr_schedule: str = "none"        # none | cosine (to 1% of lr over the epochs)
-    scale_m: float = 100.0           # metres per normalised unit
+    scale_m: float = 15.0            # metres per normalised unit (tuned on val: 100 -> 15 m, MLP 5.7 -> 3.6 m)
     depth_unit_m: float = 25.0       # metres assumed per depth-map unit (typical median object range)
     angle_weight: float = 1.0
     augment: bool = True

@@ -1,0 +1,99 @@
+"""Fine learned baselines benchmark (issue 6): training speed and, with ``--full``, accuracy.
+
+Prints, for each ``--models`` x ``--map-types`` under the merged config (config/config.yaml, then
+``--configfile`` files, then fine.train_overrides[model]):
+1. seconds per training epoch on the train split of every scene (GT-BB proposals), measured over
+   ``--epochs`` epochs including the per-epoch validation pass, and the extrapolation to 1000;
+2. with ``--full``: the whole run of ``fine.train.epochs`` epochs, then the best-on-validation
+   model's test-split median error (m, deg) and share within (10 m, 20 deg).
+
+Targets (issue 6): 1000 MLP epochs under 10 minutes on 2 CPU cores; MLP on depth maps with GT-BB
+median <= 5 m. Wall and CPU (process) seconds are both given, as the machine may be shared.
+Run from the repository root after the pipeline has made results/{scene}/queries and maps:
+    python benchmarks/bench_fine_train.py [--models mlp] [--map-types depth] [--threads 1] [--full]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+import yaml
+
+from flatlandia import fine
+from flatlandia import fine_eval as fe
+
+MODEL_NAMES = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+TARGET_1000_S = 10 * 60
+TARGET_MEDIAN_M = 5.0
+
+
+def merged_fine_config(paths: list[Path]) -> dict:
+    out: dict = {}
+    for p in map(Path, paths):
+        if p.exists():
+            for key, v in ((yaml.safe_load(p.read_text()) or {}).get("fine", {}) or {}).items():
+                out[key] = {**out.get(key, {}), **v} if isinstance(v, dict) else v
+    return out
+
+
+def load_samples(results: Path, cfg: fine.FineConfig) -> dict[str, list]:
+    out: dict[str, list] = {"train": [], "val": [], "test": []}
+    for qp in sorted(results.glob("*/queries/queries.parquet"), key=lambda p: p.parts[-3]):
+        ref_p = qp.parent.parent / "maps/reference_map.parquet"
+        if not ref_p.exists():
+            continue
+        ref, q = pd.read_parquet(ref_p), pd.read_parquet(qp)
+        for split in out:
+            qs = q[q["split"] == split]
+            out[split] += fine.samples_from_queries(ref, qs, fe.gtbb_proposals(ref, qs), cfg)[0]
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--results", type=Path, default=Path("results"))
+    ap.add_argument("--configfile", type=Path, nargs="*", default=[])
+    ap.add_argument("--models", nargs="+", default=["mlp"], choices=sorted(MODEL_NAMES))
+    ap.add_argument("--map-types", nargs="+", default=["depth"], choices=["gt", "depth"])
+    ap.add_argument("--epochs", type=int, default=20, help="epochs timed when not --full")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--full", action="store_true", help="train the configured epochs and report test errors")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    fcfg = merged_fine_config([Path("config/config.yaml"), *args.configfile])
+    print(f"# Fine training benchmark, {args.threads} thread(s)")
+    print("| model | map | train / val / test | epochs | s / epoch | CPU s / epoch | 1000 epochs (min) | best epoch |"
+          " test median | within (10 m, 20°) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for slug in args.models:
+        for mt in args.map_types:
+            train_cfg = {**fcfg.get("train", {}), **fcfg.get("train_overrides", {}).get(slug, {})}
+            cfg = fine.FineConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
+            if not args.full:
+                cfg.epochs = args.epochs
+            s = load_samples(args.results, cfg)
+            if not s["train"]:
+                raise SystemExit(f"{args.results}: no */queries/queries.parquet with maps; run the pipeline first")
+            t0, c0 = time.perf_counter(), time.process_time()
+            res = fine.train(s["train"], s["val"], cfg)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            per, per_cpu = wall / cfg.epochs, cpu / cfg.epochs
+            test = "-"
+            within = "-"
+            if args.full and s["test"]:
+                e_m, e_deg = fine.errors_metres(fine.predict(res["model"], s["test"]), s["test"], cfg)
+                test = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
+                within = f"{100 * np.mean((e_m < 10) & (e_deg < 20)):.1f} %"
+            sizes = "/".join(str(len(s[k])) for k in ("train", "val", "test"))
+            print(f"| {cfg.model} | {mt} | {sizes} | {cfg.epochs} | {per:.3f} | {per_cpu:.3f} | {per * 1000 / 60:.1f} |"
+                  f" {res['best_epoch']} | {test} | {within} |", flush=True)
+    print(f"\ntargets: 1000 MLP epochs under {TARGET_1000_S / 60:.0f} min; MLP depth GT-BB median <= {TARGET_MEDIAN_M} m")
+
+
+if __name__ == "__main__":
+    main()
