@@ -5,7 +5,12 @@ Prints, for each ``--models`` x ``--map-types`` under the merged config (config/
 1. seconds per training epoch on the train split of every scene (GT-BB proposals), measured over
    ``--epochs`` epochs including the per-epoch validation pass, and the extrapolation to 1000;
 2. with ``--full``: the whole run of ``fine.train.epochs`` epochs, then the best-on-validation
-   model's test-split median error (m, deg) and share within (10 m, 20 deg).
+   model's test-split median error (m, deg) and share within (10 m, 20 deg), with GT-BB proposals
+   and, where results/coarse/simtrip/proposals.parquet exists, with its 2N_LM proposals.
+
+``--simulated-proposals K`` adds K copies of every training (and validation) query with a
+simulated coarse proposal (``fine_eval.simulated_coarse_proposals``); ``--no-gtbb`` trains on
+those alone: the experiment behind the README's note on coarse proposals.
 
 Targets (issue 6): 1000 MLP epochs under 10 minutes on 2 CPU cores; MLP on depth maps with GT-BB
 median <= 5 m. Wall and CPU (process) seconds are both given, as the machine may be shared.
@@ -41,16 +46,29 @@ def merged_fine_config(paths: list[Path]) -> dict:
     return out
 
 
-def load_samples(results: Path, cfg: fine.FineConfig) -> dict[str, list]:
-    out: dict[str, list] = {"train": [], "val": [], "test": []}
+def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: bool = True,
+                 seed: int = 0) -> dict[str, list]:
+    out: dict[str, list] = {"train": [], "val": [], "test": [], "test_coarse": []}
+    rng = np.random.default_rng(seed)
+    coarse_p = results / "coarse/simtrip/proposals.parquet"
+    coarse = pd.read_parquet(coarse_p) if coarse_p.exists() else None
+    if coarse is not None:
+        coarse = coarse[(coarse["strategy"] == "2N_LM") & (coarse["map_type"] == cfg.map_type)]
     for qp in sorted(results.glob("*/queries/queries.parquet"), key=lambda p: p.parts[-3]):
         ref_p = qp.parent.parent / "maps/reference_map.parquet"
         if not ref_p.exists():
             continue
         ref, q = pd.read_parquet(ref_p), pd.read_parquet(qp)
-        for split in out:
+        for split in ("train", "val", "test"):
             qs = q[q["split"] == split]
-            out[split] += fine.samples_from_queries(ref, qs, fe.gtbb_proposals(ref, qs), cfg)[0]
+            if gtbb or split == "test":
+                out[split] += fine.samples_from_queries(ref, qs, fe.gtbb_proposals(ref, qs), cfg)[0]
+            for _ in range({"train": simulated, "val": min(simulated, 1)}.get(split, 0)):
+                out[split] += fine.samples_from_queries(ref, qs, fe.simulated_coarse_proposals(ref, qs, rng), cfg)[0]
+        if coarse is not None:
+            qs = q[q["split"] == "test"]
+            out["test_coarse"] += fine.samples_from_queries(ref, qs, coarse[coarse["scene"].astype(str) == qp.parts[-3]],
+                                                            cfg)[0]
     return out
 
 
@@ -63,35 +81,39 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=20, help="epochs timed when not --full")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--full", action="store_true", help="train the configured epochs and report test errors")
+    ap.add_argument("--simulated-proposals", type=int, default=0, help="copies with simulated coarse proposals")
+    ap.add_argument("--no-gtbb", action="store_true", help="train on simulated proposals only")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     fcfg = merged_fine_config([Path("config/config.yaml"), *args.configfile])
     print(f"# Fine training benchmark, {args.threads} thread(s)")
     print("| model | map | train / val / test | epochs | s / epoch | CPU s / epoch | 1000 epochs (min) | best epoch |"
-          " test median | within (10 m, 20°) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          " test median | within (10 m, 20°) | coarse 2N_LM median |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for slug in args.models:
         for mt in args.map_types:
             train_cfg = {**fcfg.get("train", {}), **fcfg.get("train_overrides", {}).get(slug, {})}
             cfg = fine.FineConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
             if not args.full:
                 cfg.epochs = args.epochs
-            s = load_samples(args.results, cfg)
+            s = load_samples(args.results, cfg, args.simulated_proposals, not args.no_gtbb, cfg.seed)
             if not s["train"]:
                 raise SystemExit(f"{args.results}: no */queries/queries.parquet with maps; run the pipeline first")
             t0, c0 = time.perf_counter(), time.process_time()
             res = fine.train(s["train"], s["val"], cfg)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             per, per_cpu = wall / cfg.epochs, cpu / cfg.epochs
-            test = "-"
-            within = "-"
+            test = within = coarse = "-"
             if args.full and s["test"]:
                 e_m, e_deg = fine.errors_metres(fine.predict(res["model"], s["test"]), s["test"], cfg)
                 test = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
                 within = f"{100 * np.mean((e_m < 10) & (e_deg < 20)):.1f} %"
+            if args.full and s["test_coarse"]:
+                e_m, e_deg = fine.errors_metres(fine.predict(res["model"], s["test_coarse"]), s["test_coarse"], cfg)
+                coarse = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
             sizes = "/".join(str(len(s[k])) for k in ("train", "val", "test"))
             print(f"| {cfg.model} | {mt} | {sizes} | {cfg.epochs} | {per:.3f} | {per_cpu:.3f} | {per * 1000 / 60:.1f} |"
-                  f" {res['best_epoch']} | {test} | {within} |", flush=True)
+                  f" {res['best_epoch']} | {test} | {within} | {coarse} |", flush=True)
     print(f"\ntargets: 1000 MLP epochs under {TARGET_1000_S / 60:.0f} min; MLP depth GT-BB median <= {TARGET_MEDIAN_M} m")
 
 

@@ -299,3 +299,19 @@ def test_external_proposal_table_and_failure_rate(scene):
     assert not e.loc[0, "solvable"] and e.loc[1:, "solvable"].all()
     assert fe.summarise(e)["failure_pct"] == pytest.approx(100 / 6)
     assert (e.loc[1:, "error_m"] < 0.1).all() and set(e["strategy"]) == {"2N_LM"}
+
+
+def test_simulated_coarse_proposals_look_like_2n_lm(scene):
+    ref, q = scene
+    props = fe.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
+    again = fe.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
+    assert props["proposal"].map(list).tolist() == again["proposal"].map(list).tolist()  # seeded
+    cls = dict(zip(ref["obj_idx"].astype(int), ref["class_id"].astype(int)))
+    recall = []
+    for r, p in zip(q.itertuples(index=False), props["proposal"]):
+        true, prop = {int(i) for i in r.ref_idx}, [int(o) for o in p]
+        assert len(set(prop)) == len(prop) and true & set(prop)  # distinct, at least one true object
+        assert len(prop) <= max(2 * len(true), 1)
+        assert {cls[o] for o in set(prop) - true} <= {int(c) for c in r.classes}  # wrong objects of seen classes
+        recall.append(len(true & set(prop)) / len(true))
+    assert 0.3 < np.mean(recall) < 0.75

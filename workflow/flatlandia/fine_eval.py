@@ -79,6 +79,39 @@ def gtbb_proposals(ref: pd.DataFrame, queries: pd.DataFrame, enlarge: float = 0.
     return pd.DataFrame(rows, columns=["scene", "token", "strategy", "proposal"])
 
 
+def simulated_coarse_proposals(ref: pd.DataFrame, queries: pd.DataFrame, rng: np.random.Generator,
+                               recall: float = 0.5, size_factor: float = 2.0, fp_scale_m: float = 30.0) -> pd.DataFrame:
+    """Proposals that look like a coarse model's 2N_LM, for training the learned models on them.
+
+    Why: a model trained on GT-BB proposals only has never seen wrong objects, and a coarse
+    proposal holds about half. Measured on the test split's Sim+Trip 2N_LM proposals: recall 0.52,
+    precision 0.26, 95 % of wrong objects of a class the query sees, median 16 m from a true one.
+    So each true object is kept with probability ``recall`` (at least one), and wrong objects of
+    the query's classes fill ``size_factor`` x N, drawn with weight exp(-d / ``fp_scale_m``), d the
+    distance to the nearest true object. Uses ground truth: training split only.
+    """
+    ref_xy = ref[["x_m", "y_m"]].to_numpy()
+    ref_cls = ref["class_id"].to_numpy()
+    obj = ref["obj_idx"].to_numpy()
+    pos = {int(o): k for k, o in enumerate(obj)}
+    rows = []
+    for r in queries.itertuples(index=False):
+        true = np.array([pos[int(i)] for i in r.ref_idx], int)
+        keep = true[rng.random(len(true)) < recall]
+        if not len(keep):
+            keep = true[rng.integers(len(true), size=1)]
+        n_fp = max(int(round(size_factor * len(true))) - len(keep), 0)
+        others = np.setdiff1d(np.nonzero(np.isin(ref_cls, np.asarray(r.classes, int)))[0], true)
+        if n_fp and len(others):
+            d = np.linalg.norm(ref_xy[others, None] - ref_xy[None, true], axis=-1).min(1)
+            w = np.exp(-d / fp_scale_m)
+            fp = rng.choice(others, size=min(n_fp, len(others)), replace=False, p=w / w.sum())
+            keep = np.concatenate([keep, fp])
+        rows.append({"scene": str(r.scene), "token": str(r.token), "strategy": "simulated 2N_LM",
+                     "proposal": [int(o) for o in obj[np.sort(keep)]]})
+    return pd.DataFrame(rows, columns=["scene", "token", "strategy", "proposal"])
+
+
 def whole_map_proposals(ref: pd.DataFrame, queries: pd.DataFrame) -> pd.DataFrame:
     obj = [int(o) for o in ref["obj_idx"]]
     return pd.DataFrame([{"scene": str(r.scene), "token": str(r.token), "strategy": "whole", "proposal": obj}
