@@ -116,28 +116,37 @@ class _Problem:
         self.eps_q = 0.02 * max(float(np.median(self.q_range)), 1e-9)
         cand_xy = self.r[self.cand] if len(self.r) else np.zeros(self.cand.shape + (2,))
         self.r_cand_x, self.r_cand_y = cand_xy[..., 0].copy(), cand_xy[..., 1].copy()  # (M, K)
+        self.r_cand_x32, self.r_cand_y32 = self.r_cand_x.astype(np.float32), self.r_cand_y.astype(np.float32)
+        self.q_range32 = (self.q_range + self.eps_q).astype(np.float32)  # range + guard
 
     # ------------------------------------------------------------------ costs
     def costs(self, t: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
         """(C, M, K) normalised squared residuals of every query object vs its same-class candidates."""
-        rx = self.r_cand_x[None] - t[:, 0, None, None]  # (C, M, K) world offsets of the candidates
-        ry = self.r_cand_y[None] - t[:, 1, None, None]
         if self.metric:
+            rx = self.r_cand_x[None] - t[:, 0, None, None]  # (C, M, K) world offsets of the candidates
+            ry = self.r_cand_y[None] - t[:, 1, None, None]
             c, sn = np.cos(theta)[:, None, None], np.sin(theta)[:, None, None]
             lx = c * rx + sn * ry  # world -> camera frame
             ly = c * ry - sn * rx
             d2 = (lx - self.q[None, :, 0, None]) ** 2 + (ly - self.q[None, :, 1, None]) ** 2
             cost = d2 / self.cfg.position_sigma_m ** 2
         else:
-            # bearing error: angle between the candidate's world offset and the query object's
-            # direction turned into the world (theta + bearing), one arctan2, no wrap needed
-            wb = theta[:, None] + self.q_bear[None]  # (C, M)
+            # float32 and a tangent for the bearing error: about 4x faster than float64 arctan2 on the
+            # (C, M, K) arrays. tan(db) equals db to 0.1 % within the inlier cap (tau sigmas, a few
+            # degrees); beyond it costs are capped anyway, and objects behind the camera get inf.
+            f = np.float32
+            rx = self.r_cand_x32[None] - t[:, 0, None, None].astype(f)
+            ry = self.r_cand_y32[None] - t[:, 1, None, None].astype(f)
+            wb = (theta[:, None] + self.q_bear[None]).astype(f)  # (C, M) query directions in the world
             ux, uy = np.cos(wb)[..., None], np.sin(wb)[..., None]
-            db = np.arctan2(ux * ry - uy * rx, ux * rx + uy * ry)
-            rr = np.hypot(rx, ry)
-            dr = np.log(rr + s[:, None, None] * self.eps_q) - np.log(s[:, None, None] * (self.q_range[None, :, None]
-                                                                                         + self.eps_q))
-            cost = (db / self.sb) ** 2 + (dr / self.cfg.log_range_sigma) ** 2
+            along = ux * rx + uy * ry
+            across = ux * ry - uy * rx
+            with np.errstate(divide="ignore", invalid="ignore"):
+                tan_db = np.where(along > 0, across / along, f(np.inf))
+            rr = np.sqrt(rx * rx + ry * ry)
+            sc = s.astype(f)[:, None, None]
+            dr = np.log((rr + sc * f(self.eps_q)) / (sc * self.q_range32[None, :, None]))
+            cost = (tan_db / f(self.sb)) ** 2 + (dr / f(self.cfg.log_range_sigma)) ** 2
         return np.where(self.cmask[None], cost, np.inf)
 
     def _pose_prior_sq(self, t, theta) -> np.ndarray:
