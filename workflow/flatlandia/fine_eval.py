@@ -12,6 +12,7 @@ axis-aligned box around the query's matched objects and the true camera, enlarge
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Callable
 
@@ -138,8 +139,10 @@ def pose_errors(x, y, theta_rad, gt_x, gt_y, gt_theta_rad):
     return e_m, e_deg
 
 
+@functools.lru_cache(maxsize=256)
 def metres_per_unit(lat: float) -> float:
-    """Mean true metres per published local-map unit (tf/2 degrees) at a latitude."""
+    """Mean true metres per published local-map unit (tf/2 degrees) at a latitude (cached: a
+    projection is built per call, 18 ms, and evaluation asks once per query)."""
     mx, my = geo.MetricFrame(0.0, float(lat)).metres_per_degree()
     return UNIT_DEG * (mx + my) / 2
 
