@@ -22,23 +22,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import torch
-import yaml
 
-from flatlandia import coarse
+from flatlandia import coarse, io
 from flatlandia import similarity as sm
 
 TARGET_800_S = 15 * 60
 TARGET_QUERY_S = 0.005
-
-
-def merged_coarse_config(paths: list[Path]) -> dict:
-    out: dict = {}
-    for p in map(Path, paths):
-        if p.exists():
-            c = (yaml.safe_load(p.read_text()) or {}).get("coarse", {})
-            for key, v in c.items():
-                out[key] = {**out.get(key, {}), **v} if isinstance(v, dict) else v
-    return out
 
 
 def load_scenes(results: Path, scenes: list[str], with_similarity: bool = True) -> list:
@@ -163,7 +152,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     scenes = args.scenes or sorted((p.parent.parent.name for p in args.results.glob("*/coarse/similarity.parquet")),
                                    key=lambda s: (len(s), s))
-    cfg = merged_coarse_config(args.config)
+    cfg = io.config_section(args.config, "coarse")
     print(f"# Coarse localization benchmark: {len(scenes)} scenes, config {[str(p) for p in args.config]}, "
           f"{args.threads} thread(s)")
     if "similarity" not in args.skip:

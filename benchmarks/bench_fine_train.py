@@ -27,23 +27,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import torch
-import yaml
 
-from flatlandia import fine
+from flatlandia import fine, io
 from flatlandia import fine_eval as fe
 
 MODEL_NAMES = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 TARGET_1000_S = 10 * 60
 TARGET_MEDIAN_M = 5.0
-
-
-def merged_fine_config(paths: list[Path]) -> dict:
-    out: dict = {}
-    for p in map(Path, paths):
-        if p.exists():
-            for key, v in ((yaml.safe_load(p.read_text()) or {}).get("fine", {}) or {}).items():
-                out[key] = {**out.get(key, {}), **v} if isinstance(v, dict) else v
-    return out
 
 
 def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: bool = True,
@@ -85,7 +75,7 @@ def main() -> None:
     ap.add_argument("--no-gtbb", action="store_true", help="train on simulated proposals only")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    fcfg = merged_fine_config([Path("config/config.yaml"), *args.configfile])
+    fcfg = io.config_section([Path("config/config.yaml"), *args.configfile], "fine")
     print(f"# Fine training benchmark, {args.threads} thread(s)")
     print("| model | map | train / val / test | epochs | s / epoch | CPU s / epoch | 1000 epochs (min) | best epoch |"
           " test median | within (10 m, 20°) | coarse 2N_LM median |")

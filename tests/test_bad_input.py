@@ -105,3 +105,12 @@ def test_ingest_sha256_mismatch(tmp_path, flat_root):
     p.write_bytes(data.replace(b"2.37", b"2.38", 1))  # same size, different content
     with pytest.raises(InputError, match="sha256 differs"):
         ingest.ingest_scene(tmp_path, "12")
+
+
+def test_config_section_layers_files_like_configfile(tmp_path):
+    base, over = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    base.write_text("fine:\n  train: {epochs: 300, lr: 0.002}\n  coarse_strategy: 2N_LM\ncoarse: {x: 1}\n")
+    over.write_text("fine:\n  train: {epochs: 1000}\n")
+    got = io.config_section([base, tmp_path / "missing.yaml", over], "fine")
+    assert got == {"train": {"epochs": 1000, "lr": 0.002}, "coarse_strategy": "2N_LM"}
+    assert io.config_section([over], "coarse") == {}

@@ -77,6 +77,20 @@ def write_text(text: str, path: str | Path) -> None:
 # --------------------------------------------------------------------------- readers
 
 
+def config_section(paths, section: str) -> dict:
+    """One top-level section of layered YAML config files (later files update earlier ones, one
+    level deep, as Snakemake's ``--configfile`` does); missing files are skipped. For benchmarks
+    that read the workflow's config outside Snakemake."""
+    import yaml
+
+    out: dict = {}
+    for p in map(Path, paths):
+        if p.exists():
+            for key, v in ((yaml.safe_load(p.read_text()) or {}).get(section) or {}).items():
+                out[key] = {**out.get(key, {}), **v} if isinstance(v, dict) else v
+    return out
+
+
 def _need(path: Path) -> Path:
     if not path.exists():
         raise InputError(path, "file is missing")
