@@ -35,7 +35,6 @@ def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
     assert len(e) == len(q)
     assert (e["error_m"] < 0.1).mean() >= 0.99
     assert e["error_deg"].median() < 1e-6
-    assert e["seconds"].mean() < 0.1
 
 
 def test_solver_exact_on_gt_maps_whole_map(scene):
@@ -76,6 +75,28 @@ def test_solver_synthetic_exact_metric_and_bearing_only(seed):
     ref, cls, cam, theta, ql, qc, depth, vis = _synthetic(np.random.default_rng(seed), range_noise=0.2)
     s = solver.solve(depth, qc, ref, cls, metric=False)
     assert np.hypot(s.x - cam[0], s.y - cam[1]) < 0.3 and abs(np.degrees(geo.wrap_angle(s.theta - theta))) < 0.3
+
+
+@pytest.mark.parametrize("metric", [False, True])
+def test_compiled_scoring_equals_padded_numpy_costs(metric):
+    """The compiled scoring loops (early bearing rejection, flat candidates) give the same capped
+    MSAC data cost, inliers and inlier matches as the padded (C, M, K) numpy costs."""
+    rng = np.random.default_rng(3)
+    ref, cls = rng.uniform(-100, 100, (150, 2)), rng.integers(0, 6, 150)
+    q, qc = rng.uniform(1, 30, (7, 2)), np.r_[rng.integers(0, 6, 6), 9]  # class 9: no candidates
+    pb = solver._Problem(q, qc, ref, cls, metric, solver.SolverConfig(position_sigma_m=5.0))  # inliers by chance
+    t, th, s = rng.uniform(-100, 100, (4000, 2)), rng.uniform(-np.pi, np.pi, 4000), rng.uniform(2, 50, 4000)
+    total, inl, match = pb.data_cost(t, th, s)
+    cost = pb.costs(t, th, s)
+    best = cost.argmin(2)
+    bc = np.take_along_axis(cost, best[..., None], 2)[..., 0]
+    tau2 = pb.cfg.tau ** 2
+    np.testing.assert_allclose(total, np.minimum(bc, tau2).sum(1), rtol=1e-4, atol=1e-4)
+    ok = np.abs(bc - tau2) > 1e-3  # float32 reference: leave exact ties with the cap aside
+    assert (inl == (bc < tau2))[ok].all() and inl.sum() > 100
+    ref_match = pb.cand[np.arange(pb.m)[None], best]
+    assert (match[inl] == ref_match[inl]).all()
+    assert not inl[:, -1].any()
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

@@ -28,12 +28,13 @@ the pose, the inlier matches (query index, candidate index) and a confidence in 
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import geo
+from . import geo, solver_kernels
 
 
 @dataclass
@@ -118,6 +119,12 @@ class _Problem:
         self.r_cand_x, self.r_cand_y = cand_xy[..., 0].copy(), cand_xy[..., 1].copy()  # (M, K)
         self.r_cand_x32, self.r_cand_y32 = self.r_cand_x.astype(np.float32), self.r_cand_y.astype(np.float32)
         self.q_range32 = (self.q_range + self.eps_q).astype(np.float32)  # range + guard
+        self.rx, self.ry = self.r[:, 0].copy(), self.r[:, 1].copy()
+        # the same candidates flat (no padding) for the compiled scoring
+        self.ptr = np.r_[0, np.cumsum([len(s) for s in self.same])].astype(np.int64)
+        self.flat_idx = np.concatenate(self.same + [np.zeros(0, int)]).astype(np.int64)
+        flat_xy = self.r[self.flat_idx] if len(self.flat_idx) else np.zeros((0, 2))
+        self.flat_x, self.flat_y = flat_xy[:, 0].copy(), flat_xy[:, 1].copy()
 
     # ------------------------------------------------------------------ costs
     def costs(self, t: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -149,52 +156,73 @@ class _Problem:
             cost = (tan_db / f(self.sb)) ** 2 + (dr / f(self.cfg.log_range_sigma)) ** 2
         return np.where(self.cmask[None], cost, np.inf)
 
-    def _pose_prior_sq(self, t, theta) -> np.ndarray:
+    def _prior_neighbours(self, t):
+        """Distances and indices (C, k) of the ``prior_knn`` nearest prior cameras (k = 1 when
+        neither the heading prior nor co-visibility needs more): one tree query for both."""
+        cfg = self.cfg
+        need = (self.prior_heading is not None and cfg.prior_heading_sigma_deg > 0) or self._covis_on()
+        k = min(cfg.prior_knn, self.prior.n) if need else 1
+        # farther cameras change nothing: their prior cost is capped and co-visibility ignores them
+        bound = max(cfg.tau * cfg.prior_sigma_m, cfg.covis_radius_m if self._covis_on() else 0.0) + 1e-9
+        d, j = self.prior.query(t, k=k, distance_upper_bound=bound)
+        return d.reshape(len(t), k), np.minimum(j, self.prior.n - 1).reshape(len(t), k)  # missing: d = inf
+
+    def _covis_on(self) -> bool:
+        cfg = self.cfg
+        return (self.seen is not None and cfg.covis_weight > 0 and self.prior is not None
+                and (not self.metric or cfg.covis_metric))
+
+    def _pose_prior_sq(self, t, theta, nb=None) -> np.ndarray:
         """(C,) squared normalised distance of poses to the prior cameras (position [+ heading])."""
         cfg = self.cfg
+        d, j = nb if nb is not None else self._prior_neighbours(t)
         if self.prior_heading is None or cfg.prior_heading_sigma_deg <= 0:
-            d = self.prior.query(t, k=1)[0]
-            return (d / cfg.prior_sigma_m) ** 2
-        k = min(cfg.prior_knn, self.prior.n)
-        d, j = self.prior.query(t, k=k)
-        d, j = d.reshape(len(t), k), j.reshape(len(t), k)
+            return (d[:, 0] / cfg.prior_sigma_m) ** 2
         dth = geo.wrap_angle(self.prior_heading[j] - np.asarray(theta).reshape(-1, 1))
         return np.min((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, axis=1)
 
-    def prior_cost(self, t, s, theta=None) -> np.ndarray:
+    def prior_cost(self, t, s, theta=None, nb=None) -> np.ndarray:
         """(C,) prior cost: pose vs the nearest prior camera, log-scale; each capped at tau^2."""
         tau2 = self.cfg.tau ** 2
         out = np.zeros(len(t))
         if self.prior is not None and self.cfg.prior_weight > 0:
-            out += self.cfg.prior_weight * np.minimum(self._pose_prior_sq(t, theta), tau2)
+            out += self.cfg.prior_weight * np.minimum(self._pose_prior_sq(t, theta, nb), tau2)
         if not self.metric and self.scale_prior is not None and self.cfg.scale_prior_weight > 0:
             mu, sd = self.scale_prior
             out += self.cfg.scale_prior_weight * np.minimum(((np.log(s) - mu) / sd) ** 2, tau2)
         return out
 
-    def covis_cost(self, t, inl, match) -> np.ndarray:
+    def covis_cost(self, t, inl, match, nb=None) -> np.ndarray:
         """(C,) co-visibility cost: ``covis_weight`` per inlier whose candidate no prior camera within
         ``covis_radius_m`` of the pose saw together with the most of the others (best single camera)."""
-        cfg = self.cfg
-        if (self.seen is None or cfg.covis_weight <= 0 or self.prior is None
-                or (self.metric and not cfg.covis_metric)):
+        if not self._covis_on():
             return np.zeros(len(t))
-        k = min(cfg.prior_knn, self.prior.n)
-        d, j = self.prior.query(t, k=k)
-        d, j = d.reshape(len(t), k), j.reshape(len(t), k)
-        seen = self.seen[j[..., None], match[:, None, :]] & inl[:, None, :]  # (C, k, M)
-        cnt = np.where(d <= cfg.covis_radius_m, seen.sum(-1), 0).max(axis=1)
-        return cfg.covis_weight * (inl.sum(1) - cnt)
+        d, j = nb if nb is not None else self._prior_neighbours(t)
+        cnt = solver_kernels.covis_counts(np.ascontiguousarray(d), np.ascontiguousarray(j, dtype=np.int64),
+                                          self.seen, match, inl, float(self.cfg.covis_radius_m))
+        return self.cfg.covis_weight * (inl.sum(1) - cnt)
+
+    def data_cost(self, t, theta, s):
+        """Capped data cost (C,), inlier mask (C, M) and best candidate (C, M): compiled loops
+        (``solver_kernels``), equal to the padded numpy :meth:`costs` reduced per object."""
+        t = np.ascontiguousarray(t, dtype=float).reshape(-1, 2)
+        theta = np.ascontiguousarray(theta, dtype=float).ravel()
+        tau2 = float(self.cfg.tau ** 2)
+        if self.metric:
+            return solver_kernels.score_metric(t[:, 0].copy(), t[:, 1].copy(), theta, self.q[:, 0].copy(),
+                                               self.q[:, 1].copy(), self.flat_x, self.flat_y, self.flat_idx,
+                                               self.ptr, float(self.cfg.position_sigma_m), tau2)
+        return solver_kernels.score_depth(t[:, 0].copy(), t[:, 1].copy(), theta,
+                                          np.ascontiguousarray(s, dtype=float).ravel(), self.q_bear,
+                                          self.q_range + self.eps_q, float(self.eps_q), self.flat_x, self.flat_y,
+                                          self.flat_idx, self.ptr, float(self.sb), float(self.cfg.log_range_sigma),
+                                          tau2)
 
     def score(self, t, theta, s):
         """MSAC cost (C,), inlier mask (C, M) and best candidate (C, M) per hypothesis."""
-        cost = self.costs(t, theta, s)
-        best = cost.argmin(axis=2)
-        bc = np.take_along_axis(cost, best[..., None], axis=2)[..., 0]
-        tau2 = self.cfg.tau ** 2
-        inl = bc < tau2
-        match = self.cand[np.arange(self.m)[None], best]
-        total = np.minimum(bc, tau2).sum(axis=1) + self.prior_cost(t, s, theta) + self.covis_cost(t, inl, match)
+        total, inl, match = self.data_cost(t, theta, s)
+        nb = self._prior_neighbours(np.asarray(t, float).reshape(-1, 2)) if self.prior is not None else None
+        total = total + self.prior_cost(t, s, theta, nb) + self.covis_cost(t, inl, match, nb)
         return total, inl, match
 
     # ------------------------------------------------------------------ hypotheses
@@ -203,27 +231,13 @@ class _Problem:
         a, b = self.same[i], self.same[j]
         if not len(a) or not len(b):
             return None
-        aa, bb = (g.ravel() for g in np.meshgrid(a, b, indexing="ij"))
-        keep = aa != bb
-        aa, bb = aa[keep], bb[keep]
         dq = self.q[j] - self.q[i]
-        lq = float(np.hypot(*dq))
-        if lq < 1e-9 or not len(aa):
+        if float(np.hypot(*dq)) < 1e-9:
             return None
-        dr = self.r[bb] - self.r[aa]
-        lr = np.hypot(dr[:, 0], dr[:, 1])
-        if self.metric:
-            ok = np.abs(lr - lq) <= self.cfg.pair_len_tol_m
-            s = np.ones(len(aa))
-        else:
-            s = lr / lq
-            ok = (s >= self.cfg.min_scale) & (s <= self.cfg.max_scale)
-        aa, bb, dr, s = aa[ok], bb[ok], dr[ok], s[ok]
-        theta = np.arctan2(dr[:, 1], dr[:, 0]) - np.arctan2(dq[1], dq[0])
-        c, sn = np.cos(theta), np.sin(theta)
-        qi = self.q[i]
-        t = self.r[aa] - s[:, None] * np.column_stack([c * qi[0] - sn * qi[1], sn * qi[0] + c * qi[1]])
-        return t, geo.wrap_angle(theta), s
+        return solver_kernels.pair_fits(a.astype(np.int64), b.astype(np.int64), self.rx, self.ry,
+                                        float(self.q[i, 0]), float(self.q[i, 1]), float(dq[0]), float(dq[1]),
+                                        self.metric, float(self.cfg.pair_len_tol_m), float(self.cfg.min_scale),
+                                        float(self.cfg.max_scale))
 
     def triple_hypotheses(self, i: int, j: int, k: int, limit: int):
         """3-bearing resections (range-free) of query objects (i, j, k) onto same-class candidate triples.
@@ -235,38 +249,11 @@ class _Problem:
         ca, cb, cc = self.same[i], self.same[j], self.same[k]
         if min(len(ca), len(cb), len(cc)) == 0 or len(ca) * len(cb) * len(cc) > limit:
             return None
-        aa, bb, c3 = (g.ravel() for g in np.meshgrid(ca, cb, cc, indexing="ij"))
-        keep = (aa != bb) & (bb != c3) & (aa != c3)
-        aa, bb, c3 = aa[keep], bb[keep], c3[keep]
-        if not len(aa):
-            return None
-        z_r = self.r[:, 0] + 1j * self.r[:, 1]
-        A, B, C = z_r[aa], z_r[bb], z_r[c3]
-        qb = self.q_bear
-        eq = []
-        for P, beta in ((B, qb[j]), (C, qb[k])):
-            e = np.exp(-1j * (beta - qb[i]))
-            kk = e * (P - A)  # Im(kk u) = -Im(e): Im(kk) ux + Re(kk) uy = -Im(e)
-            eq.append((kk.imag, kk.real, -e.imag))
-        (a11, a12, b1), (a21, a22, b2) = eq
-        det = a11 * a22 - a12 * a21
-        ok = np.abs(det) > 1e-12
-        det = np.where(ok, det, 1.0)
-        u = (b1 * a22 - a12 * b2) / det + 1j * (a11 * b2 - b1 * a21) / det
-        ok &= np.abs(u) > 1e-12
-        z = A - 1.0 / np.where(ok, u, 1.0)
-        theta = np.angle(A - z) - qb[i]
-        for P, beta in ((B, qb[j]), (C, qb[k])):  # each object ahead at its bearing, not behind
-            ok &= np.abs(geo.wrap_angle(np.angle(P - z) - theta - beta)) < 1e-3
-        d = np.abs(np.stack([A - z, B - z, C - z]))
-        qr = self.q_range[[i, j, k]][:, None] + self.eps_q
-        s = np.exp(np.mean(np.log(d + 1e-9) - np.log(qr), axis=0))
-        if not self.metric:
-            ok &= (s >= self.cfg.min_scale) & (s <= self.cfg.max_scale)
-        else:
-            s = np.ones_like(s)
-        t = np.column_stack([z.real, z.imag])[ok]
-        return t, geo.wrap_angle(theta[ok]), s[ok]
+        qb, qr = self.q_bear, self.q_range
+        return solver_kernels.triple_resections(
+            ca.astype(np.int64), cb.astype(np.int64), cc.astype(np.int64), self.rx, self.ry,
+            float(qb[i]), float(qb[j]), float(qb[k]), float(qr[i]), float(qr[j]), float(qr[k]), float(self.eps_q),
+            float(self.cfg.min_scale), float(self.cfg.max_scale), self.metric)
 
     def query_triples(self) -> list[tuple[int, int, int]]:
         m = self.m
@@ -298,26 +285,24 @@ class _Problem:
 
     # ------------------------------------------------------------------ refinement
     def refine_batch(self, t: np.ndarray, theta: np.ndarray, s: np.ndarray, iters: int = 15):
-        """Vectorised robust Gauss-Newton with re-association for C hypotheses at once.
+        """Robust Gauss-Newton with re-association for C hypotheses at once.
 
         Objective: bearing + weak log-range residuals (positions for metric maps) of the matched
         inliers, plus the priors for depth maps; soft-L1 weights (IRLS), analytic Jacobians, a
-        little Levenberg damping; matches re-associated ``refine_rounds`` times. Returns refined (t (C,2), theta (C,), s (C,)).
+        little Levenberg damping (compiled: ``solver_kernels.refine_gauss_newton``); matches
+        re-associated ``refine_rounds`` times. Returns refined (t (C,2), theta (C,), s (C,)).
         """
         cfg = self.cfg
-        C, m = len(t), self.m
+        C = len(t)
         p = np.column_stack([t, theta, np.log(np.maximum(s, 1e-9))]).astype(float)
-        tau2 = cfg.tau ** 2
-        sb, sr, sp, eps = self.sb, cfg.refine_log_range_sigma, cfg.position_sigma_m, self.eps_q
         use_prior = self.prior is not None and cfg.prior_weight > 0 and not self.metric
         use_heading = use_prior and self.prior_heading is not None and cfg.prior_heading_sigma_deg > 0
         use_scale = not self.metric and self.scale_prior is not None and cfg.scale_prior_weight > 0
-        npar = 3 if self.metric else 4
+        mu, sd = self.scale_prior if use_scale else (0.0, 1.0)
         for _ in range(cfg.refine_rounds):
-            cost = self.costs(p[:, :2], p[:, 2], np.exp(p[:, 3]))  # (C, M, K)
-            best = cost.argmin(axis=2)
-            inl = np.take_along_axis(cost, best[..., None], axis=2)[..., 0] < tau2  # (C, M)
-            R = self.r[self.cand[np.arange(m)[None], best]]  # (C, M, 2) matched candidates
+            _, inl, match = self.data_cost(p[:, :2], p[:, 2], np.exp(p[:, 3]))
+            R = np.ascontiguousarray(self.r[match])  # (C, M, 2) matched candidates
+            cam, head = np.zeros((C, 2)), np.zeros(C)
             if use_prior:  # the prior camera each hypothesis is tied to, fixed for this round
                 if use_heading:
                     k = min(cfg.prior_knn, self.prior.n)
@@ -326,68 +311,64 @@ class _Problem:
                     dth = geo.wrap_angle(self.prior_heading[j] - p[:, 2:3])
                     sel = np.argmin((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, 1)
                     jj = j[np.arange(C), sel]
+                    head = self.prior_heading[jj].astype(float)
                 else:
                     jj = self.prior.query(p[:, :2], k=1)[1]
-                cam = self.prior.data[jj]
-            for _ in range(iters):
-                rel = R - p[:, None, :2]
-                c, sn = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
-                if self.metric:
-                    lx = c * rel[..., 0] + sn * rel[..., 1]
-                    ly = -sn * rel[..., 0] + c * rel[..., 1]
-                    e1, e2 = (lx - self.q[None, :, 0]) / sp, (ly - self.q[None, :, 1]) / sp
-                    J1 = np.stack([-c.repeat(m, 1), -sn.repeat(m, 1), ly], -1) / sp
-                    J2 = np.stack([sn.repeat(m, 1), -c.repeat(m, 1), -lx], -1) / sp
-                else:
-                    rho2 = np.maximum((rel ** 2).sum(-1), 1e-12)
-                    rho = np.sqrt(rho2)
-                    phi = np.arctan2(rel[..., 1], rel[..., 0])
-                    e1 = geo.wrap_angle(phi - p[:, 2:3] - self.q_bear[None]) / sb
-                    J1 = np.stack([rel[..., 1] / rho2, -rel[..., 0] / rho2, -np.ones_like(rho), np.zeros_like(rho)],
-                                  -1) / sb
-                    sc = np.exp(p[:, 3:4])
-                    e2 = (np.log(rho + sc * eps) - np.log(sc * (self.q_range[None] + eps))) / sr
-                    g = 1.0 / (rho + sc * eps)
-                    J2 = np.stack([-rel[..., 0] / rho * g, -rel[..., 1] / rho * g, np.zeros_like(rho),
-                                   sc * eps * g - 1.0], -1) / sr
-                E = np.concatenate([e1, e2], 1)  # (C, 2M)
-                J = np.concatenate([J1, J2], 1)[..., :npar]  # (C, 2M, P)
-                W = np.concatenate([inl, inl], 1) / np.sqrt(1.0 + E ** 2)  # soft-L1 IRLS weights
-                extra_e, extra_j = [], []
-                if use_prior:
-                    wpr = np.sqrt(cfg.prior_weight)
-                    for a in range(2):
-                        jrow = np.zeros((C, npar)); jrow[:, a] = wpr / cfg.prior_sigma_m
-                        extra_e.append(wpr * (p[:, a] - cam[:, a]) / cfg.prior_sigma_m); extra_j.append(jrow)
-                    if use_heading:
-                        sh = np.radians(cfg.prior_heading_sigma_deg)
-                        jrow = np.zeros((C, npar)); jrow[:, 2] = wpr / sh
-                        extra_e.append(wpr * geo.wrap_angle(p[:, 2] - self.prior_heading[jj]) / sh); extra_j.append(jrow)
-                if use_scale:
-                    mu, sd = self.scale_prior
-                    ws = np.sqrt(cfg.scale_prior_weight)
-                    jrow = np.zeros((C, npar)); jrow[:, 3] = ws / sd
-                    extra_e.append(ws * (p[:, 3] - mu) / sd); extra_j.append(jrow)
-                if extra_e:
-                    E = np.concatenate([E, np.stack(extra_e, 1)], 1)
-                    J = np.concatenate([J, np.stack(extra_j, 1)], 1)
-                    ex = np.stack(extra_e, 1)
-                    # robust too (soft-L1 on the prior's total), so the data can overrule a far prior
-                    W = np.concatenate([W, np.repeat(1.0 / np.sqrt(1.0 + (ex ** 2).sum(1, keepdims=True)),
-                                                     len(extra_e), 1)], 1)
-                JW = J * W[..., None]
-                H = np.einsum("crp,crq->cpq", JW, J) + 1e-6 * np.eye(npar)[None]
-                gvec = np.einsum("crp,cr->cp", JW, E)
-                ok = inl.sum(1) >= 2
-                try:
-                    step = -np.linalg.solve(H, gvec[..., None])[..., 0]
-                except np.linalg.LinAlgError:
-                    step = np.zeros((C, npar))
-                step = np.where(ok[:, None] & np.isfinite(step).all(1, keepdims=True), step, 0.0)
-                p[:, :npar] += step
-                if np.abs(step).max(initial=0.0) < 1e-10:
-                    break
+                cam = np.ascontiguousarray(self.prior.data[jj], dtype=float)
+            solver_kernels.refine_gauss_newton(
+                p, R, inl, self.metric, self.q[:, 0].copy(), self.q[:, 1].copy(), self.q_bear, self.q_range,
+                float(self.eps_q), float(self.sb), float(cfg.refine_log_range_sigma), float(cfg.position_sigma_m),
+                cam, float(cfg.prior_weight) if use_prior else 0.0, float(cfg.prior_sigma_m), head,
+                float(np.radians(cfg.prior_heading_sigma_deg)) if use_heading else 0.0,
+                float(mu), float(sd), float(cfg.scale_prior_weight) if use_scale else 0.0, iters)
         return p[:, :2].copy(), geo.wrap_angle(p[:, 2]), np.exp(p[:, 3]) if not self.metric else np.ones(C)
+
+
+class _PriorGate:
+    """Which points lie within ``radius`` of a prior camera: a 1 m grid of sure-inside / sure-outside
+    cells, an exact tree query only for cells on the boundary. Same answer as the tree query alone;
+    built once per set of prior cameras (a scene) and cached, as every query of a scene shares it."""
+
+    CELL = 1.0
+
+    def __init__(self, cams: np.ndarray, radius: float):
+        self.tree = cKDTree(cams)
+        self.radius = float(radius)
+        pad = radius + 2 * self.CELL
+        self.lo = cams.min(0) - pad
+        shape = np.ceil((cams.max(0) + pad - self.lo) / self.CELL).astype(int) + 1
+        if shape.prod() > 4_000_000:  # cameras spread over kilometres: the tree alone
+            shape = np.array([1, 1])
+        gx, gy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+        centres = self.lo + (np.stack([gx, gy], -1).reshape(-1, 2) + 0.5) * self.CELL
+        half_diag = self.CELL * math.sqrt(0.5)
+        d = self.tree.query(centres, k=1, distance_upper_bound=radius + half_diag + 1e-9)[0].reshape(shape)
+        self.state = np.where(d <= radius - half_diag, 1, np.where(d <= radius + half_diag, 2, 0)).astype(np.int8)
+
+    def near(self, t: np.ndarray) -> np.ndarray:
+        """(C,) True where a prior camera is within ``radius``."""
+        ij = np.floor((t - self.lo) / self.CELL).astype(np.int64)
+        inside = (ij >= 0).all(1) & (ij[:, 0] < self.state.shape[0]) & (ij[:, 1] < self.state.shape[1])
+        st = np.zeros(len(t), np.int8)
+        st[inside] = self.state[ij[inside, 0], ij[inside, 1]]
+        out = st == 1
+        edge = np.flatnonzero(st == 2)
+        if len(edge):
+            out[edge] = self.tree.query(t[edge], k=1, distance_upper_bound=self.radius + 1e-9)[0] <= self.radius
+        return out
+
+
+_GATES: dict = {}
+
+
+def _prior_gate(cams: np.ndarray, radius: float) -> _PriorGate:
+    cams = np.ascontiguousarray(cams, dtype=float)
+    key = (cams.shape, hash(cams.tobytes()), float(radius))
+    if key not in _GATES:
+        if len(_GATES) >= 64:
+            _GATES.clear()
+        _GATES[key] = _PriorGate(cams, radius)
+    return _GATES[key]
 
 
 def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: SolverConfig | dict | None = None,
@@ -407,12 +388,13 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     """
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
     prior_arr = np.asarray(prior_xy, float).reshape(len(prior_xy), -1) if prior_xy is not None else None
-    prior = cKDTree(prior_arr[:, :2]) if prior_arr is not None and len(prior_arr) else None
+    gate = _prior_gate(prior_arr[:, :2], cfg.prior_radius_m) if prior_arr is not None and len(prior_arr) else None
+    prior = gate.tree if gate is not None else None
     pb = _Problem(query_xy, query_cls, ref_xy, ref_cls, metric, cfg, prior, scale_prior)
     if prior is not None and prior_arr.shape[1] >= 3:
         pb.prior_heading = prior_arr[:, 2]
     if prior is not None and prior_seen is not None:
-        pb.seen = np.asarray(prior_seen, bool).reshape(len(prior_arr), len(pb.r))
+        pb.seen = np.ascontiguousarray(np.asarray(prior_seen, bool).reshape(len(prior_arr), len(pb.r)))
     if pb.m < 2 or len(pb.r) < 2:
         return None
     cand_cost, cand_t, cand_th, cand_s = [], [], [], []
@@ -461,7 +443,7 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
             continue
         t, th, s = h
         if prior is not None and len(t):
-            near = prior.query(t, k=1, distance_upper_bound=cfg.prior_radius_m)[0] <= cfg.prior_radius_m
+            near = gate.near(t)
             t, th, s = t[near], th[near], s[near]
         if len(t):
             pending.append((t, th, s))
@@ -480,13 +462,15 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     t_all, th_all, s_all = np.concatenate(cand_t), np.concatenate(cand_th), np.concatenate(cand_s)
     order = np.argsort(cost, kind="stable")
     chosen: list[int] = []
-    for w in order:  # the top_k distinct hypotheses (not within 1 m / 2 deg of a better one)
+    tx, ty, tth = t_all[:, 0].tolist(), t_all[:, 1].tolist(), th_all.tolist()  # scalar maths: many short loops
+    two_deg, two_pi = math.radians(2.0), 2.0 * math.pi
+    for w in order.tolist():  # the top_k distinct hypotheses (not within 1 m / 2 deg of a better one)
         if len(chosen) >= cfg.top_k:
             break
-        if any(np.hypot(*(t_all[w] - t_all[v])) < 1.0 and abs(geo.wrap_angle(th_all[w] - th_all[v])) < np.radians(2)
-               for v in chosen):
+        if any(math.hypot(tx[w] - tx[v], ty[w] - ty[v]) < 1.0
+               and abs((tth[w] - tth[v] + math.pi) % two_pi - math.pi) < two_deg for v in chosen):
             continue
-        chosen.append(int(w))
+        chosen.append(w)
     ch = np.array(chosen, int)
     t_r, th_r, s_r = pb.refine_batch(t_all[ch], th_all[ch], s_all[ch])
     c_r, inl_r, match_r = pb.score(t_r, th_r, s_r)
