@@ -37,7 +37,7 @@ TARGET_MEDIAN_M = 5.0
 
 
 def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: bool = True,
-                 seed: int = 0) -> dict[str, list]:
+                 seed: int = 0, crop_m: float = 0.0) -> dict[str, list]:
     out: dict[str, list] = {"train": [], "val": [], "test": [], "test_coarse": []}
     rng = np.random.default_rng(seed)
     coarse_p = results / "coarse/simtrip/proposals.parquet"
@@ -51,14 +51,17 @@ def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: 
         ref, q = pd.read_parquet(ref_p), pd.read_parquet(qp)
         for split in ("train", "val", "test"):
             qs = q[q["split"] == split]
-            if gtbb or split == "test":
+            if split == "test":
                 out[split] += fine.samples_from_queries(ref, qs, fe.gtbb_proposals(ref, qs), cfg)[0]
-            for _ in range({"train": simulated, "val": min(simulated, 1)}.get(split, 0)):
-                out[split] += fine.samples_from_queries(ref, qs, fe.simulated_coarse_proposals(ref, qs, rng), cfg)[0]
+                continue
+            regime = "coarse" if simulated else "gtbb"
+            copies = simulated if split == "train" else min(simulated, 1)
+            for props in fe.training_proposals(ref, qs, regime, rng, copies, gtbb, crop_m):
+                out[split] += fine.samples_from_queries(ref, qs, props, cfg)[0]
         if coarse is not None:
             qs = q[q["split"] == "test"]
-            out["test_coarse"] += fine.samples_from_queries(ref, qs, coarse[coarse["scene"].astype(str) == qp.parts[-3]],
-                                                            cfg)[0]
+            props = fe.crop_to_densest(ref, coarse[coarse["scene"].astype(str) == qp.parts[-3]], crop_m)
+            out["test_coarse"] += fine.samples_from_queries(ref, qs, props, cfg)[0]
     return out
 
 
@@ -73,6 +76,10 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="train the configured epochs and report test errors")
     ap.add_argument("--simulated-proposals", type=int, default=0, help="copies with simulated coarse proposals")
     ap.add_argument("--no-gtbb", action="store_true", help="train on simulated proposals only")
+    ap.add_argument("--save", type=Path, default=None, help="save the trained model here (a checkpoint per run: "
+                    "PATH with -{model}_{map} before the suffix)")
+    ap.add_argument("--crop-m", type=float, default=0.0,
+                    help="cut coarse and simulated proposals to their densest objects within this radius")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     fcfg = io.config_section([Path("config/config.yaml"), *args.configfile], "fine")
@@ -86,12 +93,14 @@ def main() -> None:
             cfg = fine.FineConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
             if not args.full:
                 cfg.epochs = args.epochs
-            s = load_samples(args.results, cfg, args.simulated_proposals, not args.no_gtbb, cfg.seed)
+            s = load_samples(args.results, cfg, args.simulated_proposals, not args.no_gtbb, cfg.seed, args.crop_m)
             if not s["train"]:
                 raise SystemExit(f"{args.results}: no */queries/queries.parquet with maps; run the pipeline first")
             t0, c0 = time.perf_counter(), time.process_time()
             res = fine.train(s["train"], s["val"], cfg)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            if args.save:
+                fine.save_checkpoint(res, args.save.with_name(f"{args.save.stem}-{slug}_{mt}{args.save.suffix}"))
             per, per_cpu = wall / cfg.epochs, cpu / cfg.epochs
             test = within = coarse = "-"
             if args.full and s["test"]:

@@ -336,3 +336,33 @@ def test_simulated_coarse_proposals_look_like_2n_lm(scene):
         assert {cls[o] for o in set(prop) - true} <= {int(c) for c in r.classes}  # wrong objects of seen classes
         recall.append(len(true & set(prop)) / len(true))
     assert 0.3 < np.mean(recall) < 0.75
+
+
+def test_crop_to_densest_keeps_the_densest_group(scene):
+    """Two groups of objects 200 m apart: the crop keeps the larger one, whole, and nothing else."""
+    ref = pd.DataFrame({"obj_idx": np.arange(7), "x_m": [0, 5, 10, 12, 200, 205, 210.0], "y_m": np.zeros(7),
+                        "class_id": np.zeros(7, int)})
+    props = pd.DataFrame({"scene": ["9"] * 2, "token": ["a", "b"], "strategy": ["2N_LM"] * 2,
+                          "proposal": [[0, 1, 2, 3, 4, 5], [4, 5, 6, 0]]})
+    out = fe.crop_to_densest(ref, props, 30.0)
+    assert out["proposal"].tolist() == [[0, 1, 2, 3], [4, 5, 6]]
+    assert fe.crop_to_densest(ref, props, 0.0) is props  # 0: off
+    ref9, q9 = scene
+    real = fe.crop_to_densest(ref9, fe.simulated_coarse_proposals(ref9, q9, np.random.default_rng(1)), 30.0)
+    xy = dict(zip(ref9["obj_idx"].astype(int), ref9[["x_m", "y_m"]].to_numpy()))
+    for p in real["proposal"]:  # every kept object within 2 radii of every other
+        pts = np.array([xy[o] for o in p])
+        assert len(p) >= 1 and np.linalg.norm(pts[:, None] - pts[None], axis=-1).max() < 60.0
+
+
+def test_training_proposals_regimes(scene):
+    ref, q = scene
+    gt = fe.training_proposals(ref, q, "gtbb", np.random.default_rng(0))
+    assert len(gt) == 1 and gt[0]["strategy"].eq("GT-BB").all()
+    co = fe.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=3, keep_gtbb=True, crop_m=30.0)
+    assert len(co) == 4 and co[0]["strategy"].eq("GT-BB").all()
+    assert all(p["strategy"].eq("simulated 2N_LM").all() and len(p) == len(q) for p in co[1:])
+    assert co[1]["proposal"].map(list).tolist() != co[2]["proposal"].map(list).tolist()  # fresh draws
+    assert len(fe.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=2, keep_gtbb=False)) == 2
+    with pytest.raises(ValueError, match="gtbb or coarse"):
+        fe.training_proposals(ref, q, "whole", np.random.default_rng(0))

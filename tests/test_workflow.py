@@ -55,7 +55,10 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
     fine = pd.read_parquet(wd / "results/tables/fine_localization.parquet").set_index("run")
     assert fine.loc["geo_gt_gtbb", "median_m"] < 1e-6  # GT local maps are exact rigid copies
     assert fine.loc["geo_depth_gtbb", "queries"] == fine.loc["geo_gt_gtbb", "queries"] > 0
-    assert {"mlp_depth_gtbb", "geo_depth_coarse-simtrip", "geo_depth_whole"} <= set(fine.index)
+    assert {"mlp_depth_gtbb", "geo_depth_coarse-simtrip", "geo_depth_whole", "gat_att_depth_gtbb"} <= set(fine.index)
+    assert fine.loc["mlp_depth_gtbb", "trained_on"] == "GT-BB" and fine.loc["geo_depth_gtbb", "trained_on"] == ""
+    assert fine.loc["mlp_depth_coarse-simtrip", "trained_on"] == "simulated coarse, cut to 30 m"
+    assert (wd / "results/fine/models/mlp_depth_coarse/checkpoint.pt").exists()
     coarse = pd.read_parquet(wd / "results/tables/coarse_localization.parquet")
     assert len(coarse) > 0 and coarse["success"].between(0, 1).all()
     avail = pd.read_parquet(wd / "results/tables/availability.parquet").set_index("scene")
@@ -118,7 +121,7 @@ def test_paper_config_merges_over_the_default(repo, flat_root, tmp_path):
               "--config", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stderr[-2000:]
     out = res.stdout + res.stderr
-    counts = {"fine_train": 8, "fine_eval": 42, "coarse_train": 3, "coarse_similarity": 20}
+    counts = {"fine_train": 16, "fine_eval": 42, "coarse_train": 3, "coarse_similarity": 20}  # 4 models x 2 maps x 2 trainings
     for rule, n in counts.items():
         assert any(line.split()[:2] == [rule, str(n)] for line in out.splitlines()), rule
     assert "results/fine/gat_att_depth_coarse-trip/errors.parquet" in out

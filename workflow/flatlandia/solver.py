@@ -493,6 +493,18 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     return Solution(float(t[0]), float(t[1]), float(th), float(s), inliers, float(conf), c, n_hyp)
 
 
+def warm_up() -> None:
+    """Compile (or load from numba's cache) every solver kernel on a tiny problem, so that timed
+    queries never include compilation (seconds the first time in a process without a cache)."""
+    rng = np.random.default_rng(0)
+    ref, ref_cls = rng.uniform(-50, 50, (30, 2)), rng.integers(0, 3, 30)
+    q, q_cls = rng.uniform(1, 20, (5, 2)), ref_cls[:5]
+    prior, seen = rng.uniform(-50, 50, (20, 3)), rng.random((20, 30)) < 0.3
+    for metric in (True, False):
+        solve(q, q_cls, ref, ref_cls, metric=metric, config={"covis_weight": 1.0, "prior_heading_sigma_deg": 20.0},
+              prior_xy=prior, scale_prior=(2.0, 0.5), prior_seen=seen)
+
+
 def fit_priors(train_local_maps_m: list[np.ndarray]) -> tuple[float, float]:
     """Log-scale prior of depth maps from training GT (metre) local maps.
 

@@ -83,6 +83,7 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("model_mb", "float", "MB", "checkpoint size on disk (0 for the solver)"),
         Column("ref_map_kb", "float", "kB", "mean per scene: reference map the method reads, 9 B per object (2 x float32 + class)"),
         Column("median_pu", "float", "paper m", "median position error in the paper's convention (local-map units x 215)"),
+        Column("trained_on", "str", "", "learned models: training proposals, GT-BB or simulated coarse (cut to a radius); '' for the solver"),
         Column("pct_pu_0.5m_2deg", "float", "%", "queries under 0.5 paper m and 2 deg (paper convention)"),
         Column("pct_pu_1m_5deg", "float", "%", "queries under 1 paper m and 5 deg (paper convention)"),
         Column("pct_pu_5m_10deg", "float", "%", "queries under 5 paper m and 10 deg (paper convention)"),

@@ -242,18 +242,29 @@ def fine_eval_inputs(wildcards):
     inp = {"reference_maps": per_scene("results/{scene}/maps/reference_map.parquet"),
            "queries": per_scene("results/{scene}/queries/queries.parquet")}
     if wildcards.method != "geo":
-        inp["checkpoint"] = f"results/fine/models/{wildcards.method}_{wildcards.map_type}/checkpoint.pt"
+        regime = fine_train_regime(wildcards.proposal)
+        inp["checkpoint"] = f"results/fine/models/{wildcards.method}_{wildcards.map_type}_{regime}/checkpoint.pt"
     if wildcards.proposal in FINE_COARSE:
         loss = wildcards.proposal.split("-", 1)[1]
         inp["coarse"] = f"results/coarse/{loss}/proposals.parquet"
     return inp
 
 
+def fine_train_regime(proposal):
+    """Training proposals of the learned model a run evaluates: ``coarse`` (simulated coarse
+    proposals) for runs on coarse proposals when fine.coarse_training.enabled, else ``gtbb``."""
+    on = fine_cfg().get("coarse_training", {}).get("enabled", True)
+    return "coarse" if proposal in FINE_COARSE and on else "gtbb"
+
+
 def fine_eval_params(wildcards):
     p = wildcards.proposal
     strategy = fine_cfg().get("coarse_strategy", "2N_LM")
     label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
-    return {"method": wildcards.method, "proposal": p, "strategy": strategy, "strategy_label": label}
+    learned_coarse = wildcards.method != "geo" and fine_train_regime(p) == "coarse"
+    crop = float(fine_cfg().get("coarse_training", {}).get("crop_m", 0.0)) if learned_coarse else 0.0
+    return {"method": wildcards.method, "proposal": p, "strategy": strategy, "strategy_label": label,
+            "train_regime": fine_train_regime(p) if wildcards.method != "geo" else "", "crop_m": crop}
 
 
 def fine_model_name(wildcards):
@@ -267,12 +278,13 @@ def fine_train_params(wildcards):
 
 # ---------------------------------------------------------------- report inputs
 def fine_trained_models():
-    """(model, map_type) of every learned fine run of the config (geo needs no training)."""
+    """(model, map_type, training proposals) of every learned fine run of the config (geo needs no training)."""
     out = []
     for run in fine_runs():
-        method, map_type, _ = run.rsplit("_", 2)
-        if method != "geo" and (method, map_type) not in out:
-            out.append((method, map_type))
+        method, map_type, proposal = run.rsplit("_", 2)
+        key = (method, map_type, fine_train_regime(proposal))
+        if method != "geo" and key not in out:
+            out.append(key)
     return out
 
 

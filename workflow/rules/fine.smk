@@ -1,5 +1,7 @@
 # Fine 3DoF localization (issue 6): the geometric solver (`geo`) and the paper's learned baselines
 # (mlp, mlp_att, gat, gat_att) on GT/depth local maps x proposals (GT-BB, whole map, coarse), test split.
+# A learned model trains per (model x map type x training proposals): gtbb (the paper's), or coarse
+# (simulated coarse proposals, for the runs evaluated on real coarse proposals; fine.coarse_training).
 # Runs come from config fine.runs; their input functions are in common.smk (no lambdas in rules).
 
 rule fine_train:
@@ -7,19 +9,21 @@ rule fine_train:
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
         queries=per_scene("results/{scene}/queries/queries.parquet"),
     output:
-        checkpoint="results/fine/models/{model}_{map_type}/checkpoint.pt",
-        history="results/fine/models/{model}_{map_type}/history.parquet",
+        checkpoint="results/fine/models/{model}_{map_type}_{train}/checkpoint.pt",
+        history="results/fine/models/{model}_{map_type}_{train}/history.parquet",
     params:
         model=fine_model_name,
         train=fine_train_params,
+        coarse_training=fine_cfg().get("coarse_training", {}),
     wildcard_constraints:
         model="|".join(FINE_MODELS),
         map_type="gt|depth",
+        train="gtbb|coarse",
     threads: 1
     log:
-        "logs/fine_train/{model}_{map_type}.log",
+        "logs/fine_train/{model}_{map_type}_{train}.log",
     benchmark:
-        "benchmarks/fine_train/{model}_{map_type}.tsv"
+        "benchmarks/fine_train/{model}_{map_type}_{train}.tsv"
     resources:
         mem_mb=4000,
         runtime=120,

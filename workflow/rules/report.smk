@@ -5,12 +5,12 @@
 rule figures_training:
     input:
         coarse=expand("results/coarse/{loss}/training.parquet", loss=coarse_losses()),
-        fine=[f"results/fine/models/{m}_{t}/history.parquet" for m, t in fine_trained_models()],
+        fine=[f"results/fine/models/{m}_{t}_{r}/history.parquet" for m, t, r in fine_trained_models()],
     output:
         png=report("results/figures/training_curves.png", caption="../report/training_curves.rst", category="Training"),
     params:
         coarse_labels=coarse_losses(),
-        fine_labels=[f"{m} ({t} maps)" for m, t in fine_trained_models()],
+        fine_labels=[f"{m} ({t} maps, {'GT-BB' if r == 'gtbb' else 'coarse'} training)" for m, t, r in fine_trained_models()],
     log:
         "logs/figures_training/all.log",
     conda:

@@ -2,7 +2,9 @@
 
 Methods: ``geo`` (the geometric solver, priors from the training split) or a trained model
 checkpoint. Proposals: ``gtbb`` (oracle), ``whole`` (whole reference map), or a coarse proposal
-table (columns scene, token, strategy, proposal) filtered on the configured strategy.
+table (columns scene, token, strategy, proposal) filtered on the configured strategy; a learned
+model trained on simulated coarse proposals gets the real ones cut to their densest objects
+(fine.coarse_training.crop_m), as in its training.
 """
 
 import os
@@ -57,8 +59,9 @@ def main(smk, log):
                                             prior_seen=seen,
                                             method="geometric solver",
                                             progress=runlog.progress(log, f"scene {ref['scene'].iloc[0]}")))
-        else:
-            parts.append(fine.evaluate_model(model, cfg, ref, test, props))
+        else:  # learned models on coarse proposals see them cut like their training proposals
+            parts.append(fine.evaluate_model(model, cfg, ref, test,
+                                             fe.crop_to_densest(ref, props, float(smk.params.p["crop_m"]))))
     errors = pd.concat(parts, ignore_index=True)
     errors["strategy"] = smk.params.p['strategy_label']
     meta = {"run": run_name(smk), "method": method, "map_type": mt, "proposal": smk.params.p['proposal'],
@@ -67,7 +70,8 @@ def main(smk, log):
     summary = fe.summarise(errors)
     summary.update(method=str(errors["method"].iloc[0]), method_slug=method, map_type=mt,
                    proposal=smk.params.p['proposal'], strategy=smk.params.p['strategy_label'], run=run_name(smk),
-                   ref_map_kb=float(np.mean(map_kb)) if map_kb else float("nan"), train_s=0.0, epochs=0)
+                   ref_map_kb=float(np.mean(map_kb)) if map_kb else float("nan"), train_s=0.0, epochs=0,
+                   trained_on=fe.training_label(smk.params.p["train_regime"], smk.params.p["crop_m"]))
     if model is not None:
         info = fine.checkpoint_info(smk.input.checkpoint)
         summary.update(n_parameters=fine.n_parameters(model), model_mb=os.path.getsize(smk.input.checkpoint) / 1e6,
