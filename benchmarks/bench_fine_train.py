@@ -44,7 +44,8 @@ def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: 
     coarse = pd.read_parquet(coarse_p) if coarse_p.exists() else None
     if coarse is not None:
         coarse = coarse[(coarse["strategy"] == "2N_LM") & (coarse["map_type"] == cfg.map_type)]
-    for qp in sorted(results.glob("*/queries/queries.parquet"), key=lambda p: p.parts[-3]):
+    published = [p for p in results.glob("*/queries/queries.parquet") if p.parts[-3].isdigit()]
+    for qp in sorted(published, key=lambda p: int(p.parts[-3])):  # the workflow's scenes, in its order
         ref_p = qp.parent.parent / "maps/reference_map.parquet"
         if not ref_p.exists():
             continue

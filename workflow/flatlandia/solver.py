@@ -16,12 +16,14 @@ Two kinds of local map:
 
 Steps: (1) hypotheses from pairs of query objects x same-class ordered pairs of candidate
 objects (2-point similarity: position, heading, scale), optionally kept only near a prior
-(training-split cameras) and within a plausible scale; (2) MSAC scoring, vectorised: each query
+(training-split cameras) and within a plausible scale; (2) MSAC scoring: each query
 object costs the smallest normalised squared residual over same-class candidates, truncated at
 ``tau**2``, plus prior costs (distance [and heading difference] to the nearest training camera,
-log-scale for depth maps) when priors are given; (3) the ``top_k`` distinct hypotheses are refined
-together (vectorised robust Gauss-Newton on their matches, with re-association), re-scored, and
-the best wins. For depth maps hypotheses come from 3-bearing resections (range-free) and then
+log-scale for depth maps, co-visibility) when priors are given; (3) the ``top_k`` distinct
+hypotheses are refined (robust Gauss-Newton on their matches, with re-association), re-scored,
+and the best wins. The inner loops (hypotheses, scoring, refinement) are compiled with numba in
+``solver_kernels``; ``_Problem.costs`` keeps the padded numpy form as the reference they are
+tested against. For depth maps hypotheses come from 3-bearing resections (range-free) and then
 2-point similarities. The result holds
 the pose, the inlier matches (query index, candidate index) and a confidence in [0, 1].
 """
