@@ -37,7 +37,7 @@ TARGET_MEDIAN_M = 5.0
 
 
 def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: bool = True,
-                 seed: int = 0, crop_m: float = 0.0) -> dict[str, list]:
+                 seed: int = 0, crop_m: float = 0.0, val_coarse_only: bool = False) -> dict[str, list]:
     out: dict[str, list] = {"train": [], "val": [], "test": [], "test_coarse": []}
     rng = np.random.default_rng(seed)
     coarse_p = results / "coarse/simtrip/proposals.parquet"
@@ -57,7 +57,8 @@ def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: 
                 continue
             regime = "coarse" if simulated else "gtbb"
             copies = simulated if split == "train" else min(simulated, 1)
-            for props in fe.training_proposals(ref, qs, regime, rng, copies, gtbb, crop_m):
+            keep = gtbb and not (split == "val" and val_coarse_only)
+            for props in fe.training_proposals(ref, qs, regime, rng, copies, keep, crop_m):
                 out[split] += fine.samples_from_queries(ref, qs, props, cfg)[0]
         if coarse is not None:
             qs = q[q["split"] == "test"]
@@ -79,6 +80,8 @@ def main() -> None:
     ap.add_argument("--no-gtbb", action="store_true", help="train on simulated proposals only")
     ap.add_argument("--save", type=Path, default=None, help="save the trained model here (a checkpoint per run: "
                     "PATH with -{model}_{map} before the suffix)")
+    ap.add_argument("--val-coarse-only", action="store_true",
+                    help="with --simulated-proposals: validate (pick the best epoch) on simulated proposals only")
     ap.add_argument("--crop-m", type=float, default=0.0,
                     help="cut coarse and simulated proposals to their densest objects within this radius")
     args = ap.parse_args()
@@ -94,7 +97,8 @@ def main() -> None:
             cfg = fine.FineConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
             if not args.full:
                 cfg.epochs = args.epochs
-            s = load_samples(args.results, cfg, args.simulated_proposals, not args.no_gtbb, cfg.seed, args.crop_m)
+            s = load_samples(args.results, cfg, args.simulated_proposals, not args.no_gtbb, cfg.seed, args.crop_m,
+                             args.val_coarse_only)
             if not s["train"]:
                 raise SystemExit(f"{args.results}: no */queries/queries.parquet with maps; run the pipeline first")
             t0, c0 = time.perf_counter(), time.process_time()

@@ -116,12 +116,12 @@ def test_dry_run_lists_the_full_dag(repo, flat_root, tmp_path):
 @pytest.mark.slow
 def test_paper_config_merges_over_the_default(repo, flat_root, tmp_path):
     """config/paper.yaml only names what differs: the default's other keys survive the merge and
-    its runs widen the DAG (5 methods x 2 map types x 4 proposals + 2 whole-map runs)."""
+    its runs widen the DAG (5 methods x 2 map types x 4 proposals + 4 whole-map runs)."""
     res = smk(repo, tmp_path, "-n", "all", "--configfile", str(repo / "config/paper.yaml"),
               "--config", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stderr[-2000:]
     out = res.stdout + res.stderr
-    counts = {"fine_train": 16, "fine_eval": 42, "coarse_train": 3, "coarse_similarity": 20}  # 4 models x 2 maps x 2 trainings
+    counts = {"fine_train": 16, "fine_eval": 44, "coarse_train": 3, "coarse_similarity": 20}  # 4 models x 2 maps x 2 trainings
     for rule, n in counts.items():
         assert any(line.split()[:2] == [rule, str(n)] for line in out.splitlines()), rule
     assert "results/fine/gat_att_depth_coarse-trip/errors.parquet" in out
