@@ -30,6 +30,7 @@ the pose, the inlier matches (query index, candidate index) and a confidence in 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass, field
 
@@ -108,19 +109,9 @@ class _Problem:
         self.q_bear = np.arctan2(self.q[:, 1], self.q[:, 0])
         self.q_range = np.linalg.norm(self.q, axis=1)
         self.same = [np.flatnonzero(self.rc == c) for c in self.qc]
-        kmax = max([len(s) for s in self.same] + [1])
-        self.cand = np.zeros((self.m, kmax), int)
-        self.cmask = np.zeros((self.m, kmax), bool)
-        for k, s in enumerate(self.same):
-            self.cand[k, :len(s)] = s
-            self.cmask[k, :len(s)] = True
         self.sb = np.radians(cfg.bearing_sigma_deg)
         # small-range guards (objects at the camera): log of (range + eps)
         self.eps_q = 0.02 * max(float(np.median(self.q_range)), 1e-9)
-        cand_xy = self.r[self.cand] if len(self.r) else np.zeros(self.cand.shape + (2,))
-        self.r_cand_x, self.r_cand_y = cand_xy[..., 0].copy(), cand_xy[..., 1].copy()  # (M, K)
-        self.r_cand_x32, self.r_cand_y32 = self.r_cand_x.astype(np.float32), self.r_cand_y.astype(np.float32)
-        self.q_range32 = (self.q_range + self.eps_q).astype(np.float32)  # range + guard
         self.rx, self.ry = self.r[:, 0].copy(), self.r[:, 1].copy()
         # the same candidates flat (no padding) for the compiled scoring
         self.ptr = np.r_[0, np.cumsum([len(s) for s in self.same])].astype(np.int64)
@@ -129,11 +120,28 @@ class _Problem:
         self.flat_x, self.flat_y = flat_xy[:, 0].copy(), flat_xy[:, 1].copy()
 
     # ------------------------------------------------------------------ costs
+    @functools.cached_property
+    def cand(self) -> np.ndarray:
+        """(M, K) same-class candidate indices, padded to the largest class (the numpy reference
+        layout of :meth:`costs`; built on first use only: the compiled scoring uses the flat one)."""
+        kmax = max([len(s) for s in self.same] + [1])
+        cand = np.zeros((self.m, kmax), int)
+        for k, s in enumerate(self.same):
+            cand[k, :len(s)] = s
+        return cand
+
+    @functools.cached_property
+    def cmask(self) -> np.ndarray:
+        """(M, K) True on the real entries of :attr:`cand`."""
+        return np.arange(self.cand.shape[1])[None] < np.array([len(s) for s in self.same])[:, None]
+
     def costs(self, t: np.ndarray, theta: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """(C, M, K) normalised squared residuals of every query object vs its same-class candidates."""
+        """(C, M, K) normalised squared residuals of every query object vs its same-class candidates
+        (padded numpy form: the reference the compiled :meth:`data_cost` is tested against)."""
+        cand_xy = self.r[self.cand] if len(self.r) else np.zeros(self.cand.shape + (2,))
         if self.metric:
-            rx = self.r_cand_x[None] - t[:, 0, None, None]  # (C, M, K) world offsets of the candidates
-            ry = self.r_cand_y[None] - t[:, 1, None, None]
+            rx = cand_xy[None, ..., 0] - t[:, 0, None, None]  # (C, M, K) world offsets of the candidates
+            ry = cand_xy[None, ..., 1] - t[:, 1, None, None]
             c, sn = np.cos(theta)[:, None, None], np.sin(theta)[:, None, None]
             lx = c * rx + sn * ry  # world -> camera frame
             ly = c * ry - sn * rx
@@ -144,8 +152,8 @@ class _Problem:
             # (C, M, K) arrays. tan(db) equals db to 0.1 % within the inlier cap (tau sigmas, a few
             # degrees); beyond it costs are capped anyway, and objects behind the camera get inf.
             f = np.float32
-            rx = self.r_cand_x32[None] - t[:, 0, None, None].astype(f)
-            ry = self.r_cand_y32[None] - t[:, 1, None, None].astype(f)
+            rx = cand_xy[None, ..., 0].astype(f) - t[:, 0, None, None].astype(f)
+            ry = cand_xy[None, ..., 1].astype(f) - t[:, 1, None, None].astype(f)
             wb = (theta[:, None] + self.q_bear[None]).astype(f)  # (C, M) query directions in the world
             ux, uy = np.cos(wb)[..., None], np.sin(wb)[..., None]
             along = ux * rx + uy * ry
@@ -154,7 +162,7 @@ class _Problem:
                 tan_db = np.where(along > 0, across / along, f(np.inf))
             rr = np.sqrt(rx * rx + ry * ry)
             sc = s.astype(f)[:, None, None]
-            dr = np.log((rr + sc * f(self.eps_q)) / (sc * self.q_range32[None, :, None]))
+            dr = np.log((rr + sc * f(self.eps_q)) / (sc * (self.q_range + self.eps_q).astype(f)[None, :, None]))
             cost = (tan_db / f(self.sb)) ** 2 + (dr / f(self.cfg.log_range_sigma)) ** 2
         return np.where(self.cmask[None], cost, np.inf)
 
@@ -495,9 +503,11 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     return Solution(float(t[0]), float(t[1]), float(th), float(s), inliers, float(conf), c, n_hyp)
 
 
+@functools.cache
 def warm_up() -> None:
     """Compile (or load from numba's cache) every solver kernel on a tiny problem, so that timed
-    queries never include compilation (seconds the first time in a process without a cache)."""
+    queries never include compilation (seconds the first time in a process without a cache).
+    Once per process (cached): every scene's evaluation calls it."""
     rng = np.random.default_rng(0)
     ref, ref_cls = rng.uniform(-50, 50, (30, 2)), rng.integers(0, 3, 30)
     q, q_cls = rng.uniform(1, 20, (5, 2)), ref_cls[:5]
