@@ -170,21 +170,23 @@ def test_reproduction_real(audit_rows):
     assert df["published"].sum() == 854
     pub = df["published"].sum()
     # Measured with the default ClusterParams (DBSCAN 1.24 m, poles 0.40 m, manholes and traffic
-    # lights 0.88 m, >= 3 points, no split): 580 exact (67.9%), 669 within 0.5 m (78.3%),
-    # 715 within 2 m. The issue's target (90%, <= 10% extra) is not reached (module notes).
-    assert df["within_0.05m"].sum() / pub >= 0.67
-    assert df["within_0.5m"].sum() / pub >= 0.78
-    # without scene 2 (its cloud is 99.7% coloured): 81.6% within 0.5 m, 23.5% extra
+    # lights 0.88 m, >= 3 points, no split): 619 exact (72.5%), 707 within 0.5 m (82.8%),
+    # 739 within 2 m. The issue's target (90%, <= 10% extra) is not reached (module notes).
+    assert df["within_0.05m"].sum() / pub >= 0.72
+    assert df["within_0.5m"].sum() / pub >= 0.82
+    # without scene 2 (its cloud is 99.7% coloured): 85.6% within 0.5 m, 19.6% extra
     rest = df[df["scene"] != "2"]
-    assert rest["within_0.5m"].sum() / rest["published"].sum() >= 0.81
-    assert rest["extra"].sum() / rest["published"].sum() <= 0.24
-    # scenes whose published map keeps (almost) every cluster: few extras, >= 83% reproduced
+    assert rest["within_0.5m"].sum() / rest["published"].sum() >= 0.85
+    assert rest["extra"].sum() / rest["published"].sum() <= 0.20
+    # scenes whose published map keeps (almost) every cluster: few extras, >= 85% reproduced
     for s in ("12", "14", "18"):
         r = df[df["scene"] == s].iloc[0]
-        assert r["within_0.5m"] / r["published"] >= 0.83 and r["extra"] <= 3
+        assert r["within_0.5m"] / r["published"] >= 0.85 and r["extra"] <= 3
 
 
-@pytest.mark.xfail(reason="issue 3 target not reached: ~110 published objects come from image-based splits, scenes 2 and 4 drop clusters", strict=True)
+@pytest.mark.xfail(reason="issue 3 target out of reach from the clouds: best radius per scene and class with the "
+                          "answer gives 87.5%; per-object splits and the kept clusters of scenes 2 and 4 come from the "
+                          "images (benchmarks/reproduction_bounds.py)", strict=True)
 def test_reproduction_target(audit_rows):
     df = audit_rows
     assert df["within_0.5m"].sum() / df["published"].sum() >= 0.9

@@ -17,7 +17,9 @@ def main(smk, log):
         t = io.read_transformations(tr)
         fg = labels != O.BACKGROUND
         ref_xy = frame.to_xy(ref_ll)
-        ref_macro = O.published_macro_classes(ref_xy, ref_cl, frame.to_xy(geo.sfm_to_lonlat(pts[fg], t)), labels[fg])
+        ref_macro = O.published_macro_classes(ref_xy, ref_cl, frame.to_xy(geo.sfm_to_lonlat(pts[fg], t)), labels[fg],
+                                              cloud_points=pts[fg],
+                                              exact_radius=O.EXACT_SEARCH_RADIUS_M / O.metres_per_unit(t))
         ours_xy = ours[["x_m", "y_m"]].to_numpy()
         row = O.audit_scene(str(scene), ours_xy, ours["macro_class"].to_numpy(), ref_xy, ref_macro,
                             radius_m=float(smk.params.radius_m))
