@@ -12,6 +12,7 @@ import pytest
 from flatlandia import classify, georef, imagequeries, io
 from flatlandia import objects as O
 from flatlandia.classes import CLASSES
+from flatlandia.errors import InputError
 from snakemake_runner import smk
 
 
@@ -110,10 +111,11 @@ def test_lund_offline_backend_gives_a_documented_empty_map(lund_run):
     assert "object points, 0 objects" in (wd / "logs/images_objects/lund.log").read_text()
 
 
-def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=12, min_sep_px=120):
+def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=12, min_sep_px=120, one_class=False):
     """Label images the test makes: groups of real SfM points (dense spots co-visible in one
     image, chosen far apart in it) painted with object classes around every observation of
-    their points in every image. Returns the label maps and the number of groups."""
+    their points in every image (``one_class``: all groups the same class). Returns the label
+    maps, the number of groups and instance maps (group k painted k + 1, 0 elsewhere)."""
     views = imagequeries.views_from_colmap(model)
     best = max(views, key=lambda v: len(v.obs_point_ids))
     all_ids = np.array(list(model.points3D.keys()))
@@ -127,23 +129,26 @@ def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=12, min_sep_px
         if len(chosen) == n_objects:
             break
     classes = [CLASSES.index(c) for c in ("object--support--pole", "object--street-light", "object--traffic-sign")]
-    groups = {}
+    groups, group_of = {}, {}
     for g, c in enumerate(chosen):
         for pid in all_ids[np.linalg.norm(all_xyz - xyz[c], axis=1) < radius_sfm]:
-            groups.setdefault(int(pid), classes[g % len(classes)])
+            groups.setdefault(int(pid), classes[0 if one_class else g % len(classes)])
+            group_of.setdefault(int(pid), g)
     yy, xx = np.mgrid[-radius_px:radius_px + 1, -radius_px:radius_px + 1]
     disk = yy ** 2 + xx ** 2 <= radius_px ** 2
-    maps = {}
+    maps, instances = {}, {}
     for img in model.images.values():
         cam = model.cameras[img.camera_id]
         m = np.full((cam.height, cam.width), 255, dtype=np.uint8)
+        inst = np.zeros((cam.height, cam.width), dtype=np.uint16)
         for p2 in img.points2D:
             if p2.has_point3D() and int(p2.point3D_id) in groups:
                 ys, xs = int(round(p2.xy[1])) + yy[disk], int(round(p2.xy[0])) + xx[disk]
                 ok = (ys >= 0) & (ys < cam.height) & (xs >= 0) & (xs < cam.width)
                 m[ys[ok], xs[ok]] = groups[int(p2.point3D_id)]
-        maps[img.name] = m
-    return maps, len(chosen)
+                inst[ys[ok], xs[ok]] = group_of[int(p2.point3D_id)] + 1
+        maps[img.name], instances[img.name] = m, inst
+    return maps, len(chosen), instances
 
 
 @pytest.mark.slow
@@ -152,7 +157,7 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
     wd = lund_run
     model = pycolmap.Reconstruction(str(wd / "results/lund/sfm/model"))
     alignment = json.loads((wd / "results/lund/align/alignment.json").read_text())
-    maps, _ = _painted_label_maps(model, radius_sfm=1.5 / alignment["metres_per_sfm_unit"])
+    maps, _, _ = _painted_label_maps(model, radius_sfm=1.5 / alignment["metres_per_sfm_unit"])
     pts = classify.point_votes(model, maps)
     assert (pts["class_id"] != 255).sum() >= 20
     objs, member = georef.scene_objects("lund", pts, alignment, O.ClusterParams(eps_m=1.0), CLASSES)
@@ -178,3 +183,39 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
         ok = np.isfinite(dep).all(1)
         ang = np.degrees(np.abs(np.arctan2(dep[ok, 1], dep[ok, 0]) - np.arctan2(gt[ok, 1], gt[ok, 0])))
         assert np.median(np.minimum(ang, 360 - ang)) < 10  # sparse depth keeps the bearings
+
+
+@pytest.mark.slow
+def test_lund_instance_images_split_merged_objects(lund_run, tmp_path):
+    """Same-class objects that one cluster merges (a radius larger than the street) come apart
+    again with instance images: one object per painted instance, through the PNG folder the
+    workflow reads (segment.instances_dir) and the rule's files."""
+    wd = lund_run
+    model = pycolmap.Reconstruction(str(wd / "results/lund/sfm/model"))
+    alignment = json.loads((wd / "results/lund/align/alignment.json").read_text())
+    maps, n_groups, inst_maps = _painted_label_maps(model, radius_sfm=1.5 / alignment["metres_per_sfm_unit"],
+                                                    one_class=True)
+    from PIL import Image
+
+    for name, ids in inst_maps.items():
+        Image.fromarray(ids).save(tmp_path / f"{name.rsplit('.', 1)[0]}.png")
+    names = [img.name for img in model.images.values()]
+    obs = classify.point_instances(model, classify.load_instance_maps(tmp_path, names))
+    assert set(obs["instance"]) == set(range(1, n_groups + 1)) and obs["key"].nunique() >= n_groups
+    pts = classify.point_votes(model, maps)
+    wide = O.ClusterParams(eps_m=500.0, eps_m_by_class={})  # every pole point in one cluster
+    merged, _ = georef.scene_objects("lund", pts, alignment, wide, CLASSES)
+    split, member = georef.scene_objects("lund", pts, alignment, wide, CLASSES, instances=obs)
+    assert n_groups == 5 and len(merged) == 1 and len(split) == n_groups
+    # each object holds the points of one painted instance
+    inst_of = obs.groupby("point3D_id")["instance"].agg(lambda v: set(v))
+    for oid in split["object_id"]:
+        ids = pts["point3D_id"].to_numpy()[member == oid]
+        seen = set().union(*(inst_of[i] for i in ids if i in inst_of.index))
+        assert len(seen) == 1
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="no instance image"):
+        classify.load_instance_maps(empty, names)
+    with pytest.raises(InputError, match="not a folder"):
+        classify.load_instance_maps(tmp_path / "absent", names)

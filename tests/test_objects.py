@@ -51,6 +51,45 @@ def test_split_merged_neighbours():
     assert len(O.cluster_objects(pts, labels, 1.0)) == 2
 
 
+def test_instance_parts_known_answer():
+    pts = np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [1.0, 0, 0], [1.1, 0, 0], [1.2, 0, 0], [0.05, 0, 0],
+                    [1.15, 0, 0.0]])
+    members = np.arange(8)
+    # image 1: instance 1 covers points 0-2, instance 2 points 3-4; image 2: one instance on 4 and 5
+    # (joins 5 to 3-4 across images); point 6 is seen on no instance, point 7 on a lone instance
+    obs_point = np.array([0, 1, 2, 3, 4, 4, 5, 7])
+    obs_key = np.array([(1 << 32) + 1] * 3 + [(1 << 32) + 2] * 2 + [(2 << 32) + 9] * 2 + [(2 << 32) + 4])
+    parts = O.instance_parts(members, pts, obs_point, obs_key, min_points=3)
+    assert sorted(map(sorted, map(list, parts))) == [[0, 1, 2, 6], [3, 4, 5, 7]]  # 6, 7 join their nearest part
+    # one instance only, or none seen: the cluster stays whole
+    assert [list(p) for p in O.instance_parts(members, pts, obs_point[:3], obs_key[:3], 3)] == [list(members)]
+    assert [list(p) for p in O.instance_parts(members, pts, np.array([99]), np.array([5]), 3)] == [list(members)]
+    # members given in any order, as global indices of a larger cloud
+    shuffled = np.array([17, 12, 15, 10, 11, 13, 14, 16])
+    big = np.zeros((18, 3))
+    big[shuffled] = pts[np.arange(8)]
+    parts = O.instance_parts(shuffled, big, shuffled[obs_point], obs_key, min_points=3)
+    assert sorted(map(sorted, map(list, parts))) == sorted(sorted(shuffled[g]) for g in ([0, 1, 2, 6], [3, 4, 5, 7]))
+
+
+def test_cluster_objects_split_by_instances():
+    rng = np.random.default_rng(2)
+    # two signs 1 m apart: one cluster at the sign radius; the image instances separate them
+    a, b = _blob(rng, [0, 0, 0], 20, 0.05), _blob(rng, [1.0, 0, 0], 20, 0.05)
+    pts = np.vstack([a, b])
+    labels = np.array(["sign"] * 40, dtype=object)
+    assert len(O.cluster_objects(pts, labels, 1.0)) == 1
+    obs_point = np.arange(40)
+    obs_key = np.where(obs_point < 20, 7, 8)
+
+    def split(members):
+        return O.instance_parts(members, pts, obs_point, obs_key, 3)
+
+    df = O.cluster_objects(pts, labels, 1.0, split=split)
+    got = df.sort_values("cx")[["cx", "cy", "cz"]].to_numpy()
+    np.testing.assert_allclose(got, [a.mean(0), b.mean(0)], atol=1e-12)
+
+
 def test_per_class_radius():
     p = O.ClusterParams()
     assert p.eps_for("pole") == pytest.approx(0.40) and p.eps_for("sign") == pytest.approx(1.24)

@@ -40,6 +40,57 @@ def point_votes(rec, class_maps: dict[str, np.ndarray]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def point_instances(rec, instance_maps: dict[str, np.ndarray]) -> pd.DataFrame:
+    """One row per 2D observation of a 3D point on an instance (id > 0) of an instance map.
+
+    ``instance_maps``: image name -> (H, W) integer instance ids, 0 = no instance (e.g. the
+    things of a panoptic segmentation). ``key`` is unique per (image, instance), so points can
+    be grouped by the instance they were seen on (:func:`flatlandia.objects.instance_parts`).
+    """
+    rows = []
+    for image_id, img in rec.images.items():
+        imap = instance_maps.get(img.name)
+        if imap is None:
+            continue
+        for p2 in img.points2D:
+            if not p2.has_point3D():
+                continue
+            x, y = p2.xy
+            r = int(np.clip(round(y - 0.5), 0, imap.shape[0] - 1))
+            c = int(np.clip(round(x - 0.5), 0, imap.shape[1] - 1))
+            inst = int(imap[r, c])
+            if inst > 0:
+                rows.append((int(p2.point3D_id), int(image_id), inst))
+    df = pd.DataFrame(rows, columns=["point3D_id", "image_id", "instance"]).astype(np.int64)
+    df["key"] = df["image_id"] * (1 << 32) + df["instance"]
+    return df
+
+
+def load_instance_maps(folder: str | Path | None, names: list[str]) -> dict[str, np.ndarray]:
+    """Instance-id images ``<image stem>.png`` of a folder (none when ``folder`` is None).
+
+    A folder that holds none of the model's images is a configuration error, named."""
+    from .errors import InputError
+
+    if folder is None:
+        return {}
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(folder, "segment.instances_dir is not a folder")
+    maps = {}
+    for n in names:
+        p = folder / f"{Path(n).stem}.png"
+        if p.exists():
+            with Image.open(p) as im:
+                ids = np.asarray(im)
+            if ids.ndim != 2:
+                raise InputError(p, "instance image must be single-channel ids (0 = no instance)")
+            maps[n] = ids
+    if names and not maps:
+        raise InputError(folder, f"no instance image <stem>.png for any of the {len(names)} images")
+    return maps
+
+
 def load_class_maps(folder: Path, names: list[str]) -> dict[str, np.ndarray]:
     maps = {}
     for n in names:

@@ -167,10 +167,13 @@ OBJECT_MAP_COLUMNS = ["scene", "object_id", "macro_class", "class_id", "class_la
 
 
 def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: O.ClusterParams,
-                  class_labels: list[str], source: str = "points") -> tuple[pd.DataFrame, np.ndarray]:
+                  class_labels: list[str], source: str = "points",
+                  instances: pd.DataFrame | None = None) -> tuple[pd.DataFrame, np.ndarray]:
     """Cluster the classified SfM points of an images scene into objects on the aligned map.
 
     Returns (objects with box columns, 42-class label and lon/lat/x/y; object id per point).
+    With ``instances`` (:func:`flatlandia.classify.point_instances`), each cluster is split into
+    the image instances its points were seen on (:func:`flatlandia.objects.instance_parts`).
     A model without object points gives an empty table: a documented outcome (e.g. the
     offline segmentation backend labels no object classes), not an error.
     """
@@ -179,7 +182,17 @@ def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: O.C
     if not (labels != O.BACKGROUND).any():
         empty = pd.DataFrame(columns=OBJECT_MAP_COLUMNS + [c for c in O.OBJECT_COLUMNS if c not in OBJECT_MAP_COLUMNS])
         return empty, np.full(len(points), -1, np.int64)
-    objs = O.cluster_objects(xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source)
+    split = None
+    if instances is not None and len(instances):
+        index = pd.Series(np.arange(len(points)), index=points["point3D_id"].to_numpy(np.int64))
+        known = instances["point3D_id"].isin(index.index).to_numpy()
+        obs_point = index.loc[instances.loc[known, "point3D_id"]].to_numpy()
+        obs_key = instances.loc[known, "key"].to_numpy(np.int64)
+
+        def split(members: np.ndarray) -> list[np.ndarray]:
+            return O.instance_parts(members, xyz, obs_point, obs_key, params.min_cluster_points)
+
+    objs = O.cluster_objects(xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source, split=split)
     member = assign_points(xyz, labels, objs)
     cls = points["class_id"].to_numpy(int)
     objs["class_id"] = [majority_class(cls[member == oid]) if (member == oid).any() else NOT_AN_OBJECT

@@ -24,6 +24,10 @@ Measured on the published data (../shared/DATA.md and the audit in tests/test_ob
   the spread is 4x, so the radius is metric), poles 0.40 m, manholes and traffic lights
   0.88 m. DBSCAN min_samples 1-3 give identical objects, 4+ lose a third; every published
   object has >= 3 points. These are the defaults of :class:`ClusterParams`.
+- Splitting same-class neighbours: with images, :func:`instance_parts` splits a cluster into the
+  image instances its points were seen on (the paper's check against instance masks; the images
+  branch with ``segment.instances_dir``). A class cloud alone has only the extent-based
+  re-clustering (``split_extent_m``, off by default).
 - What is not reproduced (bounds in :mod:`flatlandia.reproduction_bounds`,
   ``benchmarks/reproduction_bounds.py``): 152 published objects are not a cluster at any radius
   (the paper splits clusters by reprojecting them into instance masks, which needs the images);
@@ -291,9 +295,54 @@ OBJECT_COLUMNS = ["object_id", "macro_class", "n_points", "cx", "cy", "cz",
                   *[f"box_r{i}{j}" for i in range(3) for j in range(3)], "extent_max_m"]
 
 
+def instance_parts(members: np.ndarray, points: np.ndarray, obs_point: np.ndarray, obs_key: np.ndarray,
+                   min_points: int) -> list[np.ndarray]:
+    """Split one cluster by the image instances its points were seen on (the paper checks its
+    clusters against instance masks to separate neighbouring same-class objects).
+
+    ``members``: point indices of the cluster; ``obs_point``/``obs_key``: one entry per 2D
+    observation on an instance (point index, an id unique to (image, instance)). Points seen on
+    one instance of one image belong together (transitively, across images); parts of at least
+    ``min_points`` points become objects, every other point of the cluster joins the part of its
+    nearest part point. Fewer than two such parts: the cluster stays whole.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    members = np.asarray(members, np.int64)
+    sel = np.isin(obs_point, members)
+    if not sel.any():
+        return [members]
+    pos = np.searchsorted(np.sort(members), obs_point[sel])
+    order = np.argsort(members)
+    local = order[pos]  # observation -> position in members
+    keys, key_idx = np.unique(np.asarray(obs_key)[sel], return_inverse=True)
+    n = len(members)
+    graph = coo_matrix((np.ones(len(local)), (local, n + key_idx)), shape=(n + len(keys), n + len(keys)))
+    _, comp = connected_components(graph, directed=False)
+    seen = np.zeros(n, bool)
+    seen[local] = True
+    labels, counts = np.unique(comp[:n][seen], return_counts=True)
+    big = labels[counts >= min_points]
+    if len(big) < 2:
+        return [members]
+    in_big = seen & np.isin(comp[:n], big)
+    pts = np.asarray(points, float)[members]
+    owner = comp[:n].copy()
+    rest = ~in_big
+    if rest.any():
+        _, j = cKDTree(pts[in_big]).query(pts[rest])
+        owner[rest] = comp[:n][in_big][j]
+    return [members[owner == b] for b in big]
+
+
 def cluster_objects(points: np.ndarray, labels: np.ndarray, metres_per_unit: float,
-                    params: ClusterParams | None = None, source: str = "cloud") -> pd.DataFrame:
+                    params: ClusterParams | None = None, source: str = "cloud", split=None) -> pd.DataFrame:
     """Cluster each macro-class separately into objects; one row per object (SfM coordinates).
+
+    ``split`` (optional): indices of one cluster's points -> list of index arrays, its objects
+    (e.g. :func:`instance_parts` bound to the images' instance observations).
 
     Raises :class:`InputError` (naming ``source``) for NaN coordinates, a non-positive scale or a
     cloud without classified points. A class whose points all fall in clusters smaller than
@@ -319,8 +368,11 @@ def cluster_objects(points: np.ndarray, labels: np.ndarray, metres_per_unit: flo
     rows = []
     for name in sorted(set(labels[fg])):
         cls_idx = np.flatnonzero(labels == name)
-        for idx in _clusters_of_class(pts[cls_idx], metres_per_unit, p, p.eps_for(name)):
-            sub = pts[cls_idx[idx]]
+        clusters = [cls_idx[idx] for idx in _clusters_of_class(pts[cls_idx], metres_per_unit, p, p.eps_for(name))]
+        if split is not None:
+            clusters = [part for c in clusters for part in split(c)]
+        for members in clusters:
+            sub = pts[members]
             c, e, r = oriented_box(sub)
             m = sub.mean(0)
             rows.append([name, len(sub), *m, *c, *e, *r.reshape(-1), float(e.max() * metres_per_unit)])

@@ -90,6 +90,9 @@ rule classify_points:
     output:
         points="results/{scene}/sfm/classified_points.parquet",
         ply="results/{scene}/sfm/classified_points.ply",
+        instances="results/{scene}/sfm/point_instances.parquet",
+    params:
+        instances_dir=config["segment"].get("instances_dir"),
     log:
         "logs/classify_points/{scene}.log",
     benchmark:
@@ -147,6 +150,7 @@ rule images_objects:
         scene=IMAGES_SCENE,
     input:
         points="results/{scene}/sfm/classified_points.parquet",
+        instances="results/{scene}/sfm/point_instances.parquet",
         alignment="results/{scene}/align/alignment.json",
     output:
         parquet="results/{scene}/objects/objects.parquet",

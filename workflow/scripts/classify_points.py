@@ -1,4 +1,5 @@
-"""Rule classify_points: majority class of each 3D point's observations; classified PLY."""
+"""Rule classify_points: majority class of each 3D point's observations; classified PLY; the
+instances its observations fall on (when instance images are configured)."""
 
 from pathlib import Path
 
@@ -12,9 +13,13 @@ def main(smk, log):
     names = [img.name for img in rec.images.values()]
     maps = classify.load_class_maps(Path(smk.input.classes), names)
     pts = classify.point_votes(rec, maps)
+    inst = classify.point_instances(rec, classify.load_instance_maps(smk.params.instances_dir, names))
     io.write_parquet(pts, smk.output.points)
+    io.write_parquet(inst, smk.output.instances, {"instances_dir": str(smk.params.instances_dir)})
     classify.write_classified_ply(pts, Path(smk.output.ply))
     n_obj = int((pts["class_id"] != 255).sum())
+    log.info("%d observations on %d instances (segment.instances_dir %s)", len(inst), inst["key"].nunique(),
+             smk.params.instances_dir)
     log.info("%d points, %d on objects (%s)", len(pts), n_obj,
              pts.loc[pts["class_id"] != 255, "class_id"].value_counts().to_dict())
 

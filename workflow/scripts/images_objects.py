@@ -15,11 +15,14 @@ def main(smk, log):
     points = pd.read_parquet(smk.input.points)
     alignment = json.loads(open(smk.input.alignment).read())
     params = O.ClusterParams(**dict(smk.params.cluster))
-    objs, member = georef.scene_objects(scene, points, alignment, params, CLASSES, source=str(smk.input.points))
+    instances = pd.read_parquet(smk.input.instances)
+    objs, member = georef.scene_objects(scene, points, alignment, params, CLASSES, source=str(smk.input.points),
+                                        instances=instances)
     meta = {"scene": scene, "crs": alignment["crs"], "lon0": alignment["frame_lon0"], "lat0": alignment["frame_lat0"],
             "metres_per_sfm_unit": alignment["metres_per_sfm_unit"], "cluster_params": dict(smk.params.cluster),
             "coordinates": "cx/cy/cz, box_* in SfM units; x_m/y_m metric frame of the GPS alignment; lon/lat WGS84",
-            "label": "majority 42-class of the object's points"}
+            "label": "majority 42-class of the object's points",
+            "instance_split": bool(len(instances))}  # clusters split by the image instances their points fall on
     if objs.empty:
         meta["empty_because"] = ("no SfM point carries an object class (e.g. the offline segmentation backend "
                                  "labels none): no objects, hence an empty reference map and no queries")
