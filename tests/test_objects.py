@@ -85,9 +85,12 @@ def test_cluster_objects_split_by_instances():
     def split(members):
         return O.instance_parts(members, pts, obs_point, obs_key, 3)
 
-    df = O.cluster_objects(pts, labels, 1.0, split=split)
+    df, member = O.cluster_objects(pts, labels, 1.0, split=split, with_members=True)
     got = df.sort_values("cx")[["cx", "cy", "cz"]].to_numpy()
     np.testing.assert_allclose(got, [a.mean(0), b.mean(0)], atol=1e-12)
+    # every point belongs to the part of its instance, whatever the boxes' overlap
+    first = df.sort_values("cx")["object_id"].to_numpy()
+    assert (member[:20] == first[0]).all() and (member[20:] == first[1]).all()
 
 
 def test_per_class_radius():

@@ -139,24 +139,6 @@ def point_labels(points: pd.DataFrame) -> np.ndarray:
     return O.macro_of_class(points["class_id"].to_numpy())
 
 
-def assign_points(xyz: np.ndarray, labels: np.ndarray, objects: pd.DataFrame, tol: float = 1e-6) -> np.ndarray:
-    """Object id of each point (-1 for none): same macro-class and inside the object's box.
-
-    Boxes are fitted to their cluster's points, so every clustered point lies inside its box
-    (up to ``tol`` in SfM units); where boxes of one class overlap the first object wins.
-    """
-    xyz = np.asarray(xyz, float).reshape(-1, 3)
-    out = np.full(len(xyz), -1, np.int64)
-    for row in objects.itertuples(index=False):
-        c = np.array([row.box_cx, row.box_cy, row.box_cz])
-        half = np.array([row.box_ex, row.box_ey, row.box_ez]) / 2 + tol
-        r = np.array([[getattr(row, f"box_r{i}{j}") for j in range(3)] for i in range(3)])
-        local = (xyz - c) @ r
-        inside = (np.abs(local) <= half).all(1) & (labels == row.macro_class) & (out < 0)
-        out[inside] = int(row.object_id)
-    return out
-
-
 def majority_class(class_ids: np.ndarray) -> int:
     vals, counts = np.unique(np.asarray(class_ids, int), return_counts=True)
     return int(vals[np.argmax(counts)])
@@ -192,8 +174,8 @@ def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: O.C
         def split(members: np.ndarray) -> list[np.ndarray]:
             return O.instance_parts(members, xyz, obs_point, obs_key, params.min_cluster_points)
 
-    objs = O.cluster_objects(xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source, split=split)
-    member = assign_points(xyz, labels, objs)
+    objs, member = O.cluster_objects(xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source,
+                                     split=split, with_members=True)
     cls = points["class_id"].to_numpy(int)
     objs["class_id"] = [majority_class(cls[member == oid]) if (member == oid).any() else NOT_AN_OBJECT
                         for oid in objs["object_id"]]

@@ -338,11 +338,13 @@ def instance_parts(members: np.ndarray, points: np.ndarray, obs_point: np.ndarra
 
 
 def cluster_objects(points: np.ndarray, labels: np.ndarray, metres_per_unit: float,
-                    params: ClusterParams | None = None, source: str = "cloud", split=None) -> pd.DataFrame:
+                    params: ClusterParams | None = None, source: str = "cloud", split=None,
+                    with_members: bool = False) -> pd.DataFrame | tuple[pd.DataFrame, np.ndarray]:
     """Cluster each macro-class separately into objects; one row per object (SfM coordinates).
 
     ``split`` (optional): indices of one cluster's points -> list of index arrays, its objects
     (e.g. :func:`instance_parts` bound to the images' instance observations).
+    ``with_members``: also return the object id of every point (-1: in no object).
 
     Raises :class:`InputError` (naming ``source``) for NaN coordinates, a non-positive scale or a
     cloud without classified points. A class whose points all fall in clusters smaller than
@@ -366,12 +368,14 @@ def cluster_objects(points: np.ndarray, labels: np.ndarray, metres_per_unit: flo
     if not fg.any():
         raise InputError(source, f"no classified points: all {len(pts)} points are background")
     rows = []
+    member = np.full(len(pts), -1, np.int64)
     for name in sorted(set(labels[fg])):
         cls_idx = np.flatnonzero(labels == name)
         clusters = [cls_idx[idx] for idx in _clusters_of_class(pts[cls_idx], metres_per_unit, p, p.eps_for(name))]
         if split is not None:
             clusters = [part for c in clusters for part in split(c)]
         for members in clusters:
+            member[members] = len(rows)
             sub = pts[members]
             c, e, r = oriented_box(sub)
             m = sub.mean(0)
@@ -379,7 +383,7 @@ def cluster_objects(points: np.ndarray, labels: np.ndarray, metres_per_unit: flo
     df = pd.DataFrame(rows, columns=OBJECT_COLUMNS[1:])
     df.insert(0, "object_id", np.arange(len(df), dtype=np.int64))
     df["n_points"] = df["n_points"].astype(np.int64)
-    return df
+    return (df, member) if with_members else df
 
 
 def box_corners(row) -> np.ndarray:
