@@ -61,10 +61,13 @@ def scene_bounds(root: Path, scene: str, params: O.ClusterParams) -> dict:
         row["exact_any_radius"] += int(ex["exact"].sum())
         row["near_any_radius"] += int((ex["dist"] <= 0.5).sum())
 
-        def means(r_m: float) -> np.ndarray:
-            return np.array([xy[ci[c]].mean(0) for c in O._clusters_of_class(pts[ci], mpu, params, r_m)]).reshape(-1, 2)
-
         default = params.eps_for(name)
+        default_clusters = O._clusters_of_class(pts[ci], mpu, params, default)
+
+        def means(r_m: float) -> np.ndarray:
+            clusters = default_clusters if r_m == default else O._clusters_of_class(pts[ci], mpu, params, r_m)
+            return np.array([xy[ci[c]].mean(0) for c in clusters]).reshape(-1, 2)
+
         table = B.best_radius_reproduction(means, ref_xy[mine], np.r_[default, RADII_M])
         row["default_0.5m"] += int(table["within_0.5m"].iloc[0])
         row["default_clusters"] += int(table["clusters"].iloc[0])
@@ -72,10 +75,10 @@ def scene_bounds(root: Path, scene: str, params: O.ClusterParams) -> dict:
         row["oracle_0.5m"] += int(best["within_0.5m"])
         row["oracle_0.05m"] += int(best["within_0.05m"])
         row["oracle_clusters"] += int(best["clusters"])
-        for c in O._clusters_of_class(pts[ci], mpu, params, default):
+        ref_tree = cKDTree(ref_xy[mine]) if mine.any() else None
+        for c in default_clusters:
             members.append(ci[c])
-            near = cKDTree(ref_xy[mine]).query(xy[ci[c]].mean(0))[0] <= 0.5 if mine.any() else False
-            kept.append(bool(near))
+            kept.append(ref_tree is not None and bool(ref_tree.query(xy[ci[c]].mean(0))[0] <= 0.5))
     row["oracle_extra"] = row["oracle_clusters"] - row["oracle_0.5m"]
     tracks = maps / "SfM" / "points3D.bin"
     if tracks.is_file():

@@ -18,6 +18,17 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, inline="always")
+def _record(c, k, best, bj, tau2, inl, match, cand_idx, ptr):
+    """Book object ``k``'s best candidate for hypothesis ``c``: inlier flag, match (its candidate
+    ``bj``, 0 when it has none) and its capped cost, returned."""
+    match[c, k] = cand_idx[bj] if ptr[k + 1] > ptr[k] else 0
+    if best < tau2:
+        inl[c, k] = True
+        return best
+    return tau2
+
+
 @njit(cache=True, fastmath=False)
 def score_depth(tx, ty, theta, s, q_bear, q_range_eps, eps_q, cand_x, cand_y, cand_idx, ptr, sb, sr, tau2):
     """Depth (unscaled) local maps: bearing error as a tangent (weight 1/sb) plus log-range error
@@ -51,12 +62,7 @@ def score_depth(tx, ty, theta, s, q_bear, q_range_eps, eps_q, cand_x, cand_y, ca
                     best = cst
                     bj = p
                     lim = min(lim, cst)
-            if best < tau2:
-                inl[c, k] = True
-                acc += best
-            else:
-                acc += tau2
-            match[c, k] = cand_idx[bj] if ptr[k + 1] > ptr[k] else 0
+            acc += _record(c, k, best, bj, tau2, inl, match, cand_idx, ptr)
         total[c] = acc
     return total, inl, match
 
@@ -84,12 +90,7 @@ def score_metric(tx, ty, theta, qx, qy, cand_x, cand_y, cand_idx, ptr, sp, tau2)
                 if cst < best:
                     best = cst
                     bj = p
-            if best < tau2:
-                inl[c, k] = True
-                acc += best
-            else:
-                acc += tau2
-            match[c, k] = cand_idx[bj] if ptr[k + 1] > ptr[k] else 0
+            acc += _record(c, k, best, bj, tau2, inl, match, cand_idx, ptr)
         total[c] = acc
     return total, inl, match
 

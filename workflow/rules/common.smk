@@ -261,10 +261,10 @@ def fine_eval_params(wildcards):
     p = wildcards.proposal
     strategy = fine_cfg().get("coarse_strategy", "2N_LM")
     label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
-    learned_coarse = wildcards.method != "geo" and fine_train_regime(p) == "coarse"
-    crop = float(fine_cfg().get("coarse_training", {}).get("crop_m", 0.0)) if learned_coarse else 0.0
+    regime = fine_train_regime(p) if wildcards.method != "geo" else ""  # "": the solver, not trained
+    crop = float(fine_cfg().get("coarse_training", {}).get("crop_m", 0.0)) if regime == "coarse" else 0.0
     return {"method": wildcards.method, "proposal": p, "strategy": strategy, "strategy_label": label,
-            "train_regime": fine_train_regime(p) if wildcards.method != "geo" else "", "crop_m": crop}
+            "train_regime": regime, "crop_m": crop}
 
 
 def fine_model_name(wildcards):
