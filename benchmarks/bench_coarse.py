@@ -23,8 +23,9 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import coarse, io
-from flatlandia import similarity as sm
+from flatlandia.coarse import retrieval
+from flatlandia import io
+from flatlandia.coarse import target
 
 TARGET_800_S = 15 * 60
 TARGET_QUERY_S = 0.005
@@ -42,7 +43,7 @@ def load_scenes(results: Path, scenes: list[str], with_similarity: bool = True) 
 
 def bench_similarity(scenes: list[str], results: Path, cfg: dict) -> None:
     print("\n## Similarity target S (GT local maps, all queries of a scene)")
-    scfg = sm.SimilarityConfig(**cfg.get("similarity", {}))
+    scfg = target.SimilarityConfig(**cfg.get("similarity", {}))
     print(f"config {scfg.to_dict()}")
     print("| scene | objects | queries | seconds | CPU s | ms / query |\n|---|---|---|---|---|---|")
     tot_w = tot_c = tot_q = 0.0
@@ -50,7 +51,7 @@ def bench_similarity(scenes: list[str], results: Path, cfg: dict) -> None:
         ref = pd.read_parquet(results / s / "maps/reference_map.parquet")
         q = pd.read_parquet(results / s / "queries/queries.parquet")
         w0, c0 = time.perf_counter(), time.process_time()
-        sm.scene_similarity(ref, q, scfg)
+        target.scene_similarity(ref, q, scfg)
         w, c = time.perf_counter() - w0, time.process_time() - c0
         tot_w, tot_c, tot_q = tot_w + w, tot_c + c, tot_q + len(q)
         print(f"| {s} | {len(ref)} | {len(q)} | {w:.2f} | {c:.2f} | {1000 * w / max(len(q), 1):.1f} |")
@@ -62,18 +63,18 @@ def bench_training(scenes: list[str], results: Path, cfg: dict, epochs: int, ful
     train = {**cfg.get("train", {}), "loss": loss}
     paper_epochs = int(train.get("epochs", 800))
     data = load_scenes(results, scenes)
-    ccfg = coarse.CoarseConfig.from_dict({**train, "epochs": paper_epochs if full else epochs})
-    ds = coarse.build_dataset(data, ccfg, splits=("train", "val"))
-    print(f"\n## Training ({coarse.LOSSES[loss]}, {len(ds.split('train'))} train / {len(ds.split('val'))} val "
+    ccfg = retrieval.CoarseConfig.from_dict({**train, "epochs": paper_epochs if full else epochs})
+    ds = retrieval.build_dataset(data, ccfg, splits=("train", "val"))
+    print(f"\n## Training ({retrieval.LOSSES[loss]}, {len(ds.split('train'))} train / {len(ds.split('val'))} val "
           f"queries, batch {ccfg.batch_size}, validation every {ccfg.eval_every} epochs)")
     w0, c0 = time.perf_counter(), time.process_time()
-    res = coarse.train(ds, ccfg)
+    res = retrieval.train(ds, ccfg)
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     hist = pd.DataFrame(res["history"])
     per_epoch = float(hist["epoch_seconds"].median())
     model = res["model"]
     v0 = time.perf_counter()
-    coarse.validation_metric(model, ds, ds.split("val"), ccfg)
+    retrieval.validation_metric(model, ds, ds.split("val"), ccfg)
     val_s = time.perf_counter() - v0
     n_val = len(range(0, paper_epochs, ccfg.eval_every)) + (0 if (paper_epochs - 1) % ccfg.eval_every == 0 else 1)
     extrap = paper_epochs * per_epoch + n_val * val_s
@@ -88,7 +89,7 @@ def bench_training(scenes: list[str], results: Path, cfg: dict, epochs: int, ful
     print(f"loss first / last epoch: {hist['train_loss'].iloc[0]:.4f} / {hist['train_loss'].iloc[-1]:.4f}; "
           f"best validation {res['best_val']:.4f} at epoch {res['best_epoch']}")
     if save is not None:
-        coarse.save_checkpoint(res, save)
+        retrieval.save_checkpoint(res, save)
         print(f"checkpoint: {save}")
 
 
@@ -98,14 +99,14 @@ def bench_query(scenes: list[str], results: Path, n_queries: int) -> None:
     if not path.exists():
         print("no trained model: run the pipeline first")
         return
-    model, ccfg = coarse.load_checkpoint(path)
-    ds = coarse.build_dataset(load_scenes(results, scenes, with_similarity=False), ccfg, splits=("test",))
+    model, ccfg = retrieval.load_checkpoint(path)
+    ds = retrieval.build_dataset(load_scenes(results, scenes, with_similarity=False), ccfg, splits=("test",))
     rng = np.random.default_rng(0)
     samples = [ds.samples[i] for i in rng.permutation(len(ds.samples))[:n_queries]]
     rows = []
-    for mt in coarse.MAP_TYPES:
+    for mt in retrieval.MAP_TYPES:
         for s in samples:
-            rows.append({"map_type": mt, "objects": len(ds.refs[s.scene]), **coarse.time_one_query(model, ds, s, mt, 20)})
+            rows.append({"map_type": mt, "objects": len(ds.refs[s.scene]), **retrieval.time_one_query(model, ds, s, mt, 20)})
     t = pd.DataFrame(rows)
     for col, label in (("score_cached_ref_s", "reference embeddings cached"),
                        ("score_with_ref_s", "reference graph embedded too")):
@@ -129,10 +130,10 @@ def print_table(results: Path) -> None:
         print(f"| {r.loss} | {r.strategy} | {r.map_type} | {r.precision:.3f} / {r.recall:.3f} / {r.success:.3f} | "
               f"{paper} | {r.queries} |")
     key = t[(t["loss"] == "Sim+Trip") & (t["strategy"] == "R_30")].set_index("map_type")["success"]
-    for mt, target in (("gt", 0.60), ("depth", 0.60)):
+    for mt, goal in (("gt", 0.60), ("depth", 0.60)):
         if mt in key:
-            print(f"Sim+Trip R_30 success, {mt} maps: {key[mt]:.3f} (target >= {target:.2f}: "
-                  f"{'met' if key[mt] >= target else 'MISSED'})")
+            print(f"Sim+Trip R_30 success, {mt} maps: {key[mt]:.3f} (target >= {goal:.2f}: "
+                  f"{'met' if key[mt] >= goal else 'MISSED'})")
 
 
 def main() -> None:
@@ -143,7 +144,7 @@ def main() -> None:
                     help="config files merged in order (their coarse: sections)")
     ap.add_argument("--epochs", type=int, default=5, help="epochs timed for the extrapolation")
     ap.add_argument("--full", action="store_true", help="train the configured epochs (800 with paper.yaml) and time them")
-    ap.add_argument("--loss", default="simtrip", choices=list(coarse.LOSSES))
+    ap.add_argument("--loss", default="simtrip", choices=list(retrieval.LOSSES))
     ap.add_argument("--save", type=Path, default=None, help="save the trained checkpoint here (not under results/)")
     ap.add_argument("--queries", type=int, default=50, help="test queries timed")
     ap.add_argument("--skip", nargs="*", default=[], choices=["similarity", "training", "query", "table"])

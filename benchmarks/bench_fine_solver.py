@@ -13,14 +13,14 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
-from flatlandia import localmaps, solver  # noqa: E402
-from flatlandia import fine_eval as fe  # noqa: E402
+from flatlandia.data import localmaps
+from flatlandia.fine import solver  # noqa: E402
+from flatlandia.fine import evaluation  # noqa: E402
 
 
 def load(root: Path):
@@ -66,20 +66,20 @@ def main(argv=None):
         if not len(test):
             continue
         if a.proposal == "gtbb":
-            props = fe.gtbb_proposals(ref, test)
+            props = evaluation.gtbb_proposals(ref, test)
         elif a.proposal == "whole":
-            props = fe.whole_map_proposals(ref, test)
+            props = evaluation.whole_map_proposals(ref, test)
         else:
             p = coarse[(coarse["scene"].astype(str) == s) & (coarse["strategy"] == geo_cfg.get("strategy", "2N_LM"))]
             props = p[p["token"].astype(str).isin(test["token"].astype(str))]
-        prior, seen = fe.training_priors(q, geo_cfg)
-        e = fe.evaluate_solver(ref, test, props, a.map, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
+        prior, seen = evaluation.training_priors(q, geo_cfg)
+        e = evaluation.evaluate_solver(ref, test, props, a.map, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
                                prior_seen=seen)
         parts.append(e)
     e = pd.concat(parts, ignore_index=True)
-    s = fe.summarise(e)
+    s = evaluation.summarise(e)
     print(f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}: n={s['queries']} median {s['median_m']:.2f} m / "
-          f"{s['median_deg']:.2f} deg; % " + " / ".join(f"{s[c]:.1f}" for c in fe._TH_COLS)
+          f"{s['median_deg']:.2f} deg; % " + " / ".join(f"{s[c]:.1f}" for c in evaluation._TH_COLS)
           + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; QT median "
           f"{1000 * s['median_query_s']:.1f} ms (CPU {1000 * s['median_query_cpu_s']:.1f} ms) mean {1000 * s['mean_query_s']:.1f} ms p90 "
           f"{1000 * e['seconds'].quantile(0.9):.0f} ms; wall {time.perf_counter() - t0:.0f} s")

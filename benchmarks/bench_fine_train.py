@@ -1,10 +1,10 @@
 """Fine learned baselines benchmark (issue 6): training speed and, with ``--full``, accuracy.
 
 Prints, for each ``--models`` x ``--map-types`` under the merged config (config/config.yaml, then
-``--configfile`` files, then fine.train_overrides[model]):
+``--configfile`` files, then learned.train_overrides[model]):
 1. seconds per training epoch on the train split of every scene (GT-BB proposals), measured over
    ``--epochs`` epochs including the per-epoch validation pass, and the extrapolation to 1000;
-2. with ``--full``: the whole run of ``fine.train.epochs`` epochs, then the best-on-validation
+2. with ``--full``: the whole run of ``learned.train.epochs`` epochs, then the best-on-validation
    model's test-split median error (m, deg) and share within (10 m, 20 deg), with GT-BB proposals
    and, where results/coarse/simtrip/proposals.parquet exists, with its 2N_LM proposals.
 
@@ -28,15 +28,16 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import fine, io
-from flatlandia import fine_eval as fe
+from flatlandia.fine import learned
+from flatlandia import io
+from flatlandia.fine import evaluation
 
 MODEL_NAMES = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 TARGET_1000_S = 10 * 60
 TARGET_MEDIAN_M = 5.0
 
 
-def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: bool = True,
+def load_samples(results: Path, cfg: learned.FineConfig, simulated: int = 0, gtbb: bool = True,
                  seed: int = 0, crop_m: float = 0.0, val_coarse_only: bool = False) -> dict[str, list]:
     out: dict[str, list] = {"train": [], "val": [], "test": [], "test_coarse": []}
     rng = np.random.default_rng(seed)
@@ -53,17 +54,17 @@ def load_samples(results: Path, cfg: fine.FineConfig, simulated: int = 0, gtbb: 
         for split in ("train", "val", "test"):
             qs = q[q["split"] == split]
             if split == "test":
-                out[split] += fine.samples_from_queries(ref, qs, fe.gtbb_proposals(ref, qs), cfg)[0]
+                out[split] += learned.samples_from_queries(ref, qs, evaluation.gtbb_proposals(ref, qs), cfg)[0]
                 continue
             regime = "coarse" if simulated else "gtbb"
             copies = simulated if split == "train" else min(simulated, 1)
             keep = gtbb and not (split == "val" and val_coarse_only)
-            for props in fe.training_proposals(ref, qs, regime, rng, copies, keep, crop_m):
-                out[split] += fine.samples_from_queries(ref, qs, props, cfg)[0]
+            for props in evaluation.training_proposals(ref, qs, regime, rng, copies, keep, crop_m):
+                out[split] += learned.samples_from_queries(ref, qs, props, cfg)[0]
         if coarse is not None:
             qs = q[q["split"] == "test"]
-            props = fe.crop_to_densest(ref, coarse[coarse["scene"].astype(str) == qp.parts[-3]], crop_m)
-            out["test_coarse"] += fine.samples_from_queries(ref, qs, props, cfg)[0]
+            props = evaluation.crop_to_densest(ref, coarse[coarse["scene"].astype(str) == qp.parts[-3]], crop_m)
+            out["test_coarse"] += learned.samples_from_queries(ref, qs, props, cfg)[0]
     return out
 
 
@@ -94,7 +95,7 @@ def main() -> None:
     for slug in args.models:
         for mt in args.map_types:
             train_cfg = {**fcfg.get("train", {}), **fcfg.get("train_overrides", {}).get(slug, {})}
-            cfg = fine.FineConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
+            cfg = learned.FineConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
             if not args.full:
                 cfg.epochs = args.epochs
             s = load_samples(args.results, cfg, args.simulated_proposals, not args.no_gtbb, cfg.seed, args.crop_m,
@@ -102,18 +103,18 @@ def main() -> None:
             if not s["train"]:
                 raise SystemExit(f"{args.results}: no */queries/queries.parquet with maps; run the pipeline first")
             t0, c0 = time.perf_counter(), time.process_time()
-            res = fine.train(s["train"], s["val"], cfg)
+            res = learned.train(s["train"], s["val"], cfg)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             if args.save:
-                fine.save_checkpoint(res, args.save.with_name(f"{args.save.stem}-{slug}_{mt}{args.save.suffix}"))
+                learned.save_checkpoint(res, args.save.with_name(f"{args.save.stem}-{slug}_{mt}{args.save.suffix}"))
             per, per_cpu = wall / cfg.epochs, cpu / cfg.epochs
             test = within = coarse = "-"
             if args.full and s["test"]:
-                e_m, e_deg = fine.errors_metres(fine.predict(res["model"], s["test"]), s["test"], cfg)
+                e_m, e_deg = learned.errors_metres(learned.predict(res["model"], s["test"]), s["test"], cfg)
                 test = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
                 within = f"{100 * np.mean((e_m < 10) & (e_deg < 20)):.1f} %"
             if args.full and s["test_coarse"]:
-                e_m, e_deg = fine.errors_metres(fine.predict(res["model"], s["test_coarse"]), s["test_coarse"], cfg)
+                e_m, e_deg = learned.errors_metres(learned.predict(res["model"], s["test_coarse"]), s["test_coarse"], cfg)
                 coarse = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
             sizes = "/".join(str(len(s[k])) for k in ("train", "val", "test"))
             print(f"| {cfg.model} | {mt} | {sizes} | {cfg.epochs} | {per:.3f} | {per_cpu:.3f} | {per * 1000 / 60:.1f} |"

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from flatlandia import segment
+from flatlandia.images import segment
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import align as A
+from flatlandia.objects import principal_plane
 from flatlandia import io
-from flatlandia import objects as O
+from flatlandia.objects import clustering
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -32,11 +32,11 @@ def main() -> None:
     t_all = time.perf_counter()
     for scene in SCENES:
         t0 = time.perf_counter()
-        row, _ = O.audit_published_scene(root, scene)
-        pts, labels = O.read_classified_cloud(root / "maps" / scene / "class_segmented_point_cloud.ply")
+        row, _ = clustering.audit_published_scene(root, scene)
+        pts, labels = clustering.read_classified_cloud(root / "maps" / scene / "class_segmented_point_cloud.ply")
         t = io.read_transformations(root / "maps" / scene / "transformations.json")
-        plane, _ = A.fit_ground_plane(pts, labels, O.metres_per_unit(t))
-        row["plane_deg"] = A.normal_angle_deg(plane.normal, A.published_normal(t["to_principal_plane"]))
+        plane, _ = principal_plane.fit_ground_plane(pts, labels, clustering.metres_per_unit(t))
+        row["plane_deg"] = principal_plane.normal_angle_deg(plane.normal, principal_plane.published_normal(t["to_principal_plane"]))
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
     total_s = time.perf_counter() - t_all

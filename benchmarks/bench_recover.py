@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from flatlandia import io, localmaps
+from flatlandia import io
+from flatlandia.data import localmaps
 from flatlandia.classes import CLASSES
 
 REPO = Path(__file__).resolve().parents[1]

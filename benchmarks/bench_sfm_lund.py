@@ -13,7 +13,9 @@ from pathlib import Path
 
 from PIL import Image
 
-from flatlandia import images, segment, sfm
+from flatlandia.images import image_audit
+from flatlandia.images import segment
+from flatlandia.images import sfm
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -26,7 +28,7 @@ def main() -> None:
     ap.add_argument("--mapper", default="global")
     args = ap.parse_args()
     folder = Path(args.images)
-    names = [p.name for p in images.list_images(folder)]
+    names = [p.name for p in image_audit.list_images(folder)]
     with tempfile.TemporaryDirectory() as tmp:
         masks = Path(tmp) / "masks"
         masks.mkdir()

@@ -28,26 +28,27 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
-from flatlandia import geo, io
-from flatlandia import objects as O
-from flatlandia import reproduction_bounds as B
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.objects import clustering
+from flatlandia.objects import bounds
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
 RADII_M = np.round(np.arange(0.20, 2.501, 0.02), 2)
 
 
-def scene_bounds(root: Path, scene: str, params: O.ClusterParams) -> dict:
+def scene_bounds(root: Path, scene: str, params: clustering.ClusterParams) -> dict:
     maps = root / "maps" / scene
-    pts, labels = O.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
+    pts, labels = clustering.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
     t = io.read_transformations(maps / "transformations.json")
     ref_ll, ref_cl = io.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
-    mpu = O.metres_per_unit(t)
+    mpu = clustering.metres_per_unit(t)
     frame = geo.frame_for(ref_ll)
     xy, ref_xy = frame.to_xy(geo.sfm_to_lonlat(pts, t)), frame.to_xy(ref_ll)
-    fg = labels != O.BACKGROUND
-    ref_macro = O.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg],
-                                          exact_radius=O.EXACT_SEARCH_RADIUS_M / mpu)
+    fg = labels != clustering.BACKGROUND
+    ref_macro = clustering.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg],
+                                          exact_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu)
     row = {"scene": scene, "published": len(ref_xy)}
     for k in ("exact_any_radius", "near_any_radius", "default_0.5m", "default_clusters",
               "oracle_0.5m", "oracle_0.05m", "oracle_clusters"):
@@ -56,19 +57,19 @@ def scene_bounds(root: Path, scene: str, params: O.ClusterParams) -> dict:
     for name in sorted(set(labels[fg])):
         ci = np.flatnonzero(labels == name)
         mine = ref_macro == name
-        tree = B.single_linkage_tree(pts[ci], xy[ci], max_radius=RADII_M.max() / mpu)
-        ex = B.exact_objects(tree, ref_xy[mine], tol=1e-3)
+        tree = bounds.single_linkage_tree(pts[ci], xy[ci], max_radius=RADII_M.max() / mpu)
+        ex = bounds.exact_objects(tree, ref_xy[mine], tol=1e-3)
         row["exact_any_radius"] += int(ex["exact"].sum())
         row["near_any_radius"] += int((ex["dist"] <= 0.5).sum())
 
         default = params.eps_for(name)
-        default_clusters = O._clusters_of_class(pts[ci], mpu, params, default)
+        default_clusters = clustering._clusters_of_class(pts[ci], mpu, params, default)
 
         def means(r_m: float) -> np.ndarray:
-            clusters = default_clusters if r_m == default else O._clusters_of_class(pts[ci], mpu, params, r_m)
+            clusters = default_clusters if r_m == default else clustering._clusters_of_class(pts[ci], mpu, params, r_m)
             return np.array([xy[ci[c]].mean(0) for c in clusters]).reshape(-1, 2)
 
-        table = B.best_radius_reproduction(means, ref_xy[mine], np.r_[default, RADII_M])
+        table = bounds.best_radius_reproduction(means, ref_xy[mine], np.r_[default, RADII_M])
         row["default_0.5m"] += int(table["within_0.5m"].iloc[0])
         row["default_clusters"] += int(table["clusters"].iloc[0])
         best = table.sort_values(["within_0.5m", "clusters"], ascending=[False, True]).iloc[0]
@@ -82,11 +83,11 @@ def scene_bounds(root: Path, scene: str, params: O.ClusterParams) -> dict:
     row["oracle_extra"] = row["oracle_clusters"] - row["oracle_0.5m"]
     tracks = maps / "SfM" / "points3D.bin"
     if tracks.is_file():
-        sfm_xyz, images = B.read_colmap_tracks(tracks)
+        sfm_xyz, images = bounds.read_colmap_tracks(tracks)
         d, j = cKDTree(sfm_xyz).query(pts)
         if d.max() < 1e-9:  # the class cloud holds the SfM points: tracks apply point by point
-            feats = B.cluster_features(members, pts, mpu, [images[k] for k in j])
-            row.update({f"auc_{k}": v for k, v in B.feature_auc(feats, np.array(kept)).items()})
+            feats = bounds.cluster_features(members, pts, mpu, [images[k] for k in j])
+            row.update({f"auc_{k}": v for k, v in bounds.feature_auc(feats, np.array(kept)).items()})
             row["kept_clusters"], row["dropped_clusters"] = int(np.sum(kept)), int(len(kept) - np.sum(kept))
     return row
 
@@ -98,7 +99,7 @@ def main() -> None:
     ap.add_argument("--out", help="also write the table as Parquet")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    df = pd.DataFrame([scene_bounds(Path(args.root), s, O.ClusterParams()) for s in args.scenes])
+    df = pd.DataFrame([scene_bounds(Path(args.root), s, clustering.ClusterParams()) for s in args.scenes])
     pd.set_option("display.width", 250)
     print(df.to_string(index=False, float_format=lambda v: f"{v:.2f}"))
     pub = df["published"].sum()

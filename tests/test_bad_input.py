@@ -3,11 +3,11 @@
 import json
 import math
 
-import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import ingest, io
+from flatlandia.data import ingest
+from flatlandia import io
 from flatlandia.errors import InputError
 
 

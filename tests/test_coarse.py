@@ -1,14 +1,19 @@
 """Coarse map localization (issue 4): graphs, similarity target, losses, proposals, metrics, training."""
 
-import math
 
 import numpy as np
 import pandas as pd
 import pytest
 import torch
 
-from flatlandia import coarse, geo, graphs, io, localmaps, maps, tables
-from flatlandia import similarity as sm
+from flatlandia.coarse import retrieval
+from flatlandia import geo
+from flatlandia.coarse import graphs
+from flatlandia import io
+from flatlandia.data import localmaps
+from flatlandia.data import map_files
+from flatlandia import tables
+from flatlandia.coarse import target
 from flatlandia.classes import CLASSES
 
 torch.set_num_threads(1)
@@ -86,12 +91,12 @@ def _local(world, cam=np.array([-20.0, -5.0]), theta=0.4):
 
 
 def test_similarity_exact_copy_gives_zero_residual_and_known_ds():
-    cfg = sm.SimilarityConfig(radius_m=30.0, cap_m=5.0)
+    cfg = target.SimilarityConfig(radius_m=30.0, cap_m=5.0)
     far = np.array([[200.0, 200.0], [260.0, 200.0]])
     ref_xy = np.vstack([QUERY_WORLD, far])
     ref_cls = np.r_[QUERY_CLS, [1, 2]]
-    idx = sm.SceneIndex(ref_xy, ref_cls, cfg)
-    out = sm.node_similarity(idx, _local(QUERY_WORLD), QUERY_CLS)
+    idx = target.SceneIndex(ref_xy, ref_cls, cfg)
+    out = target.node_similarity(idx, _local(QUERY_WORLD), QUERY_CLS)
     for i in range(4):
         assert out.loc[i, "d_p"] == pytest.approx(0.0, abs=1e-9)
         expected_ds = np.linalg.norm(QUERY_WORLD - QUERY_WORLD[i], axis=1).mean() / 30.0
@@ -104,16 +109,16 @@ def test_similarity_exact_copy_gives_zero_residual_and_known_ds():
 
 
 def test_similarity_partial_match_and_wrong_classes():
-    cfg = sm.SimilarityConfig(radius_m=30.0, cap_m=5.0)
+    cfg = target.SimilarityConfig(radius_m=30.0, cap_m=5.0)
     # only objects 0 and 1 of the query exist near node 0; objects 2, 3 lie 100 m away
     ref_xy = np.vstack([QUERY_WORLD[:2], QUERY_WORLD[2:] + 100.0])
-    idx = sm.SceneIndex(ref_xy, QUERY_CLS, cfg)
-    out = sm.node_similarity(idx, _local(QUERY_WORLD), QUERY_CLS)
+    idx = target.SceneIndex(ref_xy, QUERY_CLS, cfg)
+    out = target.node_similarity(idx, _local(QUERY_WORLD), QUERY_CLS)
     assert out.loc[0, "d_p"] == pytest.approx(0.5, abs=1e-9)           # (0 + 0 + 1 + 1) / 4
     assert out.loc[0, "d_s"] == pytest.approx(np.linalg.norm(QUERY_WORLD[1]) / 2 / 30.0, abs=1e-9)
     # same geometry, other classes: nothing aligns
-    idx = sm.SceneIndex(QUERY_WORLD, QUERY_CLS + 10, cfg)
-    out = sm.node_similarity(idx, _local(QUERY_WORLD), QUERY_CLS)
+    idx = target.SceneIndex(QUERY_WORLD, QUERY_CLS + 10, cfg)
+    out = target.node_similarity(idx, _local(QUERY_WORLD), QUERY_CLS)
     assert (out["d_p"] == 1.0).all() and (out["S"] == 0.0).all()
 
 
@@ -121,16 +126,16 @@ def test_similarity_one_displaced_object_known_residual():
     """Query = the 4 objects with object 3 moved 2 m: the best alignment keeps objects 0-2 exact
     (found by the pair enumeration, no refit can do better on the mean of capped residuals by more
     than the refit's own least squares), so d_p = 2 m / 4 objects / cap 5 m = 0.1 at most."""
-    cfg = sm.SimilarityConfig(radius_m=30.0, cap_m=5.0)
+    cfg = target.SimilarityConfig(radius_m=30.0, cap_m=5.0)
     moved = QUERY_WORLD.copy()
     moved[3] += [2.0, 0.0]
-    idx = sm.SceneIndex(QUERY_WORLD, QUERY_CLS, cfg)
-    out = sm.node_similarity(idx, _local(moved), QUERY_CLS)
+    idx = target.SceneIndex(QUERY_WORLD, QUERY_CLS, cfg)
+    out = target.node_similarity(idx, _local(moved), QUERY_CLS)
     assert (out["d_p"] <= 0.1 + 1e-9).all() and (out["d_p"] > 0.05).all()
     assert (out["n_matched"] == 4).all()                 # the moved object still lands within cap_m
     # moved beyond the cap: it counts as cap_m, the other three align exactly -> d_p = 1/4 exactly
     moved[3] += [20.0, 0.0]
-    out = sm.node_similarity(idx, _local(moved), QUERY_CLS)
+    out = target.node_similarity(idx, _local(moved), QUERY_CLS)
     assert np.allclose(out["d_p"], 0.25, atol=1e-9) and (out["n_matched"] == 3).all()
     for i in range(3):
         assert out.loc[i, "d_s"] == pytest.approx(np.linalg.norm(QUERY_WORLD[:3] - QUERY_WORLD[i], axis=1).mean() / 30)
@@ -141,9 +146,9 @@ def test_similarity_is_invariant_to_the_query_pose_and_bounded():
     ref_xy = rng.uniform(0, 80, (40, 2))
     ref_cls = rng.integers(0, 4, 40)
     vis = np.array([3, 7, 11, 20, 25])
-    idx = sm.SceneIndex(ref_xy, ref_cls)
-    a = sm.node_similarity(idx, _local(ref_xy[vis], np.array([0.0, 0.0]), 0.0), ref_cls[vis])
-    b = sm.node_similarity(idx, _local(ref_xy[vis], np.array([50.0, -30.0]), 2.5), ref_cls[vis])
+    idx = target.SceneIndex(ref_xy, ref_cls)
+    a = target.node_similarity(idx, _local(ref_xy[vis], np.array([0.0, 0.0]), 0.0), ref_cls[vis])
+    b = target.node_similarity(idx, _local(ref_xy[vis], np.array([50.0, -30.0]), 2.5), ref_cls[vis])
     assert np.allclose(a["S"], b["S"], atol=1e-9)
     assert ((a["S"] >= 0) & (a["S"] <= 1) & (a["d_p"] >= 0) & (a["d_p"] <= 1) & (a["d_s"] >= 0)
             & (a["d_s"] <= 1)).all()
@@ -157,7 +162,7 @@ def test_scene_similarity_table_shape():
     ref = _ref_table(QUERY_WORLD, QUERY_CLS)
     q = pd.DataFrame({"scene": ["0"], "token": ["t"], "gt_local_xy_m": [_local(QUERY_WORLD).tolist()],
                       "classes": [QUERY_CLS.tolist()]})
-    t = sm.scene_similarity(ref, q)
+    t = target.scene_similarity(ref, q)
     assert list(t.columns) == ["scene", "token", "obj_idx", "S", "d_p", "d_s", "n_matched"]
     assert len(t) == 4 and t["S"].dtype == np.float32
 
@@ -165,26 +170,26 @@ def test_scene_similarity_table_shape():
 # ----------------------------------------------------------------------------- losses
 
 def test_triplet_loss_by_hand():
-    lt = coarse.triplet_loss(torch.tensor([0.1, 0.5]), torch.tensor([0.3, 0.4]), margin=0.5)
+    lt = retrieval.triplet_loss(torch.tensor([0.1, 0.5]), torch.tensor([0.3, 0.4]), margin=0.5)
     assert float(lt) == pytest.approx((0.3 + 0.6) / 2)
-    assert float(coarse.triplet_loss(torch.tensor([0.0]), torch.tensor([2.0]), 0.5)) == 0.0
+    assert float(retrieval.triplet_loss(torch.tensor([0.0]), torch.tensor([2.0]), 0.5)) == 0.0
 
 
 def test_sim_loss_by_hand():
     S = torch.tensor([1.0, 0.5, 0.0, 0.2])
     qpos = torch.tensor([0, 0, 0, 1])
-    assert float(coarse.sim_loss(1.0 - S, S, qpos, 2)) == pytest.approx(0.0, abs=1e-7)
+    assert float(retrieval.sim_loss(1.0 - S, S, qpos, 2)) == pytest.approx(0.0, abs=1e-7)
     s = torch.tensor([0.0, 0.0, 0.0, 1.0])
     # query 0: weights 1.1, 0.6, 0.1; errors 0, 0.25, 1 -> (0.15 + 0.1) / 1.8; query 1: error 0.04
     expected = ((0.6 * 0.25 + 0.1 * 1.0) / 1.8 + 0.2 ** 2) / 2
-    assert float(coarse.sim_loss(s, S, qpos, 2, floor=0.1)) == pytest.approx(expected, rel=1e-6)
+    assert float(retrieval.sim_loss(s, S, qpos, 2, floor=0.1)) == pytest.approx(expected, rel=1e-6)
 
 
 def test_draw_triplets_picks_unmatched_negatives():
     rng = np.random.default_rng(0)
-    smp = [coarse.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None),
-           coarse.Sample(0, "b", "train", {}, np.array([0, 2, 3]), 3, np.zeros(2), None, None)]
-    ip, ineg = coarse.draw_triplets(smp, [6, 6], rng)
+    smp = [retrieval.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None),
+           retrieval.Sample(0, "b", "train", {}, np.array([0, 2, 3]), 3, np.zeros(2), None, None)]
+    ip, ineg = retrieval.draw_triplets(smp, [6, 6], rng)
     assert len(ip) == len(ineg) == 5
     assert set(ip[:2]) == {1, 4} and set(ip[2:]) == {6, 8, 9}
     assert not set(ineg[:2]) & {1, 4} and all(0 <= v < 6 for v in ineg[:2])
@@ -192,40 +197,40 @@ def test_draw_triplets_picks_unmatched_negatives():
 
 
 def test_draw_triplets_hard_negatives_are_the_best_ranked_unmatched():
-    smp = [coarse.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None)]
+    smp = [retrieval.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None)]
     scores = np.array([0.9, 0.0, 0.2, 0.1, 0.5, 0.8])   # unmatched ranked 3 (0.1), 2 (0.2), 5, 0
-    ip, ineg = coarse.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=1.0)
+    ip, ineg = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=1.0)
     assert ip.tolist() == [1, 4] and ineg.tolist() == [3, 2]
-    ip, ineg = coarse.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.5)
+    ip, ineg = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.5)
     assert ineg[0] == 3 and ineg[1] in {0, 2, 5}           # one hard, one random among the rest
-    _, ineg0 = coarse.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.0)
-    _, ineg1 = coarse.draw_triplets(smp, [6], np.random.default_rng(0))
+    _, ineg0 = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.0)
+    _, ineg1 = retrieval.draw_triplets(smp, [6], np.random.default_rng(0))
     assert ineg0.tolist() == ineg1.tolist()                # fraction 0: the paper's random negatives
 
 
 def test_fused_scores_equal_separately_embedded_graphs():
     rng = np.random.default_rng(0)
     ref = _ref_table(rng.uniform(-60, 60, (30, 2)), rng.integers(0, 42, 30))
-    cfg = coarse.CoarseConfig(seed=0)
+    cfg = retrieval.CoarseConfig(seed=0)
     torch.manual_seed(0)
-    model = coarse.build_model(cfg).eval()
+    model = retrieval.build_model(cfg).eval()
     rg = graphs.reference_graph(ref)
     qs = [graphs.query_graph(rng.uniform(0, 40, (m, 2)), rng.integers(0, 42, m)) for m in (3, 5, 12)]
     with torch.no_grad():
-        fused = coarse.fused_scores(model, rg, qs)
-        ref_emb = coarse._embed(model, rg)
-        cached = coarse.fused_scores(model, None, qs, ref_emb=ref_emb)
+        fused = retrieval.fused_scores(model, rg, qs)
+        ref_emb = retrieval._embed(model, rg)
+        cached = retrieval.fused_scores(model, None, qs, ref_emb=ref_emb)
         qb = graphs.batch(qs)
         node, qpos = np.tile(np.arange(30), 3), np.repeat(np.arange(3), 30)
-        sep = coarse.scores(model, ref_emb, qb, node, qpos).reshape(3, 30)
+        sep = retrieval.scores(model, ref_emb, qb, node, qpos).reshape(3, 30)
     assert fused.shape == (3, 30)
     assert torch.allclose(fused, sep, atol=1e-5) and torch.allclose(cached, sep, atol=1e-5)
 
 
 def test_cosine_schedule_and_config_checks():
     with pytest.raises(ValueError):
-        coarse.CoarseConfig(lr_schedule="step")
-    d = coarse.CoarseConfig().to_dict()
+        retrieval.CoarseConfig(lr_schedule="step")
+    d = retrieval.CoarseConfig().to_dict()
     assert d["lr_schedule"] in ("constant", "cosine") and 0 <= d["hard_negatives"] <= 1
 
 
@@ -236,37 +241,37 @@ SCORE = np.array([0.5, 0.1, 0.3, 0.2, 0.9, 0.05])
 
 
 def test_proposals_each_strategy():
-    assert coarse.propose(SCORE, XY, 2, "N_LM").tolist() == [1, 5]
-    assert coarse.propose(SCORE, XY, 2, "2N_LM").tolist() == [1, 2, 3, 5]
+    assert retrieval.propose(SCORE, XY, 2, "N_LM").tolist() == [1, 5]
+    assert retrieval.propose(SCORE, XY, 2, "2N_LM").tolist() == [1, 2, 3, 5]
     s = SCORE.copy()
     s[5] = 1.0                                    # best node is 1 (x = 10 m)
-    assert coarse.propose(s, XY, 2, "R_30").tolist() == [0, 1, 2, 3]          # 40 m is exactly 30 m away
-    assert coarse.propose(s, XY, 2, "R_30", radius_m=20.0).tolist() == [0, 1, 2]
+    assert retrieval.propose(s, XY, 2, "R_30").tolist() == [0, 1, 2, 3]          # 40 m is exactly 30 m away
+    assert retrieval.propose(s, XY, 2, "R_30", radius_m=20.0).tolist() == [0, 1, 2]
     # GT-BB: box of matched rows 1, 2 and the camera at (10, 10), enlarged 10%
-    bb = coarse.propose(SCORE, XY, 2, "GT-BB", matched_rows=[1, 2], cam_xy=[10.0, 10.0])
+    bb = retrieval.propose(SCORE, XY, 2, "GT-BB", matched_rows=[1, 2], cam_xy=[10.0, 10.0])
     assert bb.tolist() == [1, 2]
     with pytest.raises(ValueError):
-        coarse.propose(SCORE, XY, 2, "top-k")
+        retrieval.propose(SCORE, XY, 2, "top-k")
 
 
 def test_proposal_metrics():
-    m = coarse.proposal_metrics([1, 2, 3, 5], [1, 2, 3, 4])
+    m = retrieval.proposal_metrics([1, 2, 3, 5], [1, 2, 3, 4])
     assert (m["precision"], m["recall"], m["success"], m["n_correct"]) == (0.75, 0.75, True, 3)
-    m = coarse.proposal_metrics([1, 9], [1, 2, 3])
+    m = retrieval.proposal_metrics([1, 9], [1, 2, 3])
     assert m["precision"] == 0.5 and m["recall"] == pytest.approx(1 / 3) and not m["success"]
-    assert coarse.proposal_metrics([], [1, 2, 3])["precision"] == 0.0
+    assert retrieval.proposal_metrics([], [1, 2, 3])["precision"] == 0.0
 
 
 def test_summarise_and_markdown_have_the_paper_beside():
     rows = pd.DataFrame({"scene": "0", "token": ["a", "b"], "loss": "Sim+Trip", "map_type": "gt", "strategy": "R_30",
                          "proposal": [[1], [2]], "n_proposed": [4, 2], "n_correct": [3, 0],
                          "precision": [0.75, 0.0], "recall": [1.0, 0.0], "success": [True, False]})
-    t = coarse.summarise(rows)
-    assert list(t.columns) == [c for c, _, _ in coarse.TABLE_COLUMNS]
+    t = retrieval.summarise(rows)
+    assert list(t.columns) == [c for c, _, _ in retrieval.TABLE_COLUMNS]
     r = t.iloc[0]
     assert (r.precision, r.recall, r.success, r.queries) == (0.375, 0.5, 0.5, 2)
-    assert (r.paper_precision, r.paper_recall, r.paper_success) == coarse.PAPER_TABLE3[("Sim+Trip", "R_30", "gt")]
-    md = coarse.render_markdown(t)
+    assert (r.paper_precision, r.paper_recall, r.paper_success) == retrieval.PAPER_TABLE3[("Sim+Trip", "R_30", "gt")]
+    md = retrieval.render_markdown(t)
     assert "| Sim+Trip | R_30 | 0.375 / 0.500 / 0.500 | 0.148 / 0.543 / 0.600 |" in md
     tables.check_schema(t, "coarse_localization")          # the schema-checked writer accepts it
     assert [c.name for c in tables.SCHEMAS["coarse_localization"]] == list(t.columns)
@@ -274,9 +279,9 @@ def test_summarise_and_markdown_have_the_paper_beside():
 
 def test_config_rejects_unknown_keys_and_losses():
     with pytest.raises(ValueError):
-        coarse.CoarseConfig.from_dict({"epochz": 3})
+        retrieval.CoarseConfig.from_dict({"epochz": 3})
     with pytest.raises(ValueError):
-        coarse.CoarseConfig(loss="contrastive")
+        retrieval.CoarseConfig(loss="contrastive")
 
 
 # ----------------------------------------------------------------------------- training on real scenes
@@ -292,12 +297,12 @@ def real_data(flat_root):
     for s in REAL_SCENES:
         lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{s}.json", len(CLASSES))
         frame = geo.frame_for(lonlat)
-        ref = maps.reference_table(s, lonlat, classes, CLASSES, frame)
+        ref = map_files.reference_table(s, lonlat, classes, CLASSES, frame)
         local = {t: {"GT": np.asarray(m["GT"], float), "depth": np.asarray(m["depth"], float)}
                  for t, m in local_all[s].items()}
         rec = localmaps.recover_scene(s, lonlat, classes, local)
         q = localmaps.build_queries(s, rec, ref, local, frame, localmaps.split_queries(list(rec["token"]), 0, salt=s))
-        out.append((ref, q, sm.scene_similarity(ref, q)))
+        out.append((ref, q, target.scene_similarity(ref, q)))
     return out
 
 
@@ -310,15 +315,15 @@ def test_similarity_on_real_scene_ranks_matched_objects_first(real_data):
 
 
 def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_path):
-    cfg = coarse.CoarseConfig(loss="simtrip", epochs=8, seed=0)
-    ds = coarse.build_dataset(real_data, cfg)
+    cfg = retrieval.CoarseConfig(loss="simtrip", epochs=8, seed=0)
+    ds = retrieval.build_dataset(real_data, cfg)
     assert cfg.depth_unit_m is not None and 10 < cfg.depth_unit_m < 60
-    res = coarse.train(ds, cfg)
+    res = retrieval.train(ds, cfg)
     hist = pd.DataFrame(res["history"])
     assert hist["train_loss"].iloc[-3:].mean() < hist["train_loss"].iloc[0]
     assert hist["loss_trip"].iloc[-1] < hist["loss_trip"].iloc[0]
-    per_q = coarse.evaluate({"Sim+Trip": (res["model"], cfg)}, ds, "test")
-    t = coarse.summarise(per_q).set_index(["loss", "strategy", "map_type"])
+    per_q = retrieval.evaluate({"Sim+Trip": (res["model"], cfg)}, ds, "test")
+    t = retrieval.summarise(per_q).set_index(["loss", "strategy", "map_type"])
     for mt in ("gt", "depth"):
         for strat in ("2N_LM", "R_30"):
             assert t.loc[("Sim+Trip", strat, mt), "success"] > t.loc[("random", strat, mt), "success"]
@@ -327,27 +332,27 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
     # the validation criterion (computed without DataFrames) = the per-query metrics' means
     crit = np.mean([t.loc[("Sim+Trip", "2N_LM", mt), "recall"] if k == 0 else t.loc[("Sim+Trip", "R_30", mt), "success"]
                     for mt in ("gt", "depth") for k in (0, 1)])
-    assert coarse.validation_metric(res["model"], ds, ds.split("test"), cfg) == pytest.approx(crit, abs=1e-12)
+    assert retrieval.validation_metric(res["model"], ds, ds.split("test"), cfg) == pytest.approx(crit, abs=1e-12)
     # checkpoint round trip, with the resolved config
     path = tmp_path / "model.pt"
-    coarse.save_checkpoint(res, path)
-    model, cfg2 = coarse.load_checkpoint(path)
+    retrieval.save_checkpoint(res, path)
+    model, cfg2 = retrieval.load_checkpoint(path)
     assert cfg2.to_dict() == cfg.to_dict()
     test = ds.split("test")
-    a = coarse.score_samples(res["model"], ds, test, "gt")
-    b = coarse.score_samples(model, ds, test, "gt")
+    a = retrieval.score_samples(res["model"], ds, test, "gt")
+    b = retrieval.score_samples(model, ds, test, "gt")
     assert all(np.allclose(x, y) for x, y in zip(a, b))
     # same seed, same weights (CPU)
-    res2 = coarse.train(ds, coarse.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
-    res3 = coarse.train(ds, coarse.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
+    res2 = retrieval.train(ds, retrieval.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
+    res3 = retrieval.train(ds, retrieval.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
     assert all(torch.equal(res2["state_dict"][k], res3["state_dict"][k]) for k in res2["state_dict"])
 
 
 @pytest.mark.parametrize("loss", ["sim", "trip"])
 def test_each_loss_trains(real_data, loss):
-    cfg = coarse.CoarseConfig(loss=loss, epochs=3, seed=1, batching="mixed")
-    ds = coarse.build_dataset(real_data[:2], cfg, splits=("train", "val"))
-    hist = pd.DataFrame(coarse.train(ds, cfg)["history"])
+    cfg = retrieval.CoarseConfig(loss=loss, epochs=3, seed=1, batching="mixed")
+    ds = retrieval.build_dataset(real_data[:2], cfg, splits=("train", "val"))
+    hist = pd.DataFrame(retrieval.train(ds, cfg)["history"])
     key = "loss_sim" if loss == "sim" else "loss_trip"
     assert key in hist and np.isfinite(hist["train_loss"]).all()
     assert hist[key].iloc[-1] < hist[key].iloc[0]

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flatlandia import depth
+from flatlandia.images import depth
 from flatlandia.errors import InputError
-from flatlandia.imagequeries import View
+from flatlandia.images.image_queries import View
 
 
 def _view():

@@ -5,7 +5,8 @@ import zipfile
 import pandas as pd
 import pytest
 
-from flatlandia import fetch, ingest
+from flatlandia.data import fetch
+from flatlandia.data import ingest
 from snakemake_runner import smk
 
 SCENE12 = ["local_maps.json", "individual_reference_maps/map_12.json", "maps/12/transformations.json",

@@ -7,8 +7,13 @@ import pandas as pd
 import pytest
 import torch
 
-from flatlandia import fine, geo, io, localmaps, maps, solver
-from flatlandia import fine_eval as fe
+from flatlandia.fine import learned
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.data import localmaps
+from flatlandia.data import map_files
+from flatlandia.fine import solver
+from flatlandia.fine import evaluation
 from flatlandia.classes import CLASSES
 
 torch.set_num_threads(1)
@@ -19,7 +24,7 @@ def scene(flat_root):
     """Scene 9's reference map and queries, built from the published data."""
     lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
     frame = geo.frame_for(lonlat)
-    ref = maps.reference_table("9", lonlat, classes, CLASSES, frame)
+    ref = map_files.reference_table("9", lonlat, classes, CLASSES, frame)
     local = io.read_local_maps(flat_root / "local_maps.json", "9")
     rec = localmaps.recover_scene("9", lonlat, classes, local)
     split = localmaps.split_queries(list(rec["token"]), 0, salt="9")
@@ -30,8 +35,8 @@ def scene(flat_root):
 
 def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
     ref, q = scene
-    props = fe.gtbb_proposals(ref, q)
-    e = fe.evaluate_solver(ref, q, props, "gt")
+    props = evaluation.gtbb_proposals(ref, q)
+    e = evaluation.evaluate_solver(ref, q, props, "gt")
     assert len(e) == len(q)
     assert (e["error_m"] < 0.1).mean() >= 0.99
     assert e["error_deg"].median() < 1e-6
@@ -40,7 +45,7 @@ def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
 def test_solver_exact_on_gt_maps_whole_map(scene):
     ref, q = scene
     q = q.iloc[:20]
-    e = fe.evaluate_solver(ref, q, fe.whole_map_proposals(ref, q), "gt")
+    e = evaluation.evaluate_solver(ref, q, evaluation.whole_map_proposals(ref, q), "gt")
     assert (e["error_m"] < 0.1).mean() >= 0.95
 
 
@@ -133,12 +138,12 @@ def test_covisibility_prior_breaks_a_repeated_pattern(seen_copy):
 
 def test_training_priors_come_from_the_training_split_only(scene):
     _, q = scene
-    prior, seen = fe.training_priors(q, {"covis_weight": 2.0})
+    prior, seen = evaluation.training_priors(q, {"covis_weight": 2.0})
     train = q[q["split"] == "train"]
     assert len(prior) == len(seen) == len(train)
     assert np.allclose(prior[:, :2], train[["x_m", "y_m"]].to_numpy())
-    assert fe.training_priors(q, {"camera_prior": False}) == (None, None)
-    assert fe.training_priors(q, {})[1] is None                          # no co-visibility cost: no sets
+    assert evaluation.training_priors(q, {"camera_prior": False}) == (None, None)
+    assert evaluation.training_priors(q, {})[1] is None                          # no co-visibility cost: no sets
 
 
 def test_solver_returns_none_without_candidates():
@@ -154,14 +159,14 @@ def test_fit_priors():
 # ----------------------------------------------------------------------------- metrics
 
 def test_pose_errors_wrap_around():
-    e_m, e_deg = fe.pose_errors(3.0, 4.0, math.radians(179.0), 0.0, 0.0, math.radians(-179.0))
+    e_m, e_deg = evaluation.pose_errors(3.0, 4.0, math.radians(179.0), 0.0, 0.0, math.radians(-179.0))
     assert e_m == pytest.approx(5.0) and e_deg == pytest.approx(2.0)
 
 
 def test_summary_on_hand_made_errors():
     e = pd.DataFrame({"error_m": [0.1, 0.8, 4.0, 9.0, 50.0, np.inf], "error_deg": [1.0, 4.0, 9.0, 30.0, 1.0, 180.0],
                       "solvable": [True] * 5 + [False], "seconds": [0.01] * 6, "error_paper_m": [0.0] * 6})
-    s = fe.summarise(e)
+    s = evaluation.summarise(e)
     assert s["pct_0.5m_2deg"] == pytest.approx(100 / 6)
     assert s["pct_1m_5deg"] == pytest.approx(200 / 6)
     assert s["pct_5m_10deg"] == pytest.approx(300 / 6)
@@ -173,24 +178,24 @@ def test_summary_on_hand_made_errors():
 
 
 def test_solvable_counts_class_multiset():
-    assert fe.solvable([1, 1, 2], [1, 1, 2, 5])
-    assert not fe.solvable([1, 1, 2], [1, 2, 5])  # only one object of class 1 for two query objects
-    assert not fe.solvable([1, 2, 3], [4, 5, 6])
+    assert evaluation.solvable([1, 1, 2], [1, 1, 2, 5])
+    assert not evaluation.solvable([1, 1, 2], [1, 2, 5])  # only one object of class 1 for two query objects
+    assert not evaluation.solvable([1, 2, 3], [4, 5, 6])
 
 
 def test_gtbb_box_and_paper_units():
     ref_xy = np.array([[0.0, 0.0], [10.0, 10.0], [10.5, 5.0], [12.0, 5.0], [-0.4, 5.0]])
-    idx = fe.gtbb_indices(ref_xy, [0, 1], [10.0, 0.0])
+    idx = evaluation.gtbb_indices(ref_xy, [0, 1], [10.0, 0.0])
     assert set(idx) == {0, 1, 2, 4}  # box [0,10]^2 enlarged 10%: [-0.5, 10.5]
-    mpu = fe.metres_per_unit(45.0)
-    assert fe.paper_metres(mpu, 45.0) == pytest.approx(215.0)
+    mpu = evaluation.metres_per_unit(45.0)
+    assert evaluation.paper_metres(mpu, 45.0) == pytest.approx(215.0)
 
 
 def test_markdown_table_layout():
     rows = [dict(method="MLP", map_type=mt, strategy="GT-BB", median_m=5.0, median_deg=9.0, median_paper_m=6.0,
-                 mean_query_s=0.002, failure_pct=0.0, gross_pct=1.0, **{c: 10.0 for c in fe._TH_COLS})
+                 mean_query_s=0.002, failure_pct=0.0, gross_pct=1.0, **{c: 10.0 for c in evaluation._TH_COLS})
             for mt in ("gt", "depth")]
-    md = fe.render_markdown(fe.table_rows(rows))
+    md = evaluation.render_markdown(evaluation.table_rows(rows))
     assert "Table 4" in md and "| MLP | GT-BB |" in md and "13.3" in md  # the paper's depth MLP median
 
 
@@ -205,53 +210,53 @@ def _toy_samples(n, cfg, seed=0):
         cam, th = rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)
         local = geo.world_to_local(ref[:5], cam, th)
         q = local / np.median(np.linalg.norm(local, axis=1)) if cfg.map_type == "depth" else local
-        out.append(fine.make_sample(q, cls[:5], ref, cls, cfg, cam, th))
+        out.append(learned.make_sample(q, cls[:5], ref, cls, cfg, cam, th))
     return out
 
 
-@pytest.mark.parametrize("name", fine.MODELS)
+@pytest.mark.parametrize("name", learned.MODELS)
 def test_models_forward_backward_shapes(name):
-    cfg = fine.FineConfig(model=name, hidden=16, heads=2, rounds=1)
+    cfg = learned.FineConfig(model=name, hidden=16, heads=2, rounds=1)
     samples = _toy_samples(5, cfg)
-    model = fine.build_model(cfg)
-    batch = fine.Batch.from_data_list(samples)
+    model = learned.build_model(cfg)
+    batch = learned.Batch.from_data_list(samples)
     out = model(batch)
     assert out.shape == (5, 3)
-    loss = fine.pose_loss(out, batch.y)
+    loss = learned.pose_loss(out, batch.y)
     loss.backward()
     assert all(p.grad is not None for p in model.parameters() if p.requires_grad)
 
 
-@pytest.mark.parametrize("name", fine.MODELS)
+@pytest.mark.parametrize("name", learned.MODELS)
 def test_batching_equals_one_by_one(name):
-    cfg = fine.FineConfig(model=name, hidden=16, heads=2, rounds=1)
+    cfg = learned.FineConfig(model=name, hidden=16, heads=2, rounds=1)
     samples = _toy_samples(4, cfg)
     torch.manual_seed(0)
-    model = fine.build_model(cfg).eval()
+    model = learned.build_model(cfg).eval()
     with torch.no_grad():
-        together = model(fine.Batch.from_data_list(samples))
-        alone = torch.cat([model(fine.Batch.from_data_list([s])) for s in samples])
+        together = model(learned.Batch.from_data_list(samples))
+        alone = torch.cat([model(learned.Batch.from_data_list([s])) for s in samples])
     assert torch.allclose(together, alone, atol=1e-5)
 
 
 @pytest.mark.parametrize("name", ["MLP", "MLP+ATT"])
 def test_dense_row_selection_equals_graph_batch(name):
     """The MLPs train on padded rows selected from the whole split: same outputs as collated graphs."""
-    cfg = fine.FineConfig(model=name, hidden=16, heads=2)
+    cfg = learned.FineConfig(model=name, hidden=16, heads=2)
     samples = _toy_samples(6, cfg)
-    samples[2] = fine.make_sample(np.zeros((3, 2)), [1, 2, 3], np.ones((30, 2)), np.arange(30) % 5, cfg, (0, 0), 0.1)
+    samples[2] = learned.make_sample(np.zeros((3, 2)), [1, 2, 3], np.ones((30, 2)), np.arange(30) % 5, cfg, (0, 0), 0.1)
     torch.manual_seed(0)
-    model = fine.build_model(cfg).eval()
-    dense = fine.dense_maps(samples)
+    model = learned.build_model(cfg).eval()
+    dense = learned.dense_maps(samples)
     pick = [4, 2, 0]
     sel = dense[pick]
     assert sel.r_xy.shape[1] == 30 and sel.q_mask.sum() == 5 + 3 + 5  # trimmed to the longest selected map
     with torch.no_grad():
-        assert torch.allclose(model(sel), model(fine.Batch.from_data_list([samples[i] for i in pick])), atol=1e-5)
+        assert torch.allclose(model(sel), model(learned.Batch.from_data_list([samples[i] for i in pick])), atol=1e-5)
     gen_a, gen_b = torch.Generator().manual_seed(3), torch.Generator().manual_seed(3)
     cfg.map_type = "depth"
-    aug_d = fine.augment(dense, cfg, gen_a)
-    aug_g = fine.augment(fine.Batch.from_data_list(samples), cfg, gen_b)
+    aug_d = learned.augment(dense, cfg, gen_a)
+    aug_g = learned.augment(learned.Batch.from_data_list(samples), cfg, gen_b)
     assert torch.allclose(aug_d.y, aug_g.y)
     assert torch.allclose(aug_d.r_xy[dense.r_mask], aug_g.local[~aug_g.is_q], atol=1e-6)
     assert torch.allclose(aug_d.q_xy[dense.q_mask], aug_g.local[aug_g.is_q], atol=1e-6)
@@ -260,16 +265,16 @@ def test_dense_row_selection_equals_graph_batch(name):
 def test_loss_and_angle_wrap():
     a = torch.tensor([math.radians(179.0)])
     b = torch.tensor([math.radians(-179.0)])
-    assert fine.angle_distance(a, b).item() == pytest.approx(math.radians(2.0), abs=1e-6)
+    assert learned.angle_distance(a, b).item() == pytest.approx(math.radians(2.0), abs=1e-6)
     pred = torch.tensor([[0.3, 0.4, 0.1]])
-    assert fine.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]])).item() == pytest.approx(0.5, abs=1e-6)
+    assert learned.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]])).item() == pytest.approx(0.5, abs=1e-6)
 
 
 def test_augmentation_is_a_rigid_motion_of_region_and_target():
-    cfg = fine.FineConfig(model="MLP", map_type="gt", aug_depth_scale=0.0)
+    cfg = learned.FineConfig(model="MLP", map_type="gt", aug_depth_scale=0.0)
     samples = _toy_samples(3, cfg)
-    batch = fine.Batch.from_data_list(samples)
-    aug = fine.augment(batch, cfg, torch.Generator().manual_seed(0))
+    batch = learned.Batch.from_data_list(samples)
+    aug = learned.augment(batch, cfg, torch.Generator().manual_seed(0))
     q = batch.is_q
     assert torch.allclose(aug.local[q], batch.local[q])  # query stays in its camera frame
     for g in range(3):
@@ -281,30 +286,30 @@ def test_augmentation_is_a_rigid_motion_of_region_and_target():
 
 
 def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
-    cfg = fine.FineConfig(model="MLP", map_type="gt", hidden=32, epochs=8, batch_size=16, lr=3e-3, augment=False)
+    cfg = learned.FineConfig(model="MLP", map_type="gt", hidden=32, epochs=8, batch_size=16, lr=3e-3, augment=False)
     train = _toy_samples(64, cfg, seed=1)
     val = _toy_samples(16, cfg, seed=2)
-    res = fine.train(train, val, cfg)
+    res = learned.train(train, val, cfg)
     losses = [h["train_loss"] for h in res["history"]]
     assert losses[-1] < losses[0]
     assert res["best_val_median_m"] <= res["history"][0]["val_median_m"]
-    res2 = fine.train(train, val, cfg)
+    res2 = learned.train(train, val, cfg)
     assert [h["train_loss"] for h in res2["history"]] == losses  # seeded, deterministic on CPU
     path = tmp_path / "ck.pt"
-    fine.save_checkpoint(res, path)
-    model, cfg2 = fine.load_checkpoint(path)
+    learned.save_checkpoint(res, path)
+    model, cfg2 = learned.load_checkpoint(path)
     assert cfg2 == cfg
-    assert np.allclose(fine.predict(model, val), fine.predict(res["model"], val), atol=1e-6)
+    assert np.allclose(learned.predict(model, val), learned.predict(res["model"], val), atol=1e-6)
 
 
 def test_learned_model_on_real_scene_samples(scene):
     ref, q = scene
-    cfg = fine.FineConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
+    cfg = learned.FineConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
     tr = q[q["split"] == "train"]
-    samples, kept = fine.samples_from_queries(ref, tr, fe.gtbb_proposals(ref, tr), cfg)
+    samples, kept = learned.samples_from_queries(ref, tr, evaluation.gtbb_proposals(ref, tr), cfg)
     assert len(samples) == len(kept) == len(tr) > 3
-    model = fine.build_model(cfg)
-    e = fine.evaluate_model(model, cfg, ref, tr.iloc[:4], fe.gtbb_proposals(ref, tr.iloc[:4]))
+    model = learned.build_model(cfg)
+    e = learned.evaluate_model(model, cfg, ref, tr.iloc[:4], evaluation.gtbb_proposals(ref, tr.iloc[:4]))
     assert len(e) == 4 and np.isfinite(e["error_m"]).all()
 
 
@@ -312,20 +317,20 @@ def test_external_proposal_table_and_failure_rate(scene):
     """A coarse-style proposal table (scene, token, strategy, proposal): too-small proposals count in F%."""
     ref, q = scene
     q = q.iloc[:6]
-    good = fe.gtbb_proposals(ref, q)
+    good = evaluation.gtbb_proposals(ref, q)
     props = good.copy()
     props["strategy"] = "2N_LM"
     props.loc[0, "proposal"] = [int(ref["obj_idx"].iloc[0])]  # one object: cannot hold a solution
-    e = fe.evaluate_solver(ref, q, props, "gt")
+    e = evaluation.evaluate_solver(ref, q, props, "gt")
     assert not e.loc[0, "solvable"] and e.loc[1:, "solvable"].all()
-    assert fe.summarise(e)["failure_pct"] == pytest.approx(100 / 6)
+    assert evaluation.summarise(e)["failure_pct"] == pytest.approx(100 / 6)
     assert (e.loc[1:, "error_m"] < 0.1).all() and set(e["strategy"]) == {"2N_LM"}
 
 
 def test_simulated_coarse_proposals_look_like_2n_lm(scene):
     ref, q = scene
-    props = fe.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
-    again = fe.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
+    props = evaluation.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
+    again = evaluation.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
     assert props["proposal"].map(list).tolist() == again["proposal"].map(list).tolist()  # seeded
     cls = dict(zip(ref["obj_idx"].astype(int), ref["class_id"].astype(int)))
     recall = []
@@ -344,11 +349,11 @@ def test_crop_to_densest_keeps_the_densest_group(scene):
                         "class_id": np.zeros(7, int)})
     props = pd.DataFrame({"scene": ["9"] * 2, "token": ["a", "b"], "strategy": ["2N_LM"] * 2,
                           "proposal": [[0, 1, 2, 3, 4, 5], [4, 5, 6, 0]]})
-    out = fe.crop_to_densest(ref, props, 30.0)
+    out = evaluation.crop_to_densest(ref, props, 30.0)
     assert out["proposal"].tolist() == [[0, 1, 2, 3], [4, 5, 6]]
-    assert fe.crop_to_densest(ref, props, 0.0) is props  # 0: off
+    assert evaluation.crop_to_densest(ref, props, 0.0) is props  # 0: off
     ref9, q9 = scene
-    real = fe.crop_to_densest(ref9, fe.simulated_coarse_proposals(ref9, q9, np.random.default_rng(1)), 30.0)
+    real = evaluation.crop_to_densest(ref9, evaluation.simulated_coarse_proposals(ref9, q9, np.random.default_rng(1)), 30.0)
     xy = dict(zip(ref9["obj_idx"].astype(int), ref9[["x_m", "y_m"]].to_numpy()))
     for p in real["proposal"]:  # every kept object within 2 radii of every other
         pts = np.array([xy[o] for o in p])
@@ -357,12 +362,12 @@ def test_crop_to_densest_keeps_the_densest_group(scene):
 
 def test_training_proposals_regimes(scene):
     ref, q = scene
-    gt = fe.training_proposals(ref, q, "gtbb", np.random.default_rng(0))
+    gt = evaluation.training_proposals(ref, q, "gtbb", np.random.default_rng(0))
     assert len(gt) == 1 and gt[0]["strategy"].eq("GT-BB").all()
-    co = fe.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=3, keep_gtbb=True, crop_m=30.0)
+    co = evaluation.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=3, keep_gtbb=True, crop_m=30.0)
     assert len(co) == 4 and co[0]["strategy"].eq("GT-BB").all()
     assert all(p["strategy"].eq("simulated 2N_LM").all() and len(p) == len(q) for p in co[1:])
     assert co[1]["proposal"].map(list).tolist() != co[2]["proposal"].map(list).tolist()  # fresh draws
-    assert len(fe.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=2, keep_gtbb=False)) == 2
+    assert len(evaluation.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=2, keep_gtbb=False)) == 2
     with pytest.raises(ValueError, match="gtbb or coarse"):
-        fe.training_proposals(ref, q, "whole", np.random.default_rng(0))
+        evaluation.training_proposals(ref, q, "whole", np.random.default_rng(0))

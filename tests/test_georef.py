@@ -6,8 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import geo, georef
-from flatlandia import objects as O
+from flatlandia import geo
+from flatlandia.images import gps_alignment
+from flatlandia.objects import clustering
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
@@ -50,22 +51,22 @@ def walk():
 
 
 def test_up_axis_and_right_handed_basis(walk):
-    up = georef.camera_up(walk["R"])
+    up = gps_alignment.camera_up(walk["R"])
     true_up = walk["Q"] @ np.array([0, 0, 1.0])
     assert np.degrees(np.arccos(np.clip(up @ true_up, -1, 1))) < 2.0
-    P = georef.plane_basis(up)
+    P = gps_alignment.plane_basis(up)
     assert np.allclose(P @ P.T, np.eye(2)) and np.allclose(np.cross(P[0], P[1]), up)
 
 
 def test_alignment_of_a_straight_walk_with_noisy_gps_and_outliers(walk):
-    out = georef.fit_gps_alignment(walk["centres"], walk["R"], walk["lonlat"], altitude=walk["alt"],
+    out = gps_alignment.fit_gps_alignment(walk["centres"], walk["R"], walk["lonlat"], altitude=walk["alt"],
                                    compass_deg=walk["compass"], threshold_m=15.0, seed=0)
     # the two wild fixes are outliers, the rest inliers
     assert out["inliers"] >= 26 and not out["inlier_mask"][4] and not out["inlier_mask"][17]
     assert out["metres_per_sfm_unit"] == pytest.approx(1 / walk["s0"], rel=0.05)
     # mapped camera centres land on the true positions (GPS noise 5 m averages out)
-    mapped = georef.map_points(out, walk["centres"])
-    true_xy = georef.frame_of(out).to_xy(FRAME.to_lonlat(walk["world"][:, :2]))
+    mapped = gps_alignment.map_points(out, walk["centres"])
+    true_xy = gps_alignment.frame_of(out).to_xy(FRAME.to_lonlat(walk["world"][:, :2]))
     err = np.linalg.norm(mapped - true_xy, axis=1)
     assert np.median(err) < 3.0
     assert 2.0 < out["inlier_median_residual_m"] < 9.0  # the GPS noise itself
@@ -77,7 +78,7 @@ def test_alignment_needs_three_cameras_with_gps(walk):
     lonlat = walk["lonlat"].copy()
     lonlat[2:] = np.nan
     with pytest.raises(InputError, match="only 2 registered camera"):
-        georef.fit_gps_alignment(walk["centres"], walk["R"], lonlat, source="cams.parquet")
+        gps_alignment.fit_gps_alignment(walk["centres"], walk["R"], lonlat, source="cams.parquet")
 
 
 def _points(clusters, rng):
@@ -98,7 +99,7 @@ def test_scene_objects_cluster_label_and_place(walk):
     pts = _points([(5, 5, pole, 30), (12, -3, pole, 25), (-8, 4, sign, 20)], rng)
     alignment = {"A": [[1.0, 0, 0], [0, 1.0, 0]], "b": [0.0, 0.0], "metres_per_sfm_unit": 1.0,
                  "frame_lon0": FRAME.lon0, "frame_lat0": FRAME.lat0}
-    objs, member = georef.scene_objects("t", pts, alignment, O.ClusterParams(eps_m=1.0), CLASSES)
+    objs, member = gps_alignment.scene_objects("t", pts, alignment, clustering.ClusterParams(eps_m=1.0), CLASSES)
     assert len(objs) == 3
     got = sorted(zip(np.round(objs["x_m"]).astype(int), np.round(objs["y_m"]).astype(int), objs["class_id"]))
     assert got == sorted([(5, 5, pole), (12, -3, pole), (-8, 4, sign)])
@@ -113,13 +114,13 @@ def test_scene_without_object_points_is_an_empty_result():
     pts = _points([], rng)
     alignment = {"A": [[1.0, 0, 0], [0, 1.0, 0]], "b": [0.0, 0.0], "metres_per_sfm_unit": 1.0,
                  "frame_lon0": FRAME.lon0, "frame_lat0": FRAME.lat0}
-    objs, member = georef.scene_objects("t", pts, alignment, O.ClusterParams(), CLASSES)
+    objs, member = gps_alignment.scene_objects("t", pts, alignment, clustering.ClusterParams(), CLASSES)
     assert objs.empty and (member == -1).all() and {"x_m", "class_id", "box_cx"} <= set(objs.columns)
 
 
 def test_cameras_far_from_their_gps_are_flagged(walk):
-    far = georef.gps_outliers(walk["centres"], walk["R"], walk["lonlat"], max_residual_m=50.0)
+    far = gps_alignment.gps_outliers(walk["centres"], walk["R"], walk["lonlat"], max_residual_m=50.0)
     assert set(np.flatnonzero(far)) == {4, 17}  # the two wild fixes, 100+ m off; GPS noise of 5 m is not
     few = walk["lonlat"].copy()
     few[2:] = np.nan
-    assert not georef.gps_outliers(walk["centres"], walk["R"], few, max_residual_m=50.0).any()
+    assert not gps_alignment.gps_outliers(walk["centres"], walk["R"], few, max_residual_m=50.0).any()

@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import imagequeries as iq
+from flatlandia.images import image_queries
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
@@ -34,9 +34,9 @@ def street():
     views = []
     for name, (cx, cy, yaw) in {"a.jpg": (0, 0, 0.0), "b.jpg": (2, 1, 0.1)}.items():
         R, t = _look(np.array([cx, cy, 1.5]), yaw)
-        v = iq.View(name, K, R, t, 640, 480, np.array([], int), np.zeros((0, 2)))
+        v = image_queries.View(name, K, R, t, 640, 480, np.array([], int), np.zeros((0, 2)))
         ids = np.array(list(pts))
-        uv, z = iq.project(v, np.array([pts[i] for i in ids]))
+        uv, z = image_queries.project(v, np.array([pts[i] for i in ids]))
         ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < 640) & (uv[:, 1] >= 0) & (uv[:, 1] < 480)
         v.obs_point_ids, v.obs_xy = ids[ok], uv[ok]
         views.append(v)
@@ -47,7 +47,7 @@ def street():
 
 def test_pose_detections_and_local_maps(street):
     views, objects, point_object, pts, A, b, obj_xy = street
-    q = iq.scene_queries("s", views, objects, point_object, pts, A, b, obj_xy, {1: 24, 2: 25, 3: 19, 4: 22})
+    q = image_queries.scene_queries("s", views, objects, point_object, pts, A, b, obj_xy, {1: 24, 2: 25, 3: 19, 4: 22})
     assert list(q["token"]) == ["a.jpg", "b.jpg"]
     a = q.iloc[0]
     assert a["ref_idx"] == [1, 2, 3] and a["classes"] == [24, 25, 19]  # object 4 is behind: not detected
@@ -65,6 +65,6 @@ def test_pose_detections_and_local_maps(street):
 
 def test_too_few_objects_make_no_query(street):
     views, objects, point_object, pts, A, b, obj_xy = street
-    q = iq.scene_queries("s", views, objects, point_object, pts, A, b, obj_xy, {1: 1, 2: 2, 3: 3, 4: 4},
+    q = image_queries.scene_queries("s", views, objects, point_object, pts, A, b, obj_xy, {1: 1, 2: 2, 3: 3, 4: 4},
                          min_objects=4)
     assert q.empty and "gt_local_xy_m" in q.columns

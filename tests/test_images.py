@@ -8,14 +8,15 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from flatlandia import images, segment
+from flatlandia.images import image_audit
+from flatlandia.images import segment
 from flatlandia.errors import InputError
 
 LUND = Path(__file__).resolve().parents[2] / "shared" / "images" / "lund"
 
 
 def test_exif_metadata_of_a_real_mapillary_image():
-    rec = images.read_exif_metadata(LUND / "01.jpg")
+    rec = image_audit.read_exif_metadata(LUND / "01.jpg")
     assert (rec["width"], rec["height"]) == (1024, 768)
     assert rec["lat"] == pytest.approx(55.698167, abs=1e-5) and rec["lon"] == pytest.approx(13.195389, abs=1e-5)
     assert rec["alt"] == pytest.approx(37.0)
@@ -24,7 +25,7 @@ def test_exif_metadata_of_a_real_mapillary_image():
 
 
 def test_audit_table_of_lund_keeps_distinct_images():
-    df = images.audit_table(LUND, dedup_threshold=0.02)
+    df = image_audit.audit_table(LUND, dedup_threshold=0.02)
     assert len(df) == 29 and df["kept"].all()
     assert df["capture_time"].is_monotonic_increasing
 
@@ -37,33 +38,33 @@ def test_near_duplicate_missing_gps_and_broken_files(tmp_path):
     data = (LUND / "03.jpg").read_bytes()
     (tmp_path / "truncated.jpg").write_bytes(data[: len(data) // 3])
     (tmp_path / "garbage.jpg").write_bytes(b"not a jpeg at all")
-    df = images.audit_table(tmp_path, dedup_threshold=0.02).set_index("name")
+    df = image_audit.audit_table(tmp_path, dedup_threshold=0.02).set_index("name")
     assert df.loc["02b.jpg", "drop_reason"] == "near-duplicate of previous image"
     assert df.loc["nogps.jpg", "kept"] and not df.loc["nogps.jpg", "has_gps"]  # kept for SfM, not for GPS
     assert df.loc["truncated.jpg", "drop_reason"].startswith("unreadable image")
     assert df.loc["garbage.jpg", "drop_reason"].startswith("unreadable image")
     assert df.loc["01.jpg", "kept"] and df.loc["02.jpg", "kept"] and df.loc["01.jpg", "has_gps"]
-    dropped = images.audit_table(tmp_path, 0.02, missing_gps="drop").set_index("name")
+    dropped = image_audit.audit_table(tmp_path, 0.02, missing_gps="drop").set_index("name")
     assert dropped.loc["nogps.jpg", "drop_reason"] == "no GPS position"
     with pytest.raises(InputError, match=r"images without a GPS position: \['nogps.jpg'\]"):
-        images.audit_table(tmp_path, 0.02, missing_gps="stop")
+        image_audit.audit_table(tmp_path, 0.02, missing_gps="stop")
 
 
 def test_metadata_csv_overrides_and_is_checked(tmp_path):
     Image.new("RGB", (64, 48), (10, 200, 30)).save(tmp_path / "a.jpg")
     (tmp_path / "metadata.csv").write_text("name,lat,lon,heading\na.jpg,55.7,13.19,90\n")
-    df = images.read_folder_metadata(tmp_path)
+    df = image_audit.read_folder_metadata(tmp_path)
     assert df.loc[0, "lat"] == 55.7 and df.loc[0, "heading"] == 90
     (tmp_path / "metadata.csv").write_text("name,lat,lon\nzzz.jpg,1,2\n")
     with pytest.raises(InputError, match="metadata.csv: names not in the folder"):
-        images.read_folder_metadata(tmp_path)
+        image_audit.read_folder_metadata(tmp_path)
 
 
 def test_empty_or_missing_folder_is_a_clear_error(tmp_path):
     with pytest.raises(InputError, match="no images"):
-        images.list_images(tmp_path)
+        image_audit.list_images(tmp_path)
     with pytest.raises(InputError, match="does not exist"):
-        images.list_images(tmp_path / "nope")
+        image_audit.list_images(tmp_path / "nope")
 
 
 def test_offline_people_detector_finds_the_pedestrian_of_lund_01():

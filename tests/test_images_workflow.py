@@ -9,8 +9,11 @@ import pandas as pd
 import pycolmap
 import pytest
 
-from flatlandia import classify, georef, imagequeries, io
-from flatlandia import objects as O
+from flatlandia.images import classify_points
+from flatlandia.images import gps_alignment
+from flatlandia.images import image_queries
+from flatlandia import io
+from flatlandia.objects import clustering
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 from snakemake_runner import smk
@@ -57,7 +60,7 @@ def test_points_take_the_majority_class_of_their_observations(lund_run):
         m = np.full((cam.height, cam.width), 255, dtype=np.uint8)
         m[:, : cam.width // 2] = 24  # left half of every image: street light
         maps[img.name] = m
-    pts = classify.point_votes(model, maps).set_index("point3D_id")
+    pts = classify_points.point_votes(model, maps).set_index("point3D_id")
     checked = 0
     for pid, p in list(model.points3D.items())[:300]:
         xs = [model.images[e.image_id].points2D[e.point2D_idx].xy[0] - model.cameras[
@@ -75,16 +78,16 @@ def test_points_take_the_majority_class_of_their_observations(lund_run):
 
 @pytest.mark.slow
 def test_views_from_the_lund_model(lund_run):
-    from flatlandia import imagequeries
+    from flatlandia.images import image_queries
 
     model = pycolmap.Reconstruction(str(lund_run / "results/lund/sfm/model"))
-    views = imagequeries.views_from_colmap(model)
+    views = image_queries.views_from_colmap(model)
     assert len(views) == model.num_reg_images()
     for v in views[:5]:
         img = model.find_image_with_name(v.name)
         assert np.allclose(v.centre, img.projection_center(), atol=1e-6)
         assert np.allclose(v.viewing_direction, img.viewing_direction(), atol=1e-6)
-        uv, z = imagequeries.project(v, np.array([model.points3D[i].xyz for i in v.obs_point_ids[:20]]))
+        uv, z = image_queries.project(v, np.array([model.points3D[i].xyz for i in v.obs_point_ids[:20]]))
         assert (z > 0).all() and np.median(np.linalg.norm(uv - v.obs_xy[:20], axis=1)) < 5  # pixels
 
 
@@ -116,7 +119,7 @@ def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=12, min_sep_px
     image, chosen far apart in it) painted with object classes around every observation of
     their points in every image (``one_class``: all groups the same class). Returns the label
     maps, the number of groups and instance maps (group k painted k + 1, 0 elsewhere)."""
-    views = imagequeries.views_from_colmap(model)
+    views = image_queries.views_from_colmap(model)
     best = max(views, key=lambda v: len(v.obs_point_ids))
     all_ids = np.array(list(model.points3D.keys()))
     all_xyz = np.array([model.points3D[int(i)].xyz for i in all_ids])
@@ -158,20 +161,20 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
     model = pycolmap.Reconstruction(str(wd / "results/lund/sfm/model"))
     alignment = json.loads((wd / "results/lund/align/alignment.json").read_text())
     maps, _, _ = _painted_label_maps(model, radius_sfm=1.5 / alignment["metres_per_sfm_unit"])
-    pts = classify.point_votes(model, maps)
+    pts = classify_points.point_votes(model, maps)
     assert (pts["class_id"] != 255).sum() >= 20
-    objs, member = georef.scene_objects("lund", pts, alignment, O.ClusterParams(eps_m=1.0), CLASSES)
+    objs, member = gps_alignment.scene_objects("lund", pts, alignment, clustering.ClusterParams(eps_m=1.0), CLASSES)
     assert len(objs) >= 3 and set(objs["class_id"]) <= {CLASSES.index("object--support--pole"),
                                                        CLASSES.index("object--street-light"),
                                                        CLASSES.index("object--traffic-sign")}
-    cams = np.array([v.centre for v in imagequeries.views_from_colmap(model)])
-    cam_xy = georef.map_points(alignment, cams)
+    cams = np.array([v.centre for v in image_queries.views_from_colmap(model)])
+    cam_xy = gps_alignment.map_points(alignment, cams)
     d = np.linalg.norm(objs[["x_m", "y_m"]].to_numpy()[:, None] - cam_xy[None], axis=2).min(1)
     assert (d < 60).all()  # objects sit along the walk, in metres on the aligned map
-    objs["corners"] = [O.box_corners(r).tolist() for r in objs.itertuples(index=False)]
+    objs["corners"] = [clustering.box_corners(r).tolist() for r in objs.itertuples(index=False)]
     point_object = {int(p): int(o) for p, o in zip(pts["point3D_id"], member) if o >= 0}
     point_xyz = {int(pid): np.asarray(p.xyz) for pid, p in model.points3D.items()}
-    q = imagequeries.scene_queries("lund", imagequeries.views_from_colmap(model), objs, point_object, point_xyz,
+    q = image_queries.scene_queries("lund", image_queries.views_from_colmap(model), objs, point_object, point_xyz,
                                    np.asarray(alignment["A"]), np.asarray(alignment["b"]),
                                    dict(zip(objs["object_id"], objs[["x_m", "y_m"]].to_numpy())),
                                    dict(zip(objs["object_id"], objs["class_id"])))
@@ -200,12 +203,12 @@ def test_lund_instance_images_split_merged_objects(lund_run, tmp_path):
     for name, ids in inst_maps.items():
         Image.fromarray(ids).save(tmp_path / f"{name.rsplit('.', 1)[0]}.png")
     names = [img.name for img in model.images.values()]
-    obs = classify.point_instances(model, classify.load_instance_maps(tmp_path, names))
+    obs = classify_points.point_instances(model, classify_points.load_instance_maps(tmp_path, names))
     assert set(obs["instance"]) == set(range(1, n_groups + 1)) and obs["key"].nunique() >= n_groups
-    pts = classify.point_votes(model, maps)
-    wide = O.ClusterParams(eps_m=500.0, eps_m_by_class={})  # every pole point in one cluster
-    merged, _ = georef.scene_objects("lund", pts, alignment, wide, CLASSES)
-    split, member = georef.scene_objects("lund", pts, alignment, wide, CLASSES, instances=obs)
+    pts = classify_points.point_votes(model, maps)
+    wide = clustering.ClusterParams(eps_m=500.0, eps_m_by_class={})  # every pole point in one cluster
+    merged, _ = gps_alignment.scene_objects("lund", pts, alignment, wide, CLASSES)
+    split, member = gps_alignment.scene_objects("lund", pts, alignment, wide, CLASSES, instances=obs)
     assert n_groups == 5 and len(merged) == 1 and len(split) == n_groups
     # each object holds the points of one painted instance
     inst_of = obs.groupby("point3D_id")["instance"].agg(lambda v: set(v))
@@ -216,6 +219,6 @@ def test_lund_instance_images_split_merged_objects(lund_run, tmp_path):
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(InputError, match="no instance image"):
-        classify.load_instance_maps(empty, names)
+        classify_points.load_instance_maps(empty, names)
     with pytest.raises(InputError, match="not a folder"):
-        classify.load_instance_maps(tmp_path / "absent", names)
+        classify_points.load_instance_maps(tmp_path / "absent", names)

@@ -2,7 +2,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import geo, io, localmaps, maps
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.data import localmaps
+from flatlandia.data import map_files
 from flatlandia.classes import CLASSES
 
 
@@ -10,7 +13,7 @@ from flatlandia.classes import CLASSES
 def scene9(flat_root):
     lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
     frame = geo.frame_for(lonlat)
-    ref = maps.reference_table("9", lonlat, classes, CLASSES, frame)
+    ref = map_files.reference_table("9", lonlat, classes, CLASSES, frame)
     local = io.read_local_maps(flat_root / "local_maps.json", "9")
     rec = localmaps.recover_scene("9", lonlat, classes, local)
     split = localmaps.split_queries(list(rec["token"]), 0, salt="9")

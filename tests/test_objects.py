@@ -7,8 +7,9 @@ import pandas as pd
 import pytest
 
 from conftest import data_root
-from flatlandia import geo, io
-from flatlandia import objects as O
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.objects import clustering
 from flatlandia.errors import InputError
 
 ROOT = data_root()
@@ -26,9 +27,9 @@ def test_clusters_two_classes_known_answer():
     lone = np.array([[40.0, 40, 0]])
     bg = rng.uniform(-50, 50, size=(50, 3))
     pts = np.vstack([a, b, c, lone, bg])
-    labels = np.array(["sign"] * 35 + ["pole"] * 9 + [O.BACKGROUND] * 50, dtype=object)
-    df = O.cluster_objects(pts, labels, metres_per_unit=0.5)
-    assert list(df.columns) == O.OBJECT_COLUMNS
+    labels = np.array(["sign"] * 35 + ["pole"] * 9 + [clustering.BACKGROUND] * 50, dtype=object)
+    df = clustering.cluster_objects(pts, labels, metres_per_unit=0.5)
+    assert list(df.columns) == clustering.OBJECT_COLUMNS
     assert sorted(df["n_points"]) == [8, 15, 20]
     got = df.sort_values("n_points")[["cx", "cy", "cz"]].to_numpy()
     np.testing.assert_allclose(got, [c.mean(0), b.mean(0), a.mean(0)], atol=1e-12)
@@ -43,12 +44,12 @@ def test_split_merged_neighbours():
     bridge = np.column_stack([np.linspace(0.3, 3.7, 5), np.zeros(5), np.zeros(5)])
     pts = np.vstack([p1, p2, bridge])
     labels = np.array(["pole"] * len(pts), dtype=object)
-    merged = O.cluster_objects(pts, labels, 1.0, O.ClusterParams(eps_m=1.0, eps_m_by_class={}))
+    merged = clustering.cluster_objects(pts, labels, 1.0, clustering.ClusterParams(eps_m=1.0, eps_m_by_class={}))
     assert len(merged) == 1
-    split = O.cluster_objects(pts, labels, 1.0, O.ClusterParams(eps_m=1.0, eps_m_by_class={}, split_extent_m=3.0))
+    split = clustering.cluster_objects(pts, labels, 1.0, clustering.ClusterParams(eps_m=1.0, eps_m_by_class={}, split_extent_m=3.0))
     assert len(split) == 2
     # the default pole radius (0.4 m) already separates them: poles are clustered tighter
-    assert len(O.cluster_objects(pts, labels, 1.0)) == 2
+    assert len(clustering.cluster_objects(pts, labels, 1.0)) == 2
 
 
 def test_instance_parts_known_answer():
@@ -59,16 +60,16 @@ def test_instance_parts_known_answer():
     # (joins 5 to 3-4 across images); point 6 is seen on no instance, point 7 on a lone instance
     obs_point = np.array([0, 1, 2, 3, 4, 4, 5, 7])
     obs_key = np.array([(1 << 32) + 1] * 3 + [(1 << 32) + 2] * 2 + [(2 << 32) + 9] * 2 + [(2 << 32) + 4])
-    parts = O.instance_parts(members, pts, obs_point, obs_key, min_points=3)
+    parts = clustering.instance_parts(members, pts, obs_point, obs_key, min_points=3)
     assert sorted(map(sorted, map(list, parts))) == [[0, 1, 2, 6], [3, 4, 5, 7]]  # 6, 7 join their nearest part
     # one instance only, or none seen: the cluster stays whole
-    assert [list(p) for p in O.instance_parts(members, pts, obs_point[:3], obs_key[:3], 3)] == [list(members)]
-    assert [list(p) for p in O.instance_parts(members, pts, np.array([99]), np.array([5]), 3)] == [list(members)]
+    assert [list(p) for p in clustering.instance_parts(members, pts, obs_point[:3], obs_key[:3], 3)] == [list(members)]
+    assert [list(p) for p in clustering.instance_parts(members, pts, np.array([99]), np.array([5]), 3)] == [list(members)]
     # members given in any order, as global indices of a larger cloud
     shuffled = np.array([17, 12, 15, 10, 11, 13, 14, 16])
     big = np.zeros((18, 3))
     big[shuffled] = pts[np.arange(8)]
-    parts = O.instance_parts(shuffled, big, shuffled[obs_point], obs_key, min_points=3)
+    parts = clustering.instance_parts(shuffled, big, shuffled[obs_point], obs_key, min_points=3)
     assert sorted(map(sorted, map(list, parts))) == sorted(sorted(shuffled[g]) for g in ([0, 1, 2, 6], [3, 4, 5, 7]))
 
 
@@ -78,14 +79,14 @@ def test_cluster_objects_split_by_instances():
     a, b = _blob(rng, [0, 0, 0], 20, 0.05), _blob(rng, [1.0, 0, 0], 20, 0.05)
     pts = np.vstack([a, b])
     labels = np.array(["sign"] * 40, dtype=object)
-    assert len(O.cluster_objects(pts, labels, 1.0)) == 1
+    assert len(clustering.cluster_objects(pts, labels, 1.0)) == 1
     obs_point = np.arange(40)
     obs_key = np.where(obs_point < 20, 7, 8)
 
     def split(members):
-        return O.instance_parts(members, pts, obs_point, obs_key, 3)
+        return clustering.instance_parts(members, pts, obs_point, obs_key, 3)
 
-    df, member = O.cluster_objects(pts, labels, 1.0, split=split, with_members=True)
+    df, member = clustering.cluster_objects(pts, labels, 1.0, split=split, with_members=True)
     got = df.sort_values("cx")[["cx", "cy", "cz"]].to_numpy()
     np.testing.assert_allclose(got, [a.mean(0), b.mean(0)], atol=1e-12)
     # every point belongs to the part of its instance, whatever the boxes' overlap
@@ -94,15 +95,15 @@ def test_cluster_objects_split_by_instances():
 
 
 def test_per_class_radius():
-    p = O.ClusterParams()
+    p = clustering.ClusterParams()
     assert p.eps_for("pole") == pytest.approx(0.40) and p.eps_for("sign") == pytest.approx(1.24)
     assert p.eps_for("manhole") == p.eps_for("traffic_light") == pytest.approx(0.88)
     # two sign points 1.0 m apart join (radius 1.24 m); the same two as poles do not (0.4 m)
     pts = np.array([[0, 0, 0], [1.0, 0, 0], [0.5, 0.1, 0]])
-    assert len(O.cluster_objects(pts, np.array(["sign"] * 3, dtype=object), 1.0)) == 1
-    assert len(O.cluster_objects(pts, np.array(["pole"] * 3, dtype=object), 1.0)) == 0
+    assert len(clustering.cluster_objects(pts, np.array(["sign"] * 3, dtype=object), 1.0)) == 1
+    assert len(clustering.cluster_objects(pts, np.array(["pole"] * 3, dtype=object), 1.0)) == 0
     with pytest.raises(ValueError):
-        O.cluster_objects(pts, np.array(["sign"] * 3, dtype=object), 1.0, O.ClusterParams(eps_m_by_class={"pole": 0}))
+        clustering.cluster_objects(pts, np.array(["sign"] * 3, dtype=object), 1.0, clustering.ClusterParams(eps_m_by_class={"pole": 0}))
 
 
 def test_oriented_box_known_answer():
@@ -112,7 +113,7 @@ def test_oriented_box_known_answer():
     r3 = np.eye(3)
     r3[:2, :2] = rot
     pts = local @ r3.T + [10, 5, 1]
-    centre, extent, r = O.oriented_box(pts)
+    centre, extent, r = clustering.oriented_box(pts)
     assert np.linalg.det(r) == pytest.approx(1.0)
     np.testing.assert_allclose(extent, [8, 2, 0.5], atol=0.05)
     np.testing.assert_allclose(centre, [10, 5, 1], atol=0.05)
@@ -124,9 +125,9 @@ def test_boxes_ply_round_trip(tmp_path):
 
     rng = np.random.default_rng(3)
     pts = np.vstack([_blob(rng, [0, 0, 0], 10), _blob(rng, [30, 0, 0], 10)])
-    df = O.cluster_objects(pts, np.array(["light"] * 20, dtype=object), 0.5)
+    df = clustering.cluster_objects(pts, np.array(["light"] * 20, dtype=object), 0.5)
     out = tmp_path / "objects.ply"
-    O.write_boxes_ply(df, out)
+    clustering.write_boxes_ply(df, out)
     mesh = o3d.io.read_triangle_mesh(str(out))
     assert len(mesh.vertices) == 16 and len(mesh.triangles) == 24
     v = np.asarray(mesh.vertices)
@@ -141,49 +142,49 @@ def test_ascii_ply_with_class_id(tmp_path):
     p = tmp_path / "c.ply"
     p.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
                  "property uchar class_id\nend_header\n0 0 0 24\n1 1 1 255\n")
-    pts, labels = O.read_classified_cloud(p)
-    assert pts.shape == (2, 3) and list(labels) == ["light", O.BACKGROUND]
+    pts, labels = clustering.read_classified_cloud(p)
+    assert pts.shape == (2, 3) and list(labels) == ["light", clustering.BACKGROUND]
 
 
 def test_bad_input(tmp_path):
     with pytest.raises(InputError, match="no classified points"):
-        O.cluster_objects(np.zeros((5, 3)), np.array([O.BACKGROUND] * 5, dtype=object), 1.0, source="x.ply")
+        clustering.cluster_objects(np.zeros((5, 3)), np.array([clustering.BACKGROUND] * 5, dtype=object), 1.0, source="x.ply")
     with pytest.raises(InputError, match="NaN"):
-        O.cluster_objects(np.array([[np.nan, 0, 0], [0, 0, 0]]), np.array(["sign"] * 2, dtype=object), 1.0)
+        clustering.cluster_objects(np.array([[np.nan, 0, 0], [0, 0, 0]]), np.array(["sign"] * 2, dtype=object), 1.0)
     # a class with a single point: a documented empty result, not a crash
-    one = O.cluster_objects(np.zeros((1, 3)), np.array(["sign"], dtype=object), 1.0)
-    assert len(one) == 0 and list(one.columns) == O.OBJECT_COLUMNS
+    one = clustering.cluster_objects(np.zeros((1, 3)), np.array(["sign"], dtype=object), 1.0)
+    assert len(one) == 0 and list(one.columns) == clustering.OBJECT_COLUMNS
     bad = tmp_path / "bad.ply"
     bad.write_text("not a ply")
     with pytest.raises(InputError, match="not a PLY"):
-        O.read_classified_cloud(bad)
+        clustering.read_classified_cloud(bad)
     weird = tmp_path / "weird.ply"
     weird.write_text("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
                      "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n0 0 0 1 2 3\n")
     with pytest.raises(InputError, match="colour"):
-        O.read_classified_cloud(weird)
+        clustering.read_classified_cloud(weird)
     with pytest.raises(InputError, match="missing"):
-        O.read_classified_cloud(tmp_path / "absent.ply")
+        clustering.read_classified_cloud(tmp_path / "absent.ply")
 
 
 def test_class_prior_uses_other_scenes_only():
-    light = O.MACRO_BY_NAME["light"].classes[0]
-    store, adv = O.CLASSES.index("object--sign--store"), O.CLASSES.index("object--sign--advertisement")
-    prior = O.class_prior([np.array([store, store, adv]), np.array([adv])])
+    light = clustering.MACRO_BY_NAME["light"].classes[0]
+    store, adv = clustering.CLASSES.index("object--sign--store"), clustering.CLASSES.index("object--sign--advertisement")
+    prior = clustering.class_prior([np.array([store, store, adv]), np.array([adv])])
     assert prior["sign"] == adv  # 2 vs 2: a tie goes to the lower id (advertisement 15 < store 17)
-    prior = O.class_prior([np.array([store, store, adv])])
+    prior = clustering.class_prior([np.array([store, store, adv])])
     assert prior["sign"] == store and prior["light"] == light
 
 
 def test_audit_known_answer():
     ref = np.array([[0, 0], [10, 0], [20, 0.0]])
     ours = np.array([[0.01, 0], [10.3, 0], [23, 0], [50, 50.0]])
-    row = O.audit_scene("t", ours, np.array(["a", "a", "a", "a"], dtype=object), ref,
+    row = clustering.audit_scene("t", ours, np.array(["a", "a", "a", "a"], dtype=object), ref,
                         np.array(["a", "a", "a"], dtype=object))
     assert (row["within_0.05m"], row["within_0.5m"], row["within_2m"], row["matched"]) == (1, 2, 2, 2)
     assert row["extra"] == 2 and row["published"] == 3 and row["ours"] == 4
     # a different macro-class never matches
-    row = O.audit_scene("t", ours[:1], np.array(["b"], dtype=object), ref[:1], np.array(["a"], dtype=object))
+    row = clustering.audit_scene("t", ours[:1], np.array(["b"], dtype=object), ref[:1], np.array(["a"], dtype=object))
     assert row["matched"] == 0
 
 
@@ -193,17 +194,17 @@ def test_audit_known_answer():
 def test_macro_table_matches_measurement():
     """The MACRO_CLASSES table agrees with the colours measured on scene 12 and 13."""
     for scene in ("12", "13"):
-        pts, labels = O.read_classified_cloud(ROOT / f"maps/{scene}/class_segmented_point_cloud.ply")
+        pts, labels = clustering.read_classified_cloud(ROOT / f"maps/{scene}/class_segmented_point_cloud.ply")
         t = io.read_transformations(ROOT / f"maps/{scene}/transformations.json")
         ll, cl = io.read_reference_map(ROOT / f"individual_reference_maps/map_{scene}.json")
-        counts = O.colour_class_counts(geo.sfm_to_lonlat(pts, t), labels, ll, cl, geo.frame_for(ll))
-        agree = sum(r.count for r in counts.itertuples() if O.MACRO_OF_CLASS[r.class_id] == r.macro_class)
+        counts = clustering.colour_class_counts(geo.sfm_to_lonlat(pts, t), labels, ll, cl, geo.frame_for(ll))
+        agree = sum(r.count for r in counts.itertuples() if clustering.MACRO_OF_CLASS[r.class_id] == r.macro_class)
         assert agree / counts["count"].sum() >= 0.9
 
 
 @pytest.fixture(scope="module")
 def audit_rows():
-    rows = [O.audit_published_scene(ROOT, s)[0] for s in CLASS_CLOUD_SCENES]
+    rows = [clustering.audit_published_scene(ROOT, s)[0] for s in CLASS_CLOUD_SCENES]
     return pd.DataFrame(rows)
 
 

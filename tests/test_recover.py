@@ -1,7 +1,10 @@
 import numpy as np
 import pytest
 
-from flatlandia import geo, io, localmaps, recover
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.data import localmaps
+from flatlandia.data import registration
 from flatlandia.classes import CLASSES
 
 MPD = (73_000.0, 111_200.0)  # metres per degree (lon, lat) near 49 N
@@ -18,7 +21,7 @@ def _synthetic(seed=0, n_ref=60, n_local=5):
 
 def test_register_recovers_known_pose_and_matches():
     ref, pick, cam, theta, local = _synthetic()
-    rec = recover.register(local, recover.PairIndex(ref), MPD)
+    rec = registration.register(local, registration.PairIndex(ref), MPD)
     assert rec is not None
     assert rec.best.ref_idx == tuple(pick)
     assert np.allclose(rec.best.cam, cam, atol=1e-9)
@@ -29,7 +32,7 @@ def test_register_recovers_known_pose_and_matches():
 def test_register_returns_none_when_nothing_fits():
     ref, _, _, _, local = _synthetic()
     local = local * 1.3  # wrong scale: no rigid copy exists
-    assert recover.register(local, recover.PairIndex(ref), MPD) is None
+    assert registration.register(local, registration.PairIndex(ref), MPD) is None
 
 
 def test_symmetric_map_is_flagged_ambiguous_and_classes_resolve_it():
@@ -37,25 +40,25 @@ def test_symmetric_map_is_flagged_ambiguous_and_classes_resolve_it():
     ref = np.vstack([tri, tri + [1.0, 1.0]])  # two congruent triangles
     classes = np.array([1, 2, 3, 4, 5, 6])
     local = (tri - [-0.1, -0.1]) @ geo.rot2(0.3)
-    rec = recover.register(local, recover.PairIndex(ref), MPD)
+    rec = registration.register(local, registration.PairIndex(ref), MPD)
     assert len(rec.others) == 1 and rec.others[0].rms_m < 1e-6
-    assert recover.classify_ambiguity(rec, classes) == "unresolved"
+    assert registration.classify_ambiguity(rec, classes) == "unresolved"
     same = np.array([1, 2, 3, 1, 2, 3])
-    assert recover.classify_ambiguity(rec, same) == "same_classes"
+    assert registration.classify_ambiguity(rec, same) == "same_classes"
     # knowing the query's classes makes the registration unique
-    rec2 = recover.register(local, recover.PairIndex(ref), MPD, local_classes=np.array([4, 5, 6]),
+    rec2 = registration.register(local, registration.PairIndex(ref), MPD, local_classes=np.array([4, 5, 6]),
                             ref_classes=classes)
     assert rec2.best.ref_idx == (3, 4, 5) and not rec2.others
 
 
 def test_near_tie_resolved_by_exact_residual():
     tri = np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.2]])
-    nudge = 0.03 / (recover.UNIT_DEG * MPD[1])  # 3 cm in unit space
+    nudge = 0.03 / (registration.UNIT_DEG * MPD[1])  # 3 cm in unit space
     ref = np.vstack([tri, tri[2] + [0.0, nudge]])  # a second object 3 cm from the third
     local = tri @ geo.rot2(0.0)
-    rec = recover.register(local, recover.PairIndex(ref), MPD)
+    rec = registration.register(local, registration.PairIndex(ref), MPD)
     assert rec.best.ref_idx == (0, 1, 2)
-    assert recover.classify_ambiguity(rec, np.array([1, 2, 3, 4])) == "exact_fit"
+    assert registration.classify_ambiguity(rec, np.array([1, 2, 3, 4])) == "exact_fit"
 
 
 def test_all_published_queries_recovered_and_consistent(flat_root, all_local_maps):

@@ -8,9 +8,10 @@ import pandas as pd
 import pytest
 
 from conftest import data_root
-from flatlandia import geo, io
-from flatlandia import objects as O
-from flatlandia import reproduction_bounds as B
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.objects import clustering
+from flatlandia.objects import bounds
 from flatlandia.errors import InputError
 
 ROOT = data_root()
@@ -22,7 +23,7 @@ def _line(xs):
 
 def test_single_linkage_tree_known_answer():
     pts = _line([0, 1, 2, 10, 11])
-    tree = B.single_linkage_tree(pts, pts[:, :1], max_radius=9.0)
+    tree = bounds.single_linkage_tree(pts, pts[:, :1], max_radius=9.0)
     nodes = pd.DataFrame({"mean": tree.mean[:, 0], "size": tree.size, "born": tree.born, "dies": tree.dies})
     left = nodes[(nodes["size"] == 3)].iloc[0]
     assert left["mean"] == pytest.approx(1.0) and (left["born"], left["dies"]) == (1.0, 8.0)
@@ -32,19 +33,19 @@ def test_single_linkage_tree_known_answer():
     assert root["mean"] == pytest.approx(4.8) and root["born"] == 8.0 and np.isinf(root["dies"])
     assert (tree.born[:5] == 0).all() and len(tree.size) == 5 + 4
     # merges beyond max_radius are not made: two roots that never die
-    cut = B.single_linkage_tree(pts, pts[:, :1], max_radius=5.0)
+    cut = bounds.single_linkage_tree(pts, pts[:, :1], max_radius=5.0)
     assert len(cut.size) == 5 + 3 and np.isinf(cut.dies[cut.size == 3]).all()
 
 
 def test_exact_objects_known_answer():
     pts = _line([0, 1, 2, 10, 11])
-    tree = B.single_linkage_tree(pts, pts[:, :2], max_radius=9.0)
-    ex = B.exact_objects(tree, np.array([[1.0, 0], [5.0, 0], [10.5, 0]]), tol=1e-9, min_size=2)
+    tree = bounds.single_linkage_tree(pts, pts[:, :2], max_radius=9.0)
+    ex = bounds.exact_objects(tree, np.array([[1.0, 0], [5.0, 0], [10.5, 0]]), tol=1e-9, min_size=2)
     assert list(ex["exact"]) == [True, False, True]
     assert (ex.loc[0, "radius_lo"], ex.loc[0, "radius_hi"]) == (1.0, 8.0)
     assert ex.loc[1, "dist"] == pytest.approx(0.2) and np.isnan(ex.loc[1, "radius_lo"])  # nearest: the root 4.8
     # min_size excludes the 2-point node
-    assert list(B.exact_objects(tree, np.array([[10.5, 0]]), tol=1e-9, min_size=3)["exact"]) == [False]
+    assert list(bounds.exact_objects(tree, np.array([[10.5, 0]]), tol=1e-9, min_size=3)["exact"]) == [False]
 
 
 def test_best_radius_reproduction_known_answer():
@@ -53,21 +54,21 @@ def test_best_radius_reproduction_known_answer():
     def means(r):  # small radius: both objects and a spurious one; large: one merged cluster
         return np.array([[0.01, 0], [10.3, 0], [30, 0]]) if r < 1 else np.array([[5.0, 0]])
 
-    t = B.best_radius_reproduction(means, ref, np.array([0.5, 2.0]))
+    t = bounds.best_radius_reproduction(means, ref, np.array([0.5, 2.0]))
     assert list(t["clusters"]) == [3, 1]
     assert list(t["within_0.05m"]) == [1, 0] and list(t["within_0.5m"]) == [2, 0]
 
 
 def test_feature_auc_known_answer():
     f = pd.DataFrame({"sep": [1, 2, 3, 10, 11, 12], "flat": [1, 1, 1, 1, 1, 1]})
-    auc = B.feature_auc(f, np.array([0, 0, 0, 1, 1, 1], bool))
+    auc = bounds.feature_auc(f, np.array([0, 0, 0, 1, 1, 1], bool))
     assert auc == {"sep": 1.0, "flat": 0.5}
-    assert np.isnan(B.feature_auc(f, np.ones(6, bool))["sep"])
+    assert np.isnan(bounds.feature_auc(f, np.ones(6, bool))["sep"])
 
 
 def test_read_colmap_tracks_real_and_bad(tmp_path):
-    xyz, images = B.read_colmap_tracks(ROOT / "maps/12/SfM/points3D.bin")
-    pts, _ = O.read_classified_cloud(ROOT / "maps/12/class_segmented_point_cloud.ply")
+    xyz, images = bounds.read_colmap_tracks(ROOT / "maps/12/SfM/points3D.bin")
+    pts, _ = clustering.read_classified_cloud(ROOT / "maps/12/class_segmented_point_cloud.ply")
     assert len(xyz) == 9329 and len(images) == 9329
     from scipy.spatial import cKDTree
 
@@ -77,31 +78,31 @@ def test_read_colmap_tracks_real_and_bad(tmp_path):
     bad = tmp_path / "points3D.bin"
     bad.write_bytes(b"\x05\x00\x00\x00\x00\x00\x00\x00 short")
     with pytest.raises(InputError, match="points3D"):
-        B.read_colmap_tracks(bad)
+        bounds.read_colmap_tracks(bad)
     with pytest.raises(InputError, match="missing"):
-        B.read_colmap_tracks(tmp_path / "absent.bin")
+        bounds.read_colmap_tracks(tmp_path / "absent.bin")
 
 
 def _scene(scene):
     maps = ROOT / "maps" / scene
-    pts, labels = O.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
+    pts, labels = clustering.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
     t = io.read_transformations(maps / "transformations.json")
     ref_ll, ref_cl = io.read_reference_map(ROOT / "individual_reference_maps" / f"map_{scene}.json")
     frame = geo.frame_for(ref_ll)
-    return pts, labels, O.metres_per_unit(t), frame.to_xy(geo.sfm_to_lonlat(pts, t)), frame.to_xy(ref_ll), ref_cl
+    return pts, labels, clustering.metres_per_unit(t), frame.to_xy(geo.sfm_to_lonlat(pts, t)), frame.to_xy(ref_ll), ref_cl
 
 
 def test_dbscan_objects_are_tree_nodes_real():
     """Scene 12: every object of the workflow's clustering is a node of its colour's single-linkage
     tree, alive at the radius used (the tree enumerates what any radius can give)."""
     pts, labels, mpu, xy, _, _ = _scene("12")
-    p = O.ClusterParams()
-    for name in sorted(set(labels) - {O.BACKGROUND}):
+    p = clustering.ClusterParams()
+    for name in sorted(set(labels) - {clustering.BACKGROUND}):
         ci = np.flatnonzero(labels == name)
-        tree = B.single_linkage_tree(pts[ci], xy[ci], max_radius=2.5 / mpu)
+        tree = bounds.single_linkage_tree(pts[ci], xy[ci], max_radius=2.5 / mpu)
         eps = p.eps_for(name) / mpu
-        for c in O._clusters_of_class(pts[ci], mpu, p, p.eps_for(name)):
-            ex = B.exact_objects(tree, xy[ci[c]].mean(0)[None], tol=1e-9)
+        for c in clustering._clusters_of_class(pts[ci], mpu, p, p.eps_for(name)):
+            ex = bounds.exact_objects(tree, xy[ci[c]].mean(0)[None], tol=1e-9)
             assert ex.loc[0, "exact"] and ex.loc[0, "size"] == len(c)
             assert ex.loc[0, "radius_lo"] <= eps < ex.loc[0, "radius_hi"]
 
@@ -110,13 +111,13 @@ def test_published_colours_scene2_real():
     """Scene 2: 59 published objects are the exact mean of a cluster of one colour; 16 of them
     have a nearest coloured point of another colour (the audit used to match them wrongly)."""
     pts, labels, mpu, xy, ref_xy, ref_cl = _scene("2")
-    fg = labels != O.BACKGROUND
-    nearest = O.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg])
-    exact = B.published_colours(ref_xy, np.full(len(ref_xy), "?", dtype=object), pts[fg], labels[fg], xy[fg],
-                                max_radius=O.EXACT_SEARCH_RADIUS_M / mpu)
+    fg = labels != clustering.BACKGROUND
+    nearest = clustering.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg])
+    exact = bounds.published_colours(ref_xy, np.full(len(ref_xy), "?", dtype=object), pts[fg], labels[fg], xy[fg],
+                                max_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu)
     made = exact != "?"
     assert made.sum() == 59
     assert (exact[made] != nearest[made]).sum() == 16
-    both = O.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg],
-                                     exact_radius=O.EXACT_SEARCH_RADIUS_M / mpu)
+    both = clustering.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg],
+                                     exact_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu)
     assert (both[made] == exact[made]).all() and (both[~made] == nearest[~made]).all()

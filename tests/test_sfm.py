@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from flatlandia import sfm
+from flatlandia.images import sfm
 from flatlandia.errors import InputError
 from test_images import LUND
 

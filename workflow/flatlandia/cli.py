@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import provenance
+from flatlandia import provenance
 
 
 def audit(args) -> int:

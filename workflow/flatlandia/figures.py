@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .io import atomic_path
+from flatlandia.io import atomic_path
 
 
 def _plt():

@@ -19,7 +19,7 @@ from typing import Any, Iterator
 import numpy as np
 import pandas as pd
 
-from .errors import InputError
+from flatlandia.errors import InputError
 
 # --------------------------------------------------------------------------- atomic writes
 

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from . import __version__
-from .io import sha256, write_json
+from flatlandia import __version__
+from flatlandia.io import sha256, write_json
 
 PROVENANCE_DIR = Path("logs/provenance")
 

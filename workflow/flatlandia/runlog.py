@@ -50,9 +50,9 @@ def run(main, smk) -> None:
     An :class:`InputError` (or any error) is written to the rule's log and to stderr as
     ``ERROR: <file>: <problem>`` and the script exits 1, so Snakemake reports the rule failed.
     """
-    from .errors import InputError
+    from flatlandia.errors import InputError
 
-    from . import provenance
+    from flatlandia import provenance
 
     logger = setup(smk.log[0] if len(smk.log) else None)
     try:

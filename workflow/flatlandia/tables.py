@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .io import write_parquet, write_text
+from flatlandia.io import write_parquet, write_text
 
 
 @dataclass(frozen=True)

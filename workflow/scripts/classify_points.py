@@ -5,18 +5,20 @@ from pathlib import Path
 
 import pycolmap
 
-from flatlandia import classify, io, runlog
+from flatlandia.images import classify_points
+from flatlandia import io
+from flatlandia import runlog
 
 
 def main(smk, log):
     rec = pycolmap.Reconstruction(smk.input.model)
     names = [img.name for img in rec.images.values()]
-    maps = classify.load_class_maps(Path(smk.input.classes), names)
-    pts = classify.point_votes(rec, maps)
-    inst = classify.point_instances(rec, classify.load_instance_maps(smk.params.instances_dir, names))
+    maps = classify_points.load_class_maps(Path(smk.input.classes), names)
+    pts = classify_points.point_votes(rec, maps)
+    inst = classify_points.point_instances(rec, classify_points.load_instance_maps(smk.params.instances_dir, names))
     io.write_parquet(pts, smk.output.points)
     io.write_parquet(inst, smk.output.instances, {"instances_dir": str(smk.params.instances_dir)})
-    classify.write_classified_ply(pts, Path(smk.output.ply))
+    classify_points.write_classified_ply(pts, Path(smk.output.ply))
     n_obj = int((pts["class_id"] != 255).sum())
     log.info("%d observations on %d instances (segment.instances_dir %s)", len(inst), inst["key"].nunique(),
              smk.params.instances_dir)

@@ -10,7 +10,10 @@ also a flat markdown ``coarse_localization_rows.md`` and LaTeX) and markdown lai
 import pandas as pd
 import torch
 
-from flatlandia import coarse, io, runlog, tables
+from flatlandia.coarse import retrieval
+from flatlandia import io
+from flatlandia import runlog
+from flatlandia import tables
 
 
 def main(smk, log):
@@ -18,7 +21,7 @@ def main(smk, log):
     losses = list(smk.params.losses)
     models = {}
     for loss, path in zip(losses, smk.input.models):
-        models[coarse.LOSSES[loss]] = coarse.load_checkpoint(path)
+        models[retrieval.LOSSES[loss]] = retrieval.load_checkpoint(path)
     cfgs = [c for _, c in models.values()]
     graph_keys = ("scale_m", "depth_unit_m", "knn")
     if any(tuple(getattr(c, k) for k in graph_keys) != tuple(getattr(cfgs[0], k) for k in graph_keys) for c in cfgs):
@@ -26,15 +29,15 @@ def main(smk, log):
                          f"{[tuple(getattr(c, k) for k in graph_keys) for c in cfgs]}")
     scenes = [(pd.read_parquet(r), pd.read_parquet(q), pd.read_parquet(s))
               for r, q, s in zip(smk.input.reference_maps, smk.input.queries, smk.input.similarity)]
-    ds = coarse.build_dataset(scenes, cfgs[0], splits=("test",))
+    ds = retrieval.build_dataset(scenes, cfgs[0], splits=("test",))
     log.info("%d test queries over %d scenes; models %s", len(ds.samples), len(scenes), list(models))
-    per_query = coarse.evaluate(models, ds, "test", baselines=True, seed=int(smk.params.seed))
+    per_query = retrieval.evaluate(models, ds, "test", baselines=True, seed=int(smk.params.seed))
     for loss, path in zip(losses, smk.output.proposals):
-        rows = per_query[per_query["loss"] == coarse.LOSSES[loss]].reset_index(drop=True)
-        io.write_parquet(rows, path, {"loss": coarse.LOSSES[loss], "config": models[coarse.LOSSES[loss]][1].to_dict(),
+        rows = per_query[per_query["loss"] == retrieval.LOSSES[loss]].reset_index(drop=True)
+        io.write_parquet(rows, path, {"loss": retrieval.LOSSES[loss], "config": models[retrieval.LOSSES[loss]][1].to_dict(),
                                       "split": "test"})
-    table = coarse.summarise(per_query)
-    timing = coarse.time_one_query(next(iter(models.values()))[0], ds, ds.samples[0]) if ds.samples else {}
+    table = retrieval.summarise(per_query)
+    timing = retrieval.time_one_query(next(iter(models.values()))[0], ds, ds.samples[0]) if ds.samples else {}
     trained = ", ".join(f"{k}: {c.epochs} epochs" for k, (_, c) in models.items())
     c0 = cfgs[0]
     note = (f"Ours: test split of every scene; one model per loss trained on GT and depth maps ({trained}; batch "
@@ -47,7 +50,7 @@ def main(smk, log):
     # schema-checked Parquet + flat markdown + LaTeX, then the Table-3 layout (ours beside the paper's)
     tables.write_table(table, "coarse_localization", smk.output.table, smk.output.rows_markdown, smk.output.latex,
                        title="Coarse map localization (Table 3): precision / recall / success, test split", note=note)
-    io.write_text(coarse.render_markdown(table, note=note), smk.output.markdown)
+    io.write_text(retrieval.render_markdown(table, note=note), smk.output.markdown)
     log.info("\n%s", table.to_string())
 
 

@@ -4,7 +4,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog, stats, tables
+from flatlandia import io
+from flatlandia import runlog
+from flatlandia.data import stats
+from flatlandia import tables
 
 
 def main(smk, log):

@@ -2,7 +2,8 @@
 
 import pandas as pd
 
-from flatlandia import fetch, runlog
+from flatlandia.data import fetch
+from flatlandia import runlog
 
 
 def main(smk, log):

@@ -1,6 +1,7 @@
 """Rule fetch_images: an images scene's folder from its public source, when no local copy exists."""
 
-from flatlandia import fetch, runlog
+from flatlandia.data import fetch
+from flatlandia import runlog
 
 
 def main(smk, log):

@@ -3,7 +3,8 @@
 import numpy as np
 import pandas as pd
 
-from flatlandia import figures, runlog
+from flatlandia import figures
+from flatlandia import runlog
 
 
 def main(smk, log):

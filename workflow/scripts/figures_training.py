@@ -2,7 +2,8 @@
 
 import pandas as pd
 
-from flatlandia import figures, runlog
+from flatlandia import figures
+from flatlandia import runlog
 
 
 def main(smk, log):

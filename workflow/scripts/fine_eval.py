@@ -4,7 +4,7 @@ Methods: ``geo`` (the geometric solver, priors from the training split) or a tra
 checkpoint. Proposals: ``gtbb`` (oracle), ``whole`` (whole reference map), or a coarse proposal
 table (columns scene, token, strategy, proposal) filtered on the configured strategy; a learned
 model trained on simulated coarse proposals gets the real ones cut to their densest objects
-(fine.coarse_training.crop_m), as in its training.
+(learned.coarse_training.crop_m), as in its training.
 """
 
 import os
@@ -13,16 +13,20 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import fine, io, localmaps, runlog, solver
-from flatlandia import fine_eval as fe
+from flatlandia.fine import learned
+from flatlandia import io
+from flatlandia.data import localmaps
+from flatlandia import runlog
+from flatlandia.fine import solver
+from flatlandia.fine import evaluation
 
 
 def proposals_for(smk, ref, queries, coarse):
     kind = smk.params.p['proposal']
     if kind == "gtbb":
-        return fe.gtbb_proposals(ref, queries)
+        return evaluation.gtbb_proposals(ref, queries)
     if kind == "whole":
-        return fe.whole_map_proposals(ref, queries)
+        return evaluation.whole_map_proposals(ref, queries)
     scene = str(ref["scene"].iloc[0])
     p = coarse[(coarse["scene"].astype(str) == scene) & (coarse["strategy"] == smk.params.p['strategy'])]
     return p[p["token"].astype(str).isin(queries["token"].astype(str))]
@@ -46,37 +50,37 @@ def main(smk, log):
         log.info("depth scale prior (log metres per unit): %s", scale_prior)
     model = cfg = None
     if method != "geo":
-        model, cfg = fine.load_checkpoint(smk.input.checkpoint)
+        model, cfg = learned.load_checkpoint(smk.input.checkpoint)
     parts, map_kb = [], []
     for ref_path, q_path in zip(smk.input.reference_maps, smk.input.queries):
         ref, q = pd.read_parquet(ref_path), qs[q_path]
-        map_kb.append(fe.ref_map_kb(ref))
+        map_kb.append(evaluation.ref_map_kb(ref))
         test = q[q["split"] == "test"]
         props = proposals_for(smk, ref, test, coarse)
         if method == "geo":
-            prior, seen = fe.training_priors(q, geo_cfg)
-            parts.append(fe.evaluate_solver(ref, test, props, mt, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
+            prior, seen = evaluation.training_priors(q, geo_cfg)
+            parts.append(evaluation.evaluate_solver(ref, test, props, mt, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
                                             prior_seen=seen,
                                             method="geometric solver",
                                             progress=runlog.progress(log, f"scene {ref['scene'].iloc[0]}")))
         else:  # learned models on coarse proposals see them cut like their training proposals
-            parts.append(fine.evaluate_model(model, cfg, ref, test,
-                                             fe.crop_to_densest(ref, props, float(smk.params.p["crop_m"]))))
+            parts.append(learned.evaluate_model(model, cfg, ref, test,
+                                             evaluation.crop_to_densest(ref, props, float(smk.params.p["crop_m"]))))
     errors = pd.concat(parts, ignore_index=True)
     errors["strategy"] = smk.params.p['strategy_label']
     meta = {"run": run_name(smk), "method": method, "map_type": mt, "proposal": smk.params.p['proposal'],
             "geo": geo_cfg if method == "geo" else None, "model_config": cfg.to_dict() if cfg else None}
     io.write_parquet(errors, smk.output.errors, meta)
-    summary = fe.summarise(errors)
+    summary = evaluation.summarise(errors)
     summary.update(method=str(errors["method"].iloc[0]), method_slug=method, map_type=mt,
                    proposal=smk.params.p['proposal'], strategy=smk.params.p['strategy_label'], run=run_name(smk),
                    ref_map_kb=float(np.mean(map_kb)) if map_kb else float("nan"), train_s=0.0, epochs=0,
-                   trained_on=fe.training_label(smk.params.p["train_regime"], smk.params.p["crop_m"]))
+                   trained_on=evaluation.training_label(smk.params.p["train_regime"], smk.params.p["crop_m"]))
     if model is not None:
-        info = fine.checkpoint_info(smk.input.checkpoint)
-        summary.update(n_parameters=fine.n_parameters(model), model_mb=os.path.getsize(smk.input.checkpoint) / 1e6,
+        info = learned.checkpoint_info(smk.input.checkpoint)
+        summary.update(n_parameters=learned.n_parameters(model), model_mb=os.path.getsize(smk.input.checkpoint) / 1e6,
                        train_s=float(info.get("seconds") or 0.0), epochs=int(cfg.epochs))
-    io.write_json(fe.json_safe(summary), smk.output.summary)
+    io.write_json(evaluation.json_safe(summary), smk.output.summary)
     log.info("%s: %s", run_name(smk), summary)
 
 

@@ -4,18 +4,21 @@ import numpy as np
 import pandas as pd
 import pycolmap
 
-from flatlandia import georef, imagequeries, io, runlog
+from flatlandia.images import gps_alignment
+from flatlandia.images import image_queries
+from flatlandia import io
+from flatlandia import runlog
 
 
 def main(smk, log):
     rec = pycolmap.Reconstruction(smk.input.model)
-    views = {v.name: v for v in imagequeries.views_from_colmap(rec)}
+    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
     cams = pd.read_parquet(smk.input.cameras)
     cams = cams[cams["name"].isin(views)].sort_values("name").reset_index(drop=True)
     has_gps = cams["lat"].notna() & cams["lon"].notna()
     cams = cams[has_gps].reset_index(drop=True)
     p = dict(smk.params.align)
-    out = georef.fit_gps_alignment(
+    out = gps_alignment.fit_gps_alignment(
         np.array([views[n].centre for n in cams["name"]]).reshape(-1, 3),
         np.array([views[n].R for n in cams["name"]]).reshape(-1, 3, 3),
         cams[["lon", "lat"]].to_numpy(float), altitude=cams["alt"].to_numpy(float),

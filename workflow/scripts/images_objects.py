@@ -5,8 +5,10 @@ import json
 import numpy as np
 import pandas as pd
 
-from flatlandia import georef, io, runlog
-from flatlandia import objects as O
+from flatlandia.images import gps_alignment
+from flatlandia import io
+from flatlandia import runlog
+from flatlandia.objects import clustering
 from flatlandia.classes import CLASSES
 
 
@@ -14,9 +16,9 @@ def main(smk, log):
     scene = smk.wildcards.scene
     points = pd.read_parquet(smk.input.points)
     alignment = json.loads(open(smk.input.alignment).read())
-    params = O.ClusterParams(**dict(smk.params.cluster))
+    params = clustering.ClusterParams(**dict(smk.params.cluster))
     instances = pd.read_parquet(smk.input.instances)
-    objs, member = georef.scene_objects(scene, points, alignment, params, CLASSES, source=str(smk.input.points),
+    objs, member = gps_alignment.scene_objects(scene, points, alignment, params, CLASSES, source=str(smk.input.points),
                                         instances=instances)
     meta = {"scene": scene, "crs": alignment["crs"], "lon0": alignment["frame_lon0"], "lat0": alignment["frame_lat0"],
             "metres_per_sfm_unit": alignment["metres_per_sfm_unit"], "cluster_params": dict(smk.params.cluster),
@@ -30,7 +32,7 @@ def main(smk, log):
     io.write_parquet(objs, smk.output.parquet, meta)
     io.write_parquet(pd.DataFrame({"point3D_id": points["point3D_id"].to_numpy(np.int64), "object_id": member}),
                      smk.output.members, {"scene": scene})
-    O.write_boxes_ply(objs, smk.output.ply)
+    clustering.write_boxes_ply(objs, smk.output.ply)
     log.info("scene %s: %d object points, %d objects %s", scene, int((member >= 0).sum()), len(objs),
              objs["class_label"].value_counts().to_dict() if len(objs) else {})
 

@@ -6,13 +6,19 @@ import numpy as np
 import pandas as pd
 import pycolmap
 
-from flatlandia import depth, geo, imagequeries, io, localmaps, objects as O, runlog
+from flatlandia.images import depth
+from flatlandia import geo
+from flatlandia.images import image_queries
+from flatlandia import io
+from flatlandia.data import localmaps
+from flatlandia.objects import clustering
+from flatlandia import runlog
 
 
 def main(smk, log):
     scene = smk.wildcards.scene
     rec = pycolmap.Reconstruction(smk.input.model)
-    views = imagequeries.views_from_colmap(rec)
+    views = image_queries.views_from_colmap(rec)
     alignment = json.loads(open(smk.input.alignment).read())
     ref = pd.read_parquet(smk.input.reference_map)
     objs = pd.read_parquet(smk.input.objects)
@@ -21,7 +27,7 @@ def main(smk, log):
     members = members[members["object_id"].isin(objs["object_id"])]
     point_object = dict(zip(members["point3D_id"].astype(int), members["object_id"].astype(int)))
     point_xyz = {int(pid): np.asarray(p.xyz, float) for pid, p in rec.points3D.items()}
-    objs["corners"] = [O.box_corners(r).tolist() for r in objs.itertuples(index=False)]
+    objs["corners"] = [clustering.box_corners(r).tolist() for r in objs.itertuples(index=False)]
     # queries index the reference map by its row (obj_idx), as the published scenes do
     idx_of = dict(zip(ref["object_id"].astype(int), ref["obj_idx"].astype(int)))
     objs["object_id"] = objs["object_id"].map(idx_of)
@@ -32,7 +38,7 @@ def main(smk, log):
     dcfg = dict(smk.params.depth)
     lift = depth.make_lifter(dcfg["backend"], point_xyz, images_dir=smk.params.images_dir,
                              weights=dcfg.get("weights"), inverse=bool(dcfg.get("inverse", True)))
-    q = imagequeries.scene_queries(scene, views, objs, point_object, point_xyz, A, b, obj_xy, obj_class,
+    q = image_queries.scene_queries(scene, views, objs, point_object, point_xyz, A, b, obj_xy, obj_class,
                                    min_objects=int(smk.params.min_objects), min_points=int(smk.params.min_points),
                                    lift=lift)
     frame = geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])

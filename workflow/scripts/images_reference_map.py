@@ -3,7 +3,10 @@
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo, io, maps, runlog
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.data import map_files
+from flatlandia import runlog
 from flatlandia.classes import CLASSES
 
 
@@ -14,11 +17,11 @@ def main(smk, log):
     frame = geo.MetricFrame(lon0=meta_in["lon0"], lat0=meta_in["lat0"])
     objs = objs[objs["class_id"].astype(int) < len(CLASSES)].reset_index(drop=True)
     lonlat = objs[["lon", "lat"]].to_numpy(float).reshape(-1, 2)
-    ref = maps.reference_table(scene, lonlat, objs["class_id"].to_numpy(np.int64), CLASSES, frame)
+    ref = map_files.reference_table(scene, lonlat, objs["class_id"].to_numpy(np.int64), CLASSES, frame)
     ref["object_id"] = objs["object_id"].to_numpy(np.int64)
-    meta = {**maps.frame_metadata(scene, frame), "source": "images: objects from the classified SfM model"}
-    maps.write_geoparquet(ref, meta, smk.output.parquet)
-    maps.write_geojson(ref, meta, smk.output.geojson)
+    meta = {**map_files.frame_metadata(scene, frame), "source": "images: objects from the classified SfM model"}
+    map_files.write_geoparquet(ref, meta, smk.output.parquet)
+    map_files.write_geojson(ref, meta, smk.output.geojson)
     log.info("scene %s: %d objects on the reference map", scene, len(ref))
 
 

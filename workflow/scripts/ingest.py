@@ -1,6 +1,8 @@
 """Rule ingest: check a scene's published files and report what is available."""
 
-from flatlandia import ingest, io, runlog
+from flatlandia.data import ingest
+from flatlandia import io
+from flatlandia import runlog
 
 
 def main(smk, log):

@@ -1,6 +1,8 @@
 """Rule manifest: every artifact with its producing rule, input hashes, config hash and commit."""
 
-from flatlandia import io, provenance, runlog
+from flatlandia import io
+from flatlandia import provenance
+from flatlandia import runlog
 
 
 def main(smk, log):

@@ -1,25 +1,26 @@
 """Rule objects: classified point cloud -> objects (clusters per macro-class, boxes) + object map."""
 
-from pathlib import Path
 
-from flatlandia import geo, io, runlog
-from flatlandia import objects as O
+from flatlandia import geo
+from flatlandia import io
+from flatlandia import runlog
+from flatlandia.objects import clustering
 from flatlandia.classes import CLASSES
 
 
 def main(smk, log):
     scene = smk.wildcards.scene
-    pts, labels = O.read_classified_cloud(smk.input.cloud)
+    pts, labels = clustering.read_classified_cloud(smk.input.cloud)
     t = io.read_transformations(smk.input.transformations)
-    params = O.ClusterParams(**dict(smk.params.cluster))
-    mpu = O.metres_per_unit(t)
-    objs = O.cluster_objects(pts, labels, mpu, params, source=str(smk.input.cloud))
+    params = clustering.ClusterParams(**dict(smk.params.cluster))
+    mpu = clustering.metres_per_unit(t)
+    objs = clustering.cluster_objects(pts, labels, mpu, params, source=str(smk.input.cloud))
     # label transfer from the other scenes' class labels only (no positions, not this scene)
     others = [io.read_reference_map(p, n_classes=len(CLASSES))[1] for p in smk.input.other_maps]
-    prior = O.class_prior(others)
+    prior = clustering.class_prior(others)
     # the scene's metric frame (origin only) is the one every other stage uses
     frame = geo.frame_for(io.read_reference_map(smk.input.reference_map)[0])
-    ref = O.objects_reference_map(objs, t, frame, prior)
+    ref = clustering.objects_reference_map(objs, t, frame, prior)
     table = objs.merge(ref.drop(columns=["macro_class", "n_points"]), on="object_id")
     table.insert(0, "scene", scene)
     meta = {"scene": scene, "crs": frame.proj4, "lon0": frame.lon0, "lat0": frame.lat0,
@@ -28,9 +29,9 @@ def main(smk, log):
             "label_transfer": "per macro-class the most frequent 42-class among the other scenes' published maps",
             "class_prior": prior}
     io.write_parquet(table, smk.output.parquet, meta)
-    O.write_boxes_ply(objs, smk.output.ply)
+    clustering.write_boxes_ply(objs, smk.output.ply)
     log.info("scene %s: %d classified of %d points, %d objects (%s), %.4f m per SfM unit", scene,
-             int((labels != O.BACKGROUND).sum()), len(pts), len(objs),
+             int((labels != clustering.BACKGROUND).sum()), len(pts), len(objs),
              objs["macro_class"].value_counts().to_dict(), mpu)
 
 

@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 import pycolmap
 
-from flatlandia import runlog, sfm
+from flatlandia import runlog
+from flatlandia.images import sfm
 
 
 def main(smk, log):

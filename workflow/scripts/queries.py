@@ -4,7 +4,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import geo, io, localmaps, runlog
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.data import localmaps
+from flatlandia import runlog
 
 
 def main(smk, log):

@@ -3,7 +3,9 @@
 import time
 from pathlib import Path
 
-from flatlandia import io, localmaps, runlog
+from flatlandia import io
+from flatlandia.data import localmaps
+from flatlandia import runlog
 from flatlandia.classes import CLASSES
 
 

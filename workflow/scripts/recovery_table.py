@@ -2,7 +2,9 @@
 
 import pandas as pd
 
-from flatlandia import io, runlog, tables
+from flatlandia import io
+from flatlandia import runlog
+from flatlandia import tables
 
 
 def main(smk, log):

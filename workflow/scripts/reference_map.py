@@ -2,7 +2,10 @@
 
 from pathlib import Path
 
-from flatlandia import geo, io, maps, runlog
+from flatlandia import geo
+from flatlandia import io
+from flatlandia.data import map_files
+from flatlandia import runlog
 from flatlandia.classes import CLASSES
 
 
@@ -11,10 +14,10 @@ def main(smk, log):
     lonlat, classes = io.read_reference_map(Path(smk.params.root) / f"individual_reference_maps/map_{scene}.json",
                                             n_classes=len(CLASSES))
     frame = geo.frame_for(lonlat)
-    ref = maps.reference_table(scene, lonlat, classes, CLASSES, frame)
-    meta = maps.frame_metadata(scene, frame)
-    maps.write_geoparquet(ref, meta, smk.output.parquet)
-    maps.write_geojson(ref, meta, smk.output.geojson)
+    ref = map_files.reference_table(scene, lonlat, classes, CLASSES, frame)
+    meta = map_files.frame_metadata(scene, frame)
+    map_files.write_geoparquet(ref, meta, smk.output.parquet)
+    map_files.write_geojson(ref, meta, smk.output.geojson)
     log.info("scene %s: %d objects, %d classes, frame %s", scene, len(ref), ref["class_id"].nunique(), frame.proj4)
 
 

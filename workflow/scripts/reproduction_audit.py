@@ -2,8 +2,11 @@
 
 import pandas as pd
 
-from flatlandia import geo, io, runlog, tables
-from flatlandia import objects as O
+from flatlandia import geo
+from flatlandia import io
+from flatlandia import runlog
+from flatlandia import tables
+from flatlandia.objects import clustering
 
 
 def main(smk, log):
@@ -13,15 +16,15 @@ def main(smk, log):
         ours = pd.read_parquet(obj_path)
         ref_ll, ref_cl = io.read_reference_map(ref_path)
         frame = geo.frame_for(ref_ll)
-        pts, labels = O.read_classified_cloud(cloud)
+        pts, labels = clustering.read_classified_cloud(cloud)
         t = io.read_transformations(tr)
-        fg = labels != O.BACKGROUND
+        fg = labels != clustering.BACKGROUND
         ref_xy = frame.to_xy(ref_ll)
-        ref_macro = O.published_macro_classes(ref_xy, ref_cl, frame.to_xy(geo.sfm_to_lonlat(pts[fg], t)), labels[fg],
+        ref_macro = clustering.published_macro_classes(ref_xy, ref_cl, frame.to_xy(geo.sfm_to_lonlat(pts[fg], t)), labels[fg],
                                               cloud_points=pts[fg],
-                                              exact_radius=O.EXACT_SEARCH_RADIUS_M / O.metres_per_unit(t))
+                                              exact_radius=clustering.EXACT_SEARCH_RADIUS_M / clustering.metres_per_unit(t))
         ours_xy = ours[["x_m", "y_m"]].to_numpy()
-        row = O.audit_scene(str(scene), ours_xy, ours["macro_class"].to_numpy(), ref_xy, ref_macro,
+        row = clustering.audit_scene(str(scene), ours_xy, ours["macro_class"].to_numpy(), ref_xy, ref_macro,
                             radius_m=float(smk.params.radius_m))
         rows.append(row)
         panels.append((f"scene {scene}: {row['within_0.5m']}/{row['published']} within 0.5 m", ours_xy, ref_xy))
@@ -39,7 +42,7 @@ def main(smk, log):
             f"published.")
     tables.write_table(df, "reference_map_reproduction", smk.output.parquet, smk.output.markdown, smk.output.latex,
                        title="Reference-map reproduction from the class point clouds", note=note)
-    O.plot_audit_grid(panels, smk.output.png)
+    clustering.plot_audit_grid(panels, smk.output.png)
     log.info("total: %s (%.1f%% within 0.5 m, %.1f%% extra)", total, 100 * total["frac_within_0.5m"],
              100 * total["extra"] / max(1, total["published"]))
 

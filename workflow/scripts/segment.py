@@ -3,11 +3,12 @@
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 from PIL import Image
 
-from flatlandia import io, runlog, segment
+from flatlandia import io
+from flatlandia import runlog
+from flatlandia.images import segment
 
 
 def main(smk, log):

@@ -6,7 +6,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import georef, imagequeries, io, runlog, sfm
+from flatlandia.images import gps_alignment
+from flatlandia.images import image_queries
+from flatlandia import io
+from flatlandia import runlog
+from flatlandia.images import sfm
 
 
 def main(smk, log):
@@ -28,10 +32,10 @@ def main(smk, log):
     bad = sfm.height_outliers(cams[["x", "y", "z"]].to_numpy(), opts.height_mad_k)
     removed = cams.loc[bad, ["image_id", "name"]].assign(reason="off the street-level camera plane")
     # cameras far from their own GPS fix once the model is aligned to GPS (georef: up axes + RANSAC)
-    views = {v.name: v for v in imagequeries.views_from_colmap(rec)}
+    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
     kept = cams.loc[~bad].reset_index(drop=True)
     gps = table.set_index("name").reindex(kept["name"])[["lon", "lat"]].to_numpy(float)
-    far = georef.gps_outliers(kept[["x", "y", "z"]].to_numpy(), np.array([views[n].R for n in kept["name"]]),
+    far = gps_alignment.gps_outliers(kept[["x", "y", "z"]].to_numpy(), np.array([views[n].R for n in kept["name"]]),
                               gps, float(o.get("gps_max_residual_m", 50.0)), seed=int(smk.params.seed))
     removed = pd.concat([removed, kept.loc[far, ["image_id", "name"]].assign(
         reason=f"over {o.get('gps_max_residual_m', 50.0)} m from its GPS fix after aligning the model to GPS")])

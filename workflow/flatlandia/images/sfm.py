@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .errors import InputError
+from flatlandia.errors import InputError
 
 TESTED_PYCOLMAP = "4.2.1"
 
@@ -125,7 +125,7 @@ def gps_priors(rec, gps: pd.DataFrame, sigma_m: float = 5.0, alt_sigma_m: float 
     """
     import pycolmap
 
-    from . import geo
+    from flatlandia import geo
 
     rows = [(img, gps.loc[img.name]) for img in rec.images.values()
             if img.has_pose and img.name in gps.index and np.isfinite(gps.loc[img.name, ["lon", "lat"]].astype(float)).all()]
@@ -185,8 +185,8 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from . import geo
-    from .io import atomic_path
+    from flatlandia import geo
+    from flatlandia.io import atomic_path
 
     cameras = cameras.sort_values("name")  # capture order for Mapillary sequences
     c = cameras[["x", "y", "z"]].to_numpy()

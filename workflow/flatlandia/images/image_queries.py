@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from . import geo
+from flatlandia import geo
 
 
 @dataclass
@@ -130,7 +130,7 @@ def scene_queries(scene: str, views: list[View], objects: pd.DataFrame, point_ob
     """The queries table of an images scene, in the published scenes' schema (see README).
 
     ``lift(view, box)`` gives a detection's world point for the depth local map (default: the
-    sparse SfM depth; see :mod:`flatlandia.depth` for the monocular backend).
+    sparse SfM depth; see :mod:`flatlandia.images.depth` for the monocular backend).
     """
     if lift is None:
         def lift(view, box):

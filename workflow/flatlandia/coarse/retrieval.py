@@ -11,7 +11,7 @@ graph and the scene's reference graph with shared weights; a reference node ``i`
   epochs: validation criterion +0.03, test R_30 success +0.04 over seeds 100 and 7;
   ``hard_negatives: 0`` is the paper's loss);
 * **Sim**: weighted least squares of ``s_i`` to ``1 - S_i`` (``S`` from
-  :mod:`flatlandia.similarity`), weights ``S_i / max_i S_i + sim_weight_floor`` (the paper's
+  :mod:`flatlandia.coarse.target`), weights ``S_i / max_i S_i + sim_weight_floor`` (the paper's
   "weighted by normalised S"; the floor keeps dissimilar nodes in the loss), normalised per query;
 * **Sim+Trip**: their sum (``trip_weight`` scales the triplet term).
 
@@ -46,7 +46,8 @@ from torch_geometric.data import Batch
 from torch_geometric.nn import GATConv, GATv2Conv, global_mean_pool
 from torch_geometric.utils import add_self_loops
 
-from . import graphs, tables
+from flatlandia.coarse import graphs
+from flatlandia import tables
 
 LOSSES = {"sim": "Sim", "trip": "Trip", "simtrip": "Sim+Trip"}
 STRATEGIES = ["N_LM", "2N_LM", "R_30", "GT-BB"]
@@ -436,7 +437,7 @@ def propose(score: np.ndarray, ref_xy: np.ndarray, n_query: int, strategy: str, 
         d = np.linalg.norm(np.asarray(ref_xy, float) - np.asarray(ref_xy, float)[best], axis=1)
         return np.flatnonzero(d <= radius_m)
     if strategy == "GT-BB":
-        from .fine_eval import gtbb_indices
+        from flatlandia.fine.evaluation import gtbb_indices
 
         if matched_rows is None or cam_xy is None:
             raise ValueError("GT-BB needs the matched rows and the true camera")
@@ -591,7 +592,7 @@ def train(ds: Dataset, cfg: CoarseConfig, log=None, progress=None) -> dict:
 
 def save_checkpoint(result: dict, path) -> None:
     """torch.save({'state_dict', 'config', 'history', 'best_epoch', 'best_val', ...}) atomically."""
-    from .io import atomic_path
+    from flatlandia.io import atomic_path
 
     with atomic_path(path) as tmp:
         torch.save({k: result[k] for k in ("state_dict", "config", "history", "best_epoch", "best_val", "seconds",

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from .classes import CLASSES
+from flatlandia.classes import CLASSES
 
 UPSTREAM_ZIP = "https://codeload.github.com/IIT-PAVIS/Flatlandia/zip/refs/heads/main"
 

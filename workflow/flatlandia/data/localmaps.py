@@ -16,8 +16,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from . import geo, recover
-from .errors import InputError
+from flatlandia import geo
+from flatlandia.data import registration
+from flatlandia.errors import InputError
 
 
 def metric_local_map(ref_xy: np.ndarray, cam_xy: np.ndarray, theta: float) -> np.ndarray:
@@ -35,7 +36,7 @@ def published_to_metric_frame(local: np.ndarray, theta_lonlat: float, theta_metr
     the projection's variation over the scene); applied to a depth map it keeps its shape up to
     the unknown scale, with true bearings.
     """
-    from .recover import UNIT_DEG
+    from flatlandia.data.registration import UNIT_DEG
 
     offsets_deg = np.asarray(local, float) @ geo.rot2(theta_lonlat).T * UNIT_DEG
     metres = offsets_deg * np.asarray(metres_per_degree, float)
@@ -86,27 +87,27 @@ def recover_scene(scene: str, ref_lonlat: np.ndarray, ref_classes: np.ndarray,
     """Register every GT local map of a scene; one row per query (pose in lon/lat + unit space)."""
     frame = geo.frame_for(ref_lonlat)
     mpd = frame.metres_per_degree()
-    index = recover.PairIndex(ref_lonlat / recover.UNIT_DEG)
+    index = registration.PairIndex(ref_lonlat / registration.UNIT_DEG)
     rows = []
     items = sorted(local_maps.items())
     for token, maps in (progress(items) if progress else items):
-        rec = recover.register(maps["GT"], index, mpd, tol_m=tol_m)
+        rec = registration.register(maps["GT"], index, mpd, tol_m=tol_m)
         if rec is None:
             rows.append(dict(scene=scene, token=token, recovered=False))
             continue
         best = rec.best
         second = rec.others[0] if rec.others else None
-        cam_lonlat = best.cam * recover.UNIT_DEG
+        cam_lonlat = best.cam * registration.UNIT_DEG
         rows.append(dict(
             scene=scene, token=token, recovered=True, n_objects=len(maps["GT"]),
             ref_idx=list(best.ref_idx), lon=float(cam_lonlat[0]), lat=float(cam_lonlat[1]),
             theta_lonlat_deg=float(np.degrees(best.theta)), residual_m=best.max_m,
             n_solutions=1 + len(rec.others),
             second_residual_m=second.rms_m if second else float("nan"),
-            second_cam_dist_m=float(recover.residual_metres(second.cam - best.cam, mpd)) if second else float("nan"),
+            second_cam_dist_m=float(registration.residual_metres(second.cam - best.cam, mpd)) if second else float("nan"),
             second_ref_idx=list(second.ref_idx) if second else [],
             ambiguous=bool(rec.others),
-            resolution=recover.classify_ambiguity(rec, ref_classes),
+            resolution=registration.classify_ambiguity(rec, ref_classes),
         ))
     return pd.DataFrame(rows)
 

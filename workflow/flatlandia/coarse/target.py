@@ -43,7 +43,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pandas as pd
 
-from . import localmaps
+from flatlandia.data import localmaps
 
 
 @dataclass(frozen=True)

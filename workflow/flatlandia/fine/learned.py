@@ -41,7 +41,7 @@ from torch_geometric.data import Batch, Data
 from torch_geometric.nn import GATv2Conv
 from torch_geometric.utils import scatter, to_dense_batch
 
-from . import localmaps
+from flatlandia.data import localmaps
 
 N_CLASSES = 42
 MODELS = ("MLP", "MLP+ATT", "GAT", "GAT+ATT")
@@ -475,7 +475,7 @@ def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, l
 
 def save_checkpoint(result: dict, path) -> None:
     """torch.save({'state_dict', 'config', 'history', 'best_epoch', 'best_val_median_m'}) atomically."""
-    from .io import atomic_path
+    from flatlandia.io import atomic_path
 
     with atomic_path(path) as tmp:
         torch.save({k: result[k] for k in ("state_dict", "config", "history", "best_epoch", "best_val_median_m",
@@ -501,7 +501,7 @@ def evaluate_model(model: nn.Module, cfg: FineConfig, ref: pd.DataFrame, queries
                    proposals: pd.DataFrame, method: str | None = None) -> pd.DataFrame:
     """Per-query error rows (same columns as the solver's) for one scene; query time is the
     single-query inference time (batch of one, after building the sample)."""
-    from . import fine_eval as fe
+    from flatlandia.fine import evaluation
 
     samples, kept = samples_from_queries(ref, queries, proposals, cfg)
     ref_cls = ref["class_id"].to_numpy()
@@ -517,15 +517,15 @@ def evaluate_model(model: nn.Module, cfg: FineConfig, ref: pd.DataFrame, queries
             p = model(Batch.from_data_list([s])).numpy()
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         x, y, th = to_world(p, [s], cfg)[0]
-        e_m, e_deg = fe.pose_errors(x, y, th, r.x_m, r.y_m, math.radians(r.theta_deg))
+        e_m, e_deg = evaluation.pose_errors(x, y, th, r.x_m, r.y_m, math.radians(r.theta_deg))
         idx = np.array([pos[int(o)] for o in props.get(str(r.token), []) if int(o) in pos], int)
         rows.append({"scene": str(r.scene), "token": str(r.token), "method": method or cfg.model,
                      "map_type": cfg.map_type, "strategy": strat.get(str(r.token), "none"),
                      "n_objects": int(r.n_objects), "proposal_size": int(len(idx)),
-                     "solvable": bool(fe.solvable(r.classes, ref_cls[idx])) if len(idx) else False,
+                     "solvable": bool(evaluation.solvable(r.classes, ref_cls[idx])) if len(idx) else False,
                      "x": float(x), "y": float(y), "theta_deg": float(math.degrees(th)),
                      "error_m": float(e_m), "error_deg": float(e_deg),
-                     "error_paper_m": float(fe.paper_metres(e_m, lat)), "confidence": float("nan"),
+                     "error_paper_m": float(evaluation.paper_metres(e_m, lat)), "confidence": float("nan"),
                      "n_inliers": 0, "n_correct_inliers": 0, "seconds": float(dt),
                      "cpu_seconds": float(dc)})
     return pd.DataFrame(rows)

@@ -28,7 +28,7 @@ Measured on the published data (../shared/DATA.md and the audit in tests/test_ob
   image instances its points were seen on (the paper's check against instance masks; the images
   branch with ``segment.instances_dir``). A class cloud alone has only the extent-based
   re-clustering (``split_extent_m``, off by default).
-- What is not reproduced (bounds in :mod:`flatlandia.reproduction_bounds`,
+- What is not reproduced (bounds in :mod:`flatlandia.objects.bounds`,
   ``benchmarks/reproduction_bounds.py``): 152 published objects are not a cluster at any radius
   (the paper splits clusters by reprojecting them into instance masks, which needs the images);
   even the best radius per scene and class chosen with the answer reaches 87.5 % within 0.5 m.
@@ -46,10 +46,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import geo
-from .classes import CLASSES, N_CLASSES
-from .errors import InputError
-from .io import atomic_path
+from flatlandia import geo
+from flatlandia.classes import CLASSES, N_CLASSES
+from flatlandia.errors import InputError
+from flatlandia.io import atomic_path
 
 #: Metres per degree of latitude (mean, WGS84); used to turn the chain's scale into metres.
 METRES_PER_DEGREE = 111_320.0
@@ -511,7 +511,7 @@ def published_macro_classes(ref_xy: np.ndarray, ref_classes: np.ndarray, cloud_x
             near = d <= max_dist_m
             out[near] = np.asarray(cloud_labels, dtype=object)[fg][j[near]]
         if cloud_points is not None and exact_radius is not None:
-            from .reproduction_bounds import published_colours
+            from flatlandia.objects.bounds import published_colours
 
             out = published_colours(ref_xy, out, np.asarray(cloud_points, float), cloud_labels,
                                     np.asarray(cloud_xy, float), exact_radius)
@@ -576,7 +576,7 @@ def plot_audit(ours_xy: np.ndarray, ref_xy: np.ndarray, path: str | Path, title:
 
 def audit_published_scene(root: str | Path, scene: str, params: ClusterParams | None = None) -> tuple[dict, pd.DataFrame]:
     """Run the whole chain on one published scene and audit it (used by tests and the audit rule)."""
-    from . import io
+    from flatlandia import io
 
     root = Path(root)
     pts, labels = read_classified_cloud(root / "maps" / scene / "class_segmented_point_cloud.ply")

@@ -4,9 +4,9 @@ Street-level crowd photos are taken upright, so the cameras' image-down axes agr
 even when the camera centres lie on one line (a walk along a street) and a plane fit through
 them is degenerate. The ground plane is therefore the plane normal to the cameras' mean "up"
 axis; camera centres projected on it are aligned to their GPS positions by the robust
-similarity of :mod:`flatlandia.align` (no reflection: the up axis fixes handedness). The
+similarity of :mod:`flatlandia.objects.principal_plane` (no reflection: the up axis fixes handedness). The
 result is an affine map of SfM points onto the metric map, ``xy = A @ X + b`` (A: 2x3), as
-:mod:`flatlandia.imagequeries` expects. Altitude is kept as a 1D fit along the up axis.
+:mod:`flatlandia.images.image_queries` expects. Altitude is kept as a 1D fit along the up axis.
 """
 
 from __future__ import annotations
@@ -14,9 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from . import align, geo
-from . import objects as O
-from .errors import InputError
+from flatlandia.objects import principal_plane
+from flatlandia import geo
+from flatlandia.objects import clustering
+from flatlandia.errors import InputError
 
 NOT_AN_OBJECT = 255
 
@@ -90,7 +91,7 @@ def fit_gps_alignment(centres: np.ndarray, rotations: np.ndarray, lonlat: np.nda
         comp = np.asarray(compass_deg, float).reshape(-1)[ok]
         dst_theta = compass_to_theta(comp)
     heading_fit = use_heading and dst_theta is not None and np.isfinite(dst_theta).all()
-    sim = align.ransac_similarity(src, dst, threshold=threshold_m, iterations=iterations, seed=seed,
+    sim = principal_plane.ransac_similarity(src, dst, threshold=threshold_m, iterations=iterations, seed=seed,
                                   allow_reflection=False, src_heading=src_theta if heading_fit else None,
                                   dst_heading=dst_theta if heading_fit else None,
                                   heading_threshold_deg=heading_threshold_deg, source=source)
@@ -136,7 +137,7 @@ def frame_of(alignment: dict) -> geo.MetricFrame:
 
 def point_labels(points: pd.DataFrame) -> np.ndarray:
     """Macro-class of each classified SfM point (background for 255 / non-object classes)."""
-    return O.macro_of_class(points["class_id"].to_numpy())
+    return clustering.macro_of_class(points["class_id"].to_numpy())
 
 
 def majority_class(class_ids: np.ndarray) -> int:
@@ -148,21 +149,21 @@ OBJECT_MAP_COLUMNS = ["scene", "object_id", "macro_class", "class_id", "class_la
                       "lon", "lat", "x_m", "y_m"]
 
 
-def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: O.ClusterParams,
+def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: clustering.ClusterParams,
                   class_labels: list[str], source: str = "points",
                   instances: pd.DataFrame | None = None) -> tuple[pd.DataFrame, np.ndarray]:
     """Cluster the classified SfM points of an images scene into objects on the aligned map.
 
     Returns (objects with box columns, 42-class label and lon/lat/x/y; object id per point).
-    With ``instances`` (:func:`flatlandia.classify.point_instances`), each cluster is split into
-    the image instances its points were seen on (:func:`flatlandia.objects.instance_parts`).
+    With ``instances`` (:func:`flatlandia.images.classify_points.point_instances`), each cluster is split into
+    the image instances its points were seen on (:func:`flatlandia.objects.clustering.instance_parts`).
     A model without object points gives an empty table: a documented outcome (e.g. the
     offline segmentation backend labels no object classes), not an error.
     """
     xyz = points[["x", "y", "z"]].to_numpy(float)
     labels = point_labels(points)
-    if not (labels != O.BACKGROUND).any():
-        empty = pd.DataFrame(columns=OBJECT_MAP_COLUMNS + [c for c in O.OBJECT_COLUMNS if c not in OBJECT_MAP_COLUMNS])
+    if not (labels != clustering.BACKGROUND).any():
+        empty = pd.DataFrame(columns=OBJECT_MAP_COLUMNS + [c for c in clustering.OBJECT_COLUMNS if c not in OBJECT_MAP_COLUMNS])
         return empty, np.full(len(points), -1, np.int64)
     split = None
     if instances is not None and len(instances):
@@ -172,9 +173,9 @@ def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: O.C
         obs_key = instances.loc[known, "key"].to_numpy(np.int64)
 
         def split(members: np.ndarray) -> list[np.ndarray]:
-            return O.instance_parts(members, xyz, obs_point, obs_key, params.min_cluster_points)
+            return clustering.instance_parts(members, xyz, obs_point, obs_key, params.min_cluster_points)
 
-    objs, member = O.cluster_objects(xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source,
+    objs, member = clustering.cluster_objects(xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source,
                                      split=split, with_members=True)
     cls = points["class_id"].to_numpy(int)
     objs["class_id"] = [majority_class(cls[member == oid]) if (member == oid).any() else NOT_AN_OBJECT

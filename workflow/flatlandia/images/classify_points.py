@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 from PIL import Image
 
-from .segment import NOT_AN_OBJECT
+from flatlandia.images.segment import NOT_AN_OBJECT
 
 
 def point_votes(rec, class_maps: dict[str, np.ndarray]) -> pd.DataFrame:
@@ -45,7 +45,7 @@ def point_instances(rec, instance_maps: dict[str, np.ndarray]) -> pd.DataFrame:
 
     ``instance_maps``: image name -> (H, W) integer instance ids, 0 = no instance (e.g. the
     things of a panoptic segmentation). ``key`` is unique per (image, instance), so points can
-    be grouped by the instance they were seen on (:func:`flatlandia.objects.instance_parts`).
+    be grouped by the instance they were seen on (:func:`flatlandia.objects.clustering.instance_parts`).
     """
     rows = []
     for image_id, img in rec.images.items():
@@ -70,7 +70,7 @@ def load_instance_maps(folder: str | Path | None, names: list[str]) -> dict[str,
     """Instance-id images ``<image stem>.png`` of a folder (none when ``folder`` is None).
 
     A folder that holds none of the model's images is a configuration error, named."""
-    from .errors import InputError
+    from flatlandia.errors import InputError
 
     if folder is None:
         return {}
@@ -103,7 +103,7 @@ def load_class_maps(folder: Path, names: list[str]) -> dict[str, np.ndarray]:
 
 def write_classified_ply(points: pd.DataFrame, path: Path) -> None:
     """ASCII PLY of the points with an integer ``class_id`` property and a colour per class."""
-    from .io import atomic_path
+    from flatlandia.io import atomic_path
 
     rng = np.random.default_rng(0)
     palette = rng.integers(40, 255, size=(256, 3))

@@ -5,8 +5,8 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-from . import io
-from .errors import InputError
+from flatlandia import io
+from flatlandia.errors import InputError
 
 #: files of a published scene: (key, path relative to the data root, required?)
 SCENE_FILES = [

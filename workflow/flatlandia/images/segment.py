@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from .classes import CLASSES
-from .errors import InputError
+from flatlandia.classes import CLASSES
+from flatlandia.errors import InputError
 
 #: Vistas label-name prefixes whose pixels are moving or changing content (masked out).
 DYNAMIC_PREFIXES = ("human--", "object--vehicle--", "nature--sky", "nature--vegetation", "animal--")

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import geo
-from .io import atomic_path, write_text
+from flatlandia import geo
+from flatlandia.io import atomic_path, write_text
 
 
 def reference_table(scene: str, lonlat: np.ndarray, classes: np.ndarray, labels: list[str],

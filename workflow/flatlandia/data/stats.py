@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import ConvexHull
 
-from . import geo
+from flatlandia import geo
 
 #: Table 2 of the paper, as far as PAPER.md gives it: per city (scenes, objects, queries per scene).
 PAPER_TABLE2 = {

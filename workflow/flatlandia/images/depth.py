@@ -2,7 +2,7 @@
 
 Two backends behind one call, ``lift(view, box) -> world point or None``:
 - ``sparse`` (offline default): the detection centre lifted to the median camera depth of the
-  SfM points observed inside the detection (:func:`flatlandia.imagequeries.sparse_depth_point`);
+  SfM points observed inside the detection (:func:`flatlandia.images.image_queries.sparse_depth_point`);
 - ``transformers``: a monocular depth model (DPT, MiDaS, Depth-Anything, ...) loaded with
   ``transformers`` from a local folder the user provides (nothing is downloaded). Such models
   predict depth up to scale (or inverse depth up to scale), so each image's prediction is
@@ -17,8 +17,8 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import InputError
-from .imagequeries import View, sparse_depth_point
+from flatlandia.errors import InputError
+from flatlandia.images.image_queries import View, sparse_depth_point
 
 
 def fit_scale(pred_at_points: np.ndarray, sfm_depth: np.ndarray, inverse: bool) -> float:

@@ -37,7 +37,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from . import geo, solver_kernels
+from flatlandia import geo
+from flatlandia.fine import solver_kernels
 
 
 @dataclass

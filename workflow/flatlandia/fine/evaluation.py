@@ -19,8 +19,10 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from . import geo, localmaps, solver
-from .recover import UNIT_DEG
+from flatlandia import geo
+from flatlandia.data import localmaps
+from flatlandia.fine import solver
+from flatlandia.data.registration import UNIT_DEG
 
 #: the paper's accuracy thresholds (metres, degrees)
 THRESHOLDS: list[tuple[float, float]] = [(0.5, 2.0), (1.0, 5.0), (5.0, 10.0), (10.0, 20.0)]
@@ -370,7 +372,7 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
         row.update({f"paper_{c}": float(v) for c, v in zip(_TH_COLS, p[:4])})
         row.update(paper_median_pu=float(p[4]), paper_median_deg=float(p[5]), paper_query_ms=float(p[6]))
         rows.append(row)
-    from .tables import SCHEMAS
+    from flatlandia.tables import SCHEMAS
 
     cols = [c.name for c in SCHEMAS["fine_localization"]]
     return pd.DataFrame(rows, columns=cols)

@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import geo
-from .errors import InputError
+from flatlandia import geo
+from flatlandia.errors import InputError
 
 
 def _check_points(points: np.ndarray, dim: int, min_n: int, source: str, what: str) -> np.ndarray:

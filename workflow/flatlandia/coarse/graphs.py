@@ -30,7 +30,7 @@ import pandas as pd
 import torch
 from torch_geometric.data import Batch, Data
 
-from . import localmaps
+from flatlandia.data import localmaps
 
 N_CLASSES = 42
 REF_KNN = 7

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 from PIL import ExifTags, Image
 
-from .errors import InputError
+from flatlandia.errors import InputError
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 GPS_IFD = 0x8825
