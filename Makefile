@@ -1,19 +1,31 @@
 # One-command entry points (see README.md):
 #   make all    set everything up, then run `snakemake --cores 2 all` on the default config
-#   make test   set everything up, then run the whole test suite
+#   make test   set everything up, then lint (ruff, snakefmt, snakemake --lint) and run the whole test suite
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 CORES  ?= 2
 
-.PHONY: all test install system-deps lint bench report clean
+.PHONY: all test check format install system-deps bench report clean
 
 all: install
 	$(BIN)/snakemake --cores $(CORES) all
 
-test: install
+test: install check
 	$(BIN)/python -m pytest -q
+
+# Formatting and lint: ruff for Python, snakefmt for the rule files, Snakemake's own lint.
+check: install
+	$(BIN)/ruff check workflow tests benchmarks
+	$(BIN)/ruff format --check workflow tests benchmarks
+	$(BIN)/snakefmt --check Snakefile workflow/rules
+	$(BIN)/snakemake --lint
+
+format: install
+	$(BIN)/ruff check --fix workflow tests benchmarks
+	$(BIN)/ruff format workflow tests benchmarks
+	$(BIN)/snakefmt Snakefile workflow/rules
 
 install: system-deps $(STAMP)
 
@@ -34,9 +46,6 @@ $(STAMP): envs/requirements.txt envs/constraints.txt pyproject.toml
 	$(BIN)/python -m pip install -q -r envs/requirements.txt -c envs/constraints.txt
 	$(BIN)/python -m pip install -q --no-deps -e .
 	touch $(STAMP)
-
-lint: install
-	$(BIN)/snakemake --lint
 
 bench: install
 	$(BIN)/python benchmarks/bench_recover.py
