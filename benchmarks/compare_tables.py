@@ -23,7 +23,7 @@ TIMING = re.compile(r"(^|_)(s|ms|sec|seconds|time|minutes|min)(_|$)|query_ms|tra
 
 
 def timing_columns(columns) -> list[str]:
-    return [c for c in columns if TIMING.search(str(c))]
+    return [c for c in columns if TIMING.search(str(c)) and not str(c).startswith("paper_")]
 
 
 def _equal(a: pd.Series, b: pd.Series, tolerance: float) -> bool:
