@@ -19,8 +19,10 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
 from flatlandia.data import localmaps
-from flatlandia.fine import solver  # noqa: E402
-from flatlandia.fine import evaluation  # noqa: E402
+from flatlandia.fine import (
+    evaluation,  # noqa: E402
+    solver,  # noqa: E402
+)
 
 
 def load(root: Path):
@@ -54,15 +56,16 @@ def main(argv=None):
     scenes = load(root)
     scale_prior = None
     if a.map == "depth" and geo_cfg.get("scale_prior", True):
-        scale_prior = solver.fit_priors([localmaps.xy(c) for _, _, q in scenes
-                                         for c in q.loc[q["split"] == "train", "gt_local_xy_m"]])
+        scale_prior = solver.fit_priors(
+            [localmaps.xy(c) for _, _, q in scenes for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
+        )
     coarse = None
     if a.proposal.startswith("coarse-"):
         coarse = pd.read_parquet(root / "coarse" / a.proposal.split("-", 1)[1] / "proposals.parquet")
     parts = []
     t0 = time.perf_counter()
     for s, ref, q in scenes:
-        test = q[q["split"] == a.split].iloc[::a.every]
+        test = q[q["split"] == a.split].iloc[:: a.every]
         if not len(test):
             continue
         if a.proposal == "gtbb":
@@ -73,16 +76,20 @@ def main(argv=None):
             p = coarse[(coarse["scene"].astype(str) == s) & (coarse["strategy"] == geo_cfg.get("strategy", "2N_LM"))]
             props = p[p["token"].astype(str).isin(test["token"].astype(str))]
         prior, seen = evaluation.training_priors(q, geo_cfg)
-        e = evaluation.evaluate_solver(ref, test, props, a.map, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
-                               prior_seen=seen)
+        e = evaluation.evaluate_solver(
+            ref, test, props, a.map, geo_cfg, prior_xy=prior, scale_prior=scale_prior, prior_seen=seen
+        )
         parts.append(e)
     e = pd.concat(parts, ignore_index=True)
     s = evaluation.summarise(e)
-    print(f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}: n={s['queries']} median {s['median_m']:.2f} m / "
-          f"{s['median_deg']:.2f} deg; % " + " / ".join(f"{s[c]:.1f}" for c in evaluation._TH_COLS)
-          + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; QT median "
-          f"{1000 * s['median_query_s']:.1f} ms (CPU {1000 * s['median_query_cpu_s']:.1f} ms) mean {1000 * s['mean_query_s']:.1f} ms p90 "
-          f"{1000 * e['seconds'].quantile(0.9):.0f} ms; wall {time.perf_counter() - t0:.0f} s")
+    print(
+        f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}: n={s['queries']} median {s['median_m']:.2f} m / "
+        f"{s['median_deg']:.2f} deg; % "
+        + " / ".join(f"{s[c]:.1f}" for c in evaluation._TH_COLS)
+        + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; QT median "
+        f"{1000 * s['median_query_s']:.1f} ms (CPU {1000 * s['median_query_cpu_s']:.1f} ms) mean {1000 * s['mean_query_s']:.1f} ms p90 "
+        f"{1000 * e['seconds'].quantile(0.9):.0f} ms; wall {time.perf_counter() - t0:.0f} s"
+    )
     if a.save:
         e.to_parquet(a.save)
 

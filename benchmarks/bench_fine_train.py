@@ -28,17 +28,23 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia.fine import learned
 from flatlandia import io
-from flatlandia.fine import evaluation
+from flatlandia.fine import evaluation, learned
 
 MODEL_NAMES = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 TARGET_1000_S = 10 * 60
 TARGET_MEDIAN_M = 5.0
 
 
-def load_samples(results: Path, cfg: learned.FineConfig, simulated: int = 0, gtbb: bool = True,
-                 seed: int = 0, crop_m: float = 0.0, val_coarse_only: bool = False) -> dict[str, list]:
+def load_samples(
+    results: Path,
+    cfg: learned.FineConfig,
+    simulated: int = 0,
+    gtbb: bool = True,
+    seed: int = 0,
+    crop_m: float = 0.0,
+    val_coarse_only: bool = False,
+) -> dict[str, list]:
     out: dict[str, list] = {"train": [], "val": [], "test": [], "test_coarse": []}
     rng = np.random.default_rng(seed)
     coarse_p = results / "coarse/simtrip/proposals.parquet"
@@ -79,18 +85,31 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="train the configured epochs and report test errors")
     ap.add_argument("--simulated-proposals", type=int, default=0, help="copies with simulated coarse proposals")
     ap.add_argument("--no-gtbb", action="store_true", help="train on simulated proposals only")
-    ap.add_argument("--save", type=Path, default=None, help="save the trained model here (a checkpoint per run: "
-                    "PATH with -{model}_{map} before the suffix)")
-    ap.add_argument("--val-coarse-only", action="store_true",
-                    help="with --simulated-proposals: validate (pick the best epoch) on simulated proposals only")
-    ap.add_argument("--crop-m", type=float, default=0.0,
-                    help="cut coarse and simulated proposals to their densest objects within this radius")
+    ap.add_argument(
+        "--save",
+        type=Path,
+        default=None,
+        help="save the trained model here (a checkpoint per run: PATH with -{model}_{map} before the suffix)",
+    )
+    ap.add_argument(
+        "--val-coarse-only",
+        action="store_true",
+        help="with --simulated-proposals: validate (pick the best epoch) on simulated proposals only",
+    )
+    ap.add_argument(
+        "--crop-m",
+        type=float,
+        default=0.0,
+        help="cut coarse and simulated proposals to their densest objects within this radius",
+    )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     fcfg = io.config_section([Path("config/config.yaml"), *args.configfile], "fine")
     print(f"# Fine training benchmark, {args.threads} thread(s)")
-    print("| model | map | train / val / test | epochs | s / epoch | CPU s / epoch | 1000 epochs (min) | best epoch |"
-          " test median | within (10 m, 20°) | coarse 2N_LM median |")
+    print(
+        "| model | map | train / val / test | epochs | s / epoch | CPU s / epoch | 1000 epochs (min) | best epoch |"
+        " test median | within (10 m, 20°) | coarse 2N_LM median |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for slug in args.models:
         for mt in args.map_types:
@@ -98,8 +117,15 @@ def main() -> None:
             cfg = learned.FineConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
             if not args.full:
                 cfg.epochs = args.epochs
-            s = load_samples(args.results, cfg, args.simulated_proposals, not args.no_gtbb, cfg.seed, args.crop_m,
-                             args.val_coarse_only)
+            s = load_samples(
+                args.results,
+                cfg,
+                args.simulated_proposals,
+                not args.no_gtbb,
+                cfg.seed,
+                args.crop_m,
+                args.val_coarse_only,
+            )
             if not s["train"]:
                 raise SystemExit(f"{args.results}: no */queries/queries.parquet with maps; run the pipeline first")
             t0, c0 = time.perf_counter(), time.process_time()
@@ -114,12 +140,19 @@ def main() -> None:
                 test = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
                 within = f"{100 * np.mean((e_m < 10) & (e_deg < 20)):.1f} %"
             if args.full and s["test_coarse"]:
-                e_m, e_deg = learned.errors_metres(learned.predict(res["model"], s["test_coarse"]), s["test_coarse"], cfg)
+                e_m, e_deg = learned.errors_metres(
+                    learned.predict(res["model"], s["test_coarse"]), s["test_coarse"], cfg
+                )
                 coarse = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
             sizes = "/".join(str(len(s[k])) for k in ("train", "val", "test"))
-            print(f"| {cfg.model} | {mt} | {sizes} | {cfg.epochs} | {per:.3f} | {per_cpu:.3f} | {per * 1000 / 60:.1f} |"
-                  f" {res['best_epoch']} | {test} | {within} | {coarse} |", flush=True)
-    print(f"\ntargets: 1000 MLP epochs under {TARGET_1000_S / 60:.0f} min; MLP depth GT-BB median <= {TARGET_MEDIAN_M} m")
+            print(
+                f"| {cfg.model} | {mt} | {sizes} | {cfg.epochs} | {per:.3f} | {per_cpu:.3f} | {per * 1000 / 60:.1f} |"
+                f" {res['best_epoch']} | {test} | {within} | {coarse} |",
+                flush=True,
+            )
+    print(
+        f"\ntargets: 1000 MLP epochs under {TARGET_1000_S / 60:.0f} min; MLP depth GT-BB median <= {TARGET_MEDIAN_M} m"
+    )
 
 
 if __name__ == "__main__":

@@ -35,9 +35,11 @@ def main() -> None:
         iou = segment.ignore_iou(ours, ref)
         if np.any(ref == 0):
             ious.append(iou)
-        print(f"{img.name}: ignored theirs {np.mean(ref == 0):.3f} ours {np.mean(ours == 0):.3f} "
-              f"(people {shares['human']:.3f}, vegetation {shares['nature--vegetation']:.3f}) "
-              f"IoU {iou:.3f}  {dt:.1f} s")
+        print(
+            f"{img.name}: ignored theirs {np.mean(ref == 0):.3f} ours {np.mean(ours == 0):.3f} "
+            f"(people {shares['human']:.3f}, vegetation {shares['nature--vegetation']:.3f}) "
+            f"IoU {iou:.3f}  {dt:.1f} s"
+        )
     print(f"mean IoU over images whose masks ignore something: {np.mean(ious):.3f}")
 
 

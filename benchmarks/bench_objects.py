@@ -15,9 +15,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia.objects import principal_plane
 from flatlandia import io
-from flatlandia.objects import clustering
+from flatlandia.objects import clustering, principal_plane
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -36,20 +35,34 @@ def main() -> None:
         pts, labels = clustering.read_classified_cloud(root / "maps" / scene / "class_segmented_point_cloud.ply")
         t = io.read_transformations(root / "maps" / scene / "transformations.json")
         plane, _ = principal_plane.fit_ground_plane(pts, labels, clustering.metres_per_unit(t))
-        row["plane_deg"] = principal_plane.normal_angle_deg(plane.normal, principal_plane.published_normal(t["to_principal_plane"]))
+        row["plane_deg"] = principal_plane.normal_angle_deg(
+            plane.normal, principal_plane.published_normal(t["to_principal_plane"])
+        )
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
     total_s = time.perf_counter() - t_all
     df = pd.DataFrame(rows)
-    cols = ["scene", "published", "ours", "within_0.05m", "within_0.5m", "within_2m", "median_dist_m", "extra",
-            "plane_deg", "seconds"]
+    cols = [
+        "scene",
+        "published",
+        "ours",
+        "within_0.05m",
+        "within_0.5m",
+        "within_2m",
+        "median_dist_m",
+        "extra",
+        "plane_deg",
+        "seconds",
+    ]
     print(df[cols].to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     pub = df["published"].sum()
     for name, sub in (("all 12", df), ("without scene 2", df[df["scene"] != "2"])):
         p = sub["published"].sum()
-        print(f"{name}: published {p}, ours {sub['ours'].sum()}, within 0.05 m {sub['within_0.05m'].sum() / p:.1%}, "
-              f"0.5 m {sub['within_0.5m'].sum() / p:.1%}, 2 m {sub['within_2m'].sum() / p:.1%}, "
-              f"extra {sub['extra'].sum() / p:.1%}")
+        print(
+            f"{name}: published {p}, ours {sub['ours'].sum()}, within 0.05 m {sub['within_0.05m'].sum() / p:.1%}, "
+            f"0.5 m {sub['within_0.5m'].sum() / p:.1%}, 2 m {sub['within_2m'].sum() / p:.1%}, "
+            f"extra {sub['extra'].sum() / p:.1%}"
+        )
     print(f"max plane angle {df['plane_deg'].max():.2f} deg; {len(df)} scenes ({pub} objects) in {total_s:.1f} s")
 
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from flatlandia import io
-from flatlandia.data import localmaps
 from flatlandia.classes import CLASSES
+from flatlandia.data import localmaps
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -35,7 +35,8 @@ def main() -> None:
             lonlat, classes = io.read_reference_map(root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
             local = {
                 t: {"GT": np.asarray(m["GT"], float), "depth": np.asarray(m["depth"], float)}
-                for t, m in data[scene].items()}
+                for t, m in data[scene].items()
+            }
             t1 = time.perf_counter()
             rec = localmaps.recover_scene(scene, lonlat, classes, local)
             dt = time.perf_counter() - t1
@@ -47,8 +48,10 @@ def main() -> None:
         best_total, best_compute = min(best_total, total), min(best_compute, compute)
     for scene, (k, dt) in per_scene.items():
         print(f"scene {scene:>2}: {k:4d} queries  {dt * 1000:7.1f} ms")
-    print(f"recovered {n} queries; best of {args.repeat}: registration {best_compute:.2f} s "
-          f"({best_compute / n * 1000:.2f} ms/query), with reading the data {best_total:.2f} s")
+    print(
+        f"recovered {n} queries; best of {args.repeat}: registration {best_compute:.2f} s "
+        f"({best_compute / n * 1000:.2f} ms/query), with reading the data {best_total:.2f} s"
+    )
 
 
 if __name__ == "__main__":

@@ -13,9 +13,7 @@ from pathlib import Path
 
 from PIL import Image
 
-from flatlandia.images import image_audit
-from flatlandia.images import segment
-from flatlandia.images import sfm
+from flatlandia.images import image_audit, segment, sfm
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -49,9 +47,13 @@ def main() -> None:
                 reg, pts, err = 0, 0, float("nan")
                 print(f"seed {seed}: failed ({e})")
             full += reg == len(names)
-            print(f"seed {seed}: {reg}/{len(names)} registered, {pts} points, {err:.2f} px, "
-                  f"{time.perf_counter() - t0:.1f} s")
-        print(f"all images registered in {full} of {args.seeds} seeds ({args.mapper} mapping, {args.threads} thread(s))")
+            print(
+                f"seed {seed}: {reg}/{len(names)} registered, {pts} points, {err:.2f} px, "
+                f"{time.perf_counter() - t0:.1f} s"
+            )
+        print(
+            f"all images registered in {full} of {args.seeds} seeds ({args.mapper} mapping, {args.threads} thread(s))"
+        )
 
 
 if __name__ == "__main__":

@@ -14,8 +14,15 @@ import pandas as pd
 
 STAGES = {
     "objects from class clouds (12 scenes; target < 120 s)": ["objects", "align", "reproduction_audit"],
-    "images branch, Lund (target < 300 s)": ["images_audit", "segment", "sfm", "classify_points", "images_align",
-                                            "images_objects", "images_queries"],
+    "images branch, Lund (target < 300 s)": [
+        "images_audit",
+        "segment",
+        "sfm",
+        "classify_points",
+        "images_align",
+        "images_objects",
+        "images_queries",
+    ],
     "coarse: similarity target (all scenes)": ["coarse_similarity"],
     "coarse: training (per loss) and evaluation": ["coarse_train", "coarse_eval"],
     "fine: training and evaluation": ["fine_train", "fine_eval"],
@@ -28,8 +35,14 @@ def records(root: Path, rule: str) -> pd.DataFrame:
     for f in sorted((root / rule).glob("*.tsv")):
         df = pd.read_csv(f, sep="\t")
         if len(df):
-            rows.append({"rule": rule, "job": f.stem, "s": float(df["s"].iloc[-1]),
-                         "max_rss_mb": float(pd.to_numeric(df["max_rss"], errors="coerce").iloc[-1])})
+            rows.append(
+                {
+                    "rule": rule,
+                    "job": f.stem,
+                    "s": float(df["s"].iloc[-1]),
+                    "max_rss_mb": float(pd.to_numeric(df["max_rss"], errors="coerce").iloc[-1]),
+                }
+            )
     return pd.DataFrame(rows, columns=["rule", "job", "s", "max_rss_mb"])
 
 
@@ -43,8 +56,10 @@ def main() -> None:
             print(f"{stage}: no benchmark records")
             continue
         slow = df.loc[df["s"].idxmax()]
-        print(f"{stage}: {df['s'].sum():.1f} s summed over {len(df)} jobs; slowest {slow['rule']}/{slow['job']} "
-              f"{slow['s']:.1f} s; peak RSS {df['max_rss_mb'].max():.0f} MB")
+        print(
+            f"{stage}: {df['s'].sum():.1f} s summed over {len(df)} jobs; slowest {slow['rule']}/{slow['job']} "
+            f"{slow['s']:.1f} s; peak RSS {df['max_rss_mb'].max():.0f} MB"
+        )
         for rule, g in df.groupby("rule", sort=False):
             print(f"    {rule:22s} {g['s'].sum():8.1f} s over {len(g)} job(s)")
 

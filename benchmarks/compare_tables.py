@@ -49,7 +49,10 @@ def main() -> int:
     ap.add_argument("after", type=Path)
     ap.add_argument("--tolerance", type=float, default=0.0)
     args = ap.parse_args()
-    names = sorted({p.name for p in (args.before / "tables").glob("*.parquet")} | {p.name for p in (args.after / "tables").glob("*.parquet")})
+    names = sorted(
+        {p.name for p in (args.before / "tables").glob("*.parquet")}
+        | {p.name for p in (args.after / "tables").glob("*.parquet")}
+    )
     bad = 0
     for name in names:
         a, b = args.before / "tables" / name, args.after / "tables" / name
@@ -60,7 +63,9 @@ def main() -> int:
         problems = compare(a, b, args.tolerance)
         skipped = timing_columns(pd.read_parquet(a).columns)
         rows = len(pd.read_parquet(a))
-        print(f"{name}: {'equal' if not problems else '; '.join(problems)} ({rows} rows; timing columns not compared: {skipped or 'none'})")
+        print(
+            f"{name}: {'equal' if not problems else '; '.join(problems)} ({rows} rows; timing columns not compared: {skipped or 'none'})"
+        )
         bad += bool(problems)
     print(f"{len(names) - bad} of {len(names)} tables equal")
     return 1 if bad else 0

@@ -28,10 +28,8 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
-from flatlandia import geo
-from flatlandia import io
-from flatlandia.objects import clustering
-from flatlandia.objects import bounds
+from flatlandia import geo, io
+from flatlandia.objects import bounds, clustering
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -47,11 +45,19 @@ def scene_bounds(root: Path, scene: str, params: clustering.ClusterParams) -> di
     frame = geo.frame_for(ref_ll)
     xy, ref_xy = frame.to_xy(geo.sfm_to_lonlat(pts, t)), frame.to_xy(ref_ll)
     fg = labels != clustering.BACKGROUND
-    ref_macro = clustering.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg],
-                                          exact_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu)
+    ref_macro = clustering.published_macro_classes(
+        ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg], exact_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu
+    )
     row = {"scene": scene, "published": len(ref_xy)}
-    for k in ("exact_any_radius", "near_any_radius", "default_0.5m", "default_clusters",
-              "oracle_0.5m", "oracle_0.05m", "oracle_clusters"):
+    for k in (
+        "exact_any_radius",
+        "near_any_radius",
+        "default_0.5m",
+        "default_clusters",
+        "oracle_0.5m",
+        "oracle_0.05m",
+        "oracle_clusters",
+    ):
         row[k] = 0
     members, kept = [], []
     for name in sorted(set(labels[fg])):
@@ -65,7 +71,7 @@ def scene_bounds(root: Path, scene: str, params: clustering.ClusterParams) -> di
         default = params.eps_for(name)
         default_clusters = clustering._clusters_of_class(pts[ci], mpu, params, default)
 
-        def means(r_m: float) -> np.ndarray:
+        def means(r_m: float, ci=ci, default=default, default_clusters=default_clusters) -> np.ndarray:
             clusters = default_clusters if r_m == default else clustering._clusters_of_class(pts[ci], mpu, params, r_m)
             return np.array([xy[ci[c]].mean(0) for c in clusters]).reshape(-1, 2)
 

@@ -6,12 +6,11 @@ import zipfile
 
 import numpy as np
 import pytest
-
 from conftest import data_root
-from flatlandia.objects import principal_plane
-from flatlandia import geo
-from flatlandia import io
+
+from flatlandia import geo, io
 from flatlandia.errors import InputError
+from flatlandia.objects import principal_plane
 
 ROOT = data_root()
 
@@ -173,5 +172,7 @@ def test_ground_plane_all_class_clouds():
         pts, labels = clustering.read_classified_cloud(ROOT / f"maps/{s}/class_segmented_point_cloud.ply")
         t = io.read_transformations(ROOT / f"maps/{s}/transformations.json")
         pl, _ = principal_plane.fit_ground_plane(pts, labels, clustering.metres_per_unit(t), source=s)
-        angles[s] = principal_plane.normal_angle_deg(pl.normal, principal_plane.published_normal(t["to_principal_plane"]))
+        angles[s] = principal_plane.normal_angle_deg(
+            pl.normal, principal_plane.published_normal(t["to_principal_plane"])
+        )
     assert max(angles.values()) < 2.0, angles

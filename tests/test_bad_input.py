@@ -6,8 +6,8 @@ import math
 import pandas as pd
 import pytest
 
-from flatlandia.data import ingest
 from flatlandia import io
+from flatlandia.data import ingest
 from flatlandia.errors import InputError
 
 
@@ -63,7 +63,7 @@ def test_reference_map_with_bad_class(tmp_path):
 def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     out = tmp_path / "t.parquet"
     bad = pd.DataFrame({"a": [object()]})  # pyarrow cannot serialise this
-    with pytest.raises(Exception):
+    with pytest.raises(Exception):  # noqa: B017 - whichever error pyarrow raises, nothing may be left behind
         io.write_parquet(bad, out)
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
@@ -72,8 +72,13 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
 
 
 def _copy_scene(flat_root, dst, scene="12"):
-    for rel in ["MANIFEST.tsv", "local_maps.json", f"individual_reference_maps/map_{scene}.json",
-                f"maps/{scene}/transformations.json", f"maps/{scene}/tokens.txt"]:
+    for rel in [
+        "MANIFEST.tsv",
+        "local_maps.json",
+        f"individual_reference_maps/map_{scene}.json",
+        f"maps/{scene}/transformations.json",
+        f"maps/{scene}/tokens.txt",
+    ]:
         (dst / rel).parent.mkdir(parents=True, exist_ok=True)
         (dst / rel).write_bytes((flat_root / rel).read_bytes())
 

@@ -1,25 +1,20 @@
 """Coarse map localization (issue 4): graphs, similarity target, losses, proposals, metrics, training."""
 
-
 import numpy as np
 import pandas as pd
 import pytest
 import torch
 
-from flatlandia.coarse import retrieval
-from flatlandia import geo
-from flatlandia.coarse import graphs
-from flatlandia import io
-from flatlandia.data import localmaps
-from flatlandia.data import map_files
-from flatlandia import tables
-from flatlandia.coarse import target
+from flatlandia import geo, io, tables
 from flatlandia.classes import CLASSES
+from flatlandia.coarse import graphs, retrieval, target
+from flatlandia.data import localmaps, map_files
 
 torch.set_num_threads(1)
 
 
 # ----------------------------------------------------------------------------- graphs
+
 
 def test_knn_edges_point_from_the_nearest_neighbours():
     xy = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [10.0, 0.0]])
@@ -27,7 +22,7 @@ def test_knn_edges_point_from_the_nearest_neighbours():
     assert e.shape == (2, 8)
     into = {int(i): sorted(e[0, e[1] == i].tolist()) for i in range(4)}
     assert into == {0: [1, 2], 1: [0, 2], 2: [0, 1], 3: [1, 2]}
-    assert graphs.knn_edges(xy[:2], k=7).shape == (2, 2)      # fewer nodes than k: all others
+    assert graphs.knn_edges(xy[:2], k=7).shape == (2, 2)  # fewer nodes than k: all others
 
 
 def test_full_edges_count_and_no_self_loops():
@@ -38,8 +33,15 @@ def test_full_edges_count_and_no_self_loops():
 
 
 def _ref_table(xy, cls, scene="0"):
-    return pd.DataFrame({"scene": scene, "obj_idx": np.arange(len(xy)), "class_id": np.asarray(cls),
-                         "x_m": np.asarray(xy, float)[:, 0], "y_m": np.asarray(xy, float)[:, 1]})
+    return pd.DataFrame(
+        {
+            "scene": scene,
+            "obj_idx": np.arange(len(xy)),
+            "class_id": np.asarray(cls),
+            "x_m": np.asarray(xy, float)[:, 0],
+            "y_m": np.asarray(xy, float)[:, 1],
+        }
+    )
 
 
 def test_reference_graph_features_and_edges():
@@ -51,7 +53,7 @@ def test_reference_graph_features_and_edges():
     assert g.x.shape == (20, 44) and g.edge_index.shape == (2, 20 * 7)
     assert torch.equal(g.x[:, :42].argmax(1), torch.as_tensor(cls))
     assert torch.allclose(g.x[:, :42].sum(1), torch.ones(20))
-    assert np.allclose(g.x[:, 42:].numpy(), (xy - xy.mean(0)) / 50.0, atol=1e-5)   # centred, / scale
+    assert np.allclose(g.x[:, 42:].numpy(), (xy - xy.mean(0)) / 50.0, atol=1e-5)  # centred, / scale
     s, d = g.edge_index.numpy()
     assert np.allclose(g.edge_attr[:, 0].numpy(), np.exp(-np.linalg.norm(xy[s] - xy[d], axis=1) / 50.0), atol=1e-5)
 
@@ -62,7 +64,7 @@ def test_query_graph_gt_and_depth_normalisation():
     g = graphs.query_graph(gt, [1, 2, 3], cfg)
     assert g.x.shape == (3, 44) and g.edge_index.shape == (2, 6)
     assert np.allclose(g.x[:, 42:].numpy(), (gt - gt.mean(0)) / 50.0, atol=1e-6)
-    depth, _ = localmaps.normalise_depth_map(gt * 0.003)          # arbitrary published scale
+    depth, _ = localmaps.normalise_depth_map(gt * 0.003)  # arbitrary published scale
     row = {"gt_local_xy_m": gt.tolist(), "depth_local_xy": depth.tolist()}
     d_m = graphs.local_map_metres(row, "depth", cfg)
     assert np.median(np.linalg.norm(d_m, axis=1)) == pytest.approx(25.0)
@@ -86,7 +88,10 @@ QUERY_WORLD = np.array([[0.0, 0.0], [8.0, 1.0], [3.0, 9.0], [-6.0, 4.0]])
 QUERY_CLS = np.array([1, 2, 3, 4])
 
 
-def _local(world, cam=np.array([-20.0, -5.0]), theta=0.4):
+CAMERA_XY = np.array([-20.0, -5.0])
+
+
+def _local(world, cam=CAMERA_XY, theta=0.4):
     return geo.world_to_local(world, cam, theta)
 
 
@@ -114,7 +119,7 @@ def test_similarity_partial_match_and_wrong_classes():
     ref_xy = np.vstack([QUERY_WORLD[:2], QUERY_WORLD[2:] + 100.0])
     idx = target.SceneIndex(ref_xy, QUERY_CLS, cfg)
     out = target.node_similarity(idx, _local(QUERY_WORLD), QUERY_CLS)
-    assert out.loc[0, "d_p"] == pytest.approx(0.5, abs=1e-9)           # (0 + 0 + 1 + 1) / 4
+    assert out.loc[0, "d_p"] == pytest.approx(0.5, abs=1e-9)  # (0 + 0 + 1 + 1) / 4
     assert out.loc[0, "d_s"] == pytest.approx(np.linalg.norm(QUERY_WORLD[1]) / 2 / 30.0, abs=1e-9)
     # same geometry, other classes: nothing aligns
     idx = target.SceneIndex(QUERY_WORLD, QUERY_CLS + 10, cfg)
@@ -132,7 +137,7 @@ def test_similarity_one_displaced_object_known_residual():
     idx = target.SceneIndex(QUERY_WORLD, QUERY_CLS, cfg)
     out = target.node_similarity(idx, _local(moved), QUERY_CLS)
     assert (out["d_p"] <= 0.1 + 1e-9).all() and (out["d_p"] > 0.05).all()
-    assert (out["n_matched"] == 4).all()                 # the moved object still lands within cap_m
+    assert (out["n_matched"] == 4).all()  # the moved object still lands within cap_m
     # moved beyond the cap: it counts as cap_m, the other three align exactly -> d_p = 1/4 exactly
     moved[3] += [20.0, 0.0]
     out = target.node_similarity(idx, _local(moved), QUERY_CLS)
@@ -150,8 +155,7 @@ def test_similarity_is_invariant_to_the_query_pose_and_bounded():
     a = target.node_similarity(idx, _local(ref_xy[vis], np.array([0.0, 0.0]), 0.0), ref_cls[vis])
     b = target.node_similarity(idx, _local(ref_xy[vis], np.array([50.0, -30.0]), 2.5), ref_cls[vis])
     assert np.allclose(a["S"], b["S"], atol=1e-9)
-    assert ((a["S"] >= 0) & (a["S"] <= 1) & (a["d_p"] >= 0) & (a["d_p"] <= 1) & (a["d_s"] >= 0)
-            & (a["d_s"] <= 1)).all()
+    assert ((a["S"] >= 0) & (a["S"] <= 1) & (a["d_p"] >= 0) & (a["d_p"] <= 1) & (a["d_s"] >= 0) & (a["d_s"] <= 1)).all()
     # the true objects align perfectly whenever their whole query lies within their neighbourhood
     for i in vis:
         if np.linalg.norm(ref_xy[vis] - ref_xy[i], axis=1).max() <= 30.0:
@@ -160,14 +164,21 @@ def test_similarity_is_invariant_to_the_query_pose_and_bounded():
 
 def test_scene_similarity_table_shape():
     ref = _ref_table(QUERY_WORLD, QUERY_CLS)
-    q = pd.DataFrame({"scene": ["0"], "token": ["t"], "gt_local_xy_m": [_local(QUERY_WORLD).tolist()],
-                      "classes": [QUERY_CLS.tolist()]})
+    q = pd.DataFrame(
+        {
+            "scene": ["0"],
+            "token": ["t"],
+            "gt_local_xy_m": [_local(QUERY_WORLD).tolist()],
+            "classes": [QUERY_CLS.tolist()],
+        }
+    )
     t = target.scene_similarity(ref, q)
     assert list(t.columns) == ["scene", "token", "obj_idx", "S", "d_p", "d_s", "n_matched"]
     assert len(t) == 4 and t["S"].dtype == np.float32
 
 
 # ----------------------------------------------------------------------------- losses
+
 
 def test_triplet_loss_by_hand():
     lt = retrieval.triplet_loss(torch.tensor([0.1, 0.5]), torch.tensor([0.3, 0.4]), margin=0.5)
@@ -181,14 +192,16 @@ def test_sim_loss_by_hand():
     assert float(retrieval.sim_loss(1.0 - S, S, qpos, 2)) == pytest.approx(0.0, abs=1e-7)
     s = torch.tensor([0.0, 0.0, 0.0, 1.0])
     # query 0: weights 1.1, 0.6, 0.1; errors 0, 0.25, 1 -> (0.15 + 0.1) / 1.8; query 1: error 0.04
-    expected = ((0.6 * 0.25 + 0.1 * 1.0) / 1.8 + 0.2 ** 2) / 2
+    expected = ((0.6 * 0.25 + 0.1 * 1.0) / 1.8 + 0.2**2) / 2
     assert float(retrieval.sim_loss(s, S, qpos, 2, floor=0.1)) == pytest.approx(expected, rel=1e-6)
 
 
 def test_draw_triplets_picks_unmatched_negatives():
     rng = np.random.default_rng(0)
-    smp = [retrieval.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None),
-           retrieval.Sample(0, "b", "train", {}, np.array([0, 2, 3]), 3, np.zeros(2), None, None)]
+    smp = [
+        retrieval.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None),
+        retrieval.Sample(0, "b", "train", {}, np.array([0, 2, 3]), 3, np.zeros(2), None, None),
+    ]
     ip, ineg = retrieval.draw_triplets(smp, [6, 6], rng)
     assert len(ip) == len(ineg) == 5
     assert set(ip[:2]) == {1, 4} and set(ip[2:]) == {6, 8, 9}
@@ -198,14 +211,14 @@ def test_draw_triplets_picks_unmatched_negatives():
 
 def test_draw_triplets_hard_negatives_are_the_best_ranked_unmatched():
     smp = [retrieval.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None)]
-    scores = np.array([0.9, 0.0, 0.2, 0.1, 0.5, 0.8])   # unmatched ranked 3 (0.1), 2 (0.2), 5, 0
+    scores = np.array([0.9, 0.0, 0.2, 0.1, 0.5, 0.8])  # unmatched ranked 3 (0.1), 2 (0.2), 5, 0
     ip, ineg = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=1.0)
     assert ip.tolist() == [1, 4] and ineg.tolist() == [3, 2]
     ip, ineg = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.5)
-    assert ineg[0] == 3 and ineg[1] in {0, 2, 5}           # one hard, one random among the rest
+    assert ineg[0] == 3 and ineg[1] in {0, 2, 5}  # one hard, one random among the rest
     _, ineg0 = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.0)
     _, ineg1 = retrieval.draw_triplets(smp, [6], np.random.default_rng(0))
-    assert ineg0.tolist() == ineg1.tolist()                # fraction 0: the paper's random negatives
+    assert ineg0.tolist() == ineg1.tolist()  # fraction 0: the paper's random negatives
 
 
 def test_fused_scores_equal_separately_embedded_graphs():
@@ -244,8 +257,8 @@ def test_proposals_each_strategy():
     assert retrieval.propose(SCORE, XY, 2, "N_LM").tolist() == [1, 5]
     assert retrieval.propose(SCORE, XY, 2, "2N_LM").tolist() == [1, 2, 3, 5]
     s = SCORE.copy()
-    s[5] = 1.0                                    # best node is 1 (x = 10 m)
-    assert retrieval.propose(s, XY, 2, "R_30").tolist() == [0, 1, 2, 3]          # 40 m is exactly 30 m away
+    s[5] = 1.0  # best node is 1 (x = 10 m)
+    assert retrieval.propose(s, XY, 2, "R_30").tolist() == [0, 1, 2, 3]  # 40 m is exactly 30 m away
     assert retrieval.propose(s, XY, 2, "R_30", radius_m=20.0).tolist() == [0, 1, 2]
     # GT-BB: box of matched rows 1, 2 and the camera at (10, 10), enlarged 10%
     bb = retrieval.propose(SCORE, XY, 2, "GT-BB", matched_rows=[1, 2], cam_xy=[10.0, 10.0])
@@ -263,9 +276,21 @@ def test_proposal_metrics():
 
 
 def test_summarise_and_markdown_have_the_paper_beside():
-    rows = pd.DataFrame({"scene": "0", "token": ["a", "b"], "loss": "Sim+Trip", "map_type": "gt", "strategy": "R_30",
-                         "proposal": [[1], [2]], "n_proposed": [4, 2], "n_correct": [3, 0],
-                         "precision": [0.75, 0.0], "recall": [1.0, 0.0], "success": [True, False]})
+    rows = pd.DataFrame(
+        {
+            "scene": "0",
+            "token": ["a", "b"],
+            "loss": "Sim+Trip",
+            "map_type": "gt",
+            "strategy": "R_30",
+            "proposal": [[1], [2]],
+            "n_proposed": [4, 2],
+            "n_correct": [3, 0],
+            "precision": [0.75, 0.0],
+            "recall": [1.0, 0.0],
+            "success": [True, False],
+        }
+    )
     t = retrieval.summarise(rows)
     assert list(t.columns) == [c for c, _, _ in retrieval.TABLE_COLUMNS]
     r = t.iloc[0]
@@ -273,7 +298,7 @@ def test_summarise_and_markdown_have_the_paper_beside():
     assert (r.paper_precision, r.paper_recall, r.paper_success) == retrieval.PAPER_TABLE3[("Sim+Trip", "R_30", "gt")]
     md = retrieval.render_markdown(t)
     assert "| Sim+Trip | R_30 | 0.375 / 0.500 / 0.500 | 0.148 / 0.543 / 0.600 |" in md
-    tables.check_schema(t, "coarse_localization")          # the schema-checked writer accepts it
+    tables.check_schema(t, "coarse_localization")  # the schema-checked writer accepts it
     assert [c.name for c in tables.SCHEMAS["coarse_localization"]] == list(t.columns)
 
 
@@ -298,8 +323,10 @@ def real_data(flat_root):
         lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{s}.json", len(CLASSES))
         frame = geo.frame_for(lonlat)
         ref = map_files.reference_table(s, lonlat, classes, CLASSES, frame)
-        local = {t: {"GT": np.asarray(m["GT"], float), "depth": np.asarray(m["depth"], float)}
-                 for t, m in local_all[s].items()}
+        local = {
+            t: {"GT": np.asarray(m["GT"], float), "depth": np.asarray(m["depth"], float)}
+            for t, m in local_all[s].items()
+        }
         rec = localmaps.recover_scene(s, lonlat, classes, local)
         q = localmaps.build_queries(s, rec, ref, local, frame, localmaps.split_queries(list(rec["token"]), 0, salt=s))
         out.append((ref, q, target.scene_similarity(ref, q)))
@@ -330,8 +357,13 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
             assert t.loc[("Sim+Trip", strat, mt), "recall"] > t.loc[("random", strat, mt), "recall"]
     assert t.loc[("-", "GT-BB", "gt"), "success"] == 1.0
     # the validation criterion (computed without DataFrames) = the per-query metrics' means
-    crit = np.mean([t.loc[("Sim+Trip", "2N_LM", mt), "recall"] if k == 0 else t.loc[("Sim+Trip", "R_30", mt), "success"]
-                    for mt in ("gt", "depth") for k in (0, 1)])
+    crit = np.mean(
+        [
+            t.loc[("Sim+Trip", "2N_LM", mt), "recall"] if k == 0 else t.loc[("Sim+Trip", "R_30", mt), "success"]
+            for mt in ("gt", "depth")
+            for k in (0, 1)
+        ]
+    )
     assert retrieval.validation_metric(res["model"], ds, ds.split("test"), cfg) == pytest.approx(crit, abs=1e-12)
     # checkpoint round trip, with the resolved config
     path = tmp_path / "model.pt"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flatlandia.images import depth
 from flatlandia.errors import InputError
+from flatlandia.images import depth
 from flatlandia.images.image_queries import View
 
 

@@ -4,13 +4,17 @@ import zipfile
 
 import pandas as pd
 import pytest
-
-from flatlandia.data import fetch
-from flatlandia.data import ingest
 from snakemake_runner import smk
 
-SCENE12 = ["local_maps.json", "individual_reference_maps/map_12.json", "maps/12/transformations.json",
-           "maps/12/tokens.txt", "MANIFEST.tsv"]
+from flatlandia.data import fetch, ingest
+
+SCENE12 = [
+    "local_maps.json",
+    "individual_reference_maps/map_12.json",
+    "maps/12/transformations.json",
+    "maps/12/tokens.txt",
+    "MANIFEST.tsv",
+]
 
 
 @pytest.fixture
@@ -46,24 +50,39 @@ def test_fetch_images_takes_the_subfolder(tmp_path, flat_root):
 
 def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
     with pytest.raises(fetch.FetchError, match="FLATLANDIA_ROOT"):
-        fetch.fetch_flatlandia(tmp_path / "data", pd.DataFrame({"scene": ["0"], "city": ["x"], "name": ["y"]}),
-                               url="http://127.0.0.1:9/nothing.zip", timeout_s=5)
+        fetch.fetch_flatlandia(
+            tmp_path / "data",
+            pd.DataFrame({"scene": ["0"], "city": ["x"], "name": ["y"]}),
+            url="http://127.0.0.1:9/nothing.zip",
+            timeout_s=5,
+        )
     assert not (tmp_path / "data").exists()
     with pytest.raises(fetch.FetchError, match="archive holds no data/ folder"):
         bad = tmp_path / "bad.zip"
         with zipfile.ZipFile(bad, "w") as out:
             out.writestr("x/readme", "nothing")
-        fetch.fetch_flatlandia(tmp_path / "data", pd.DataFrame({"scene": [], "city": [], "name": []}),
-                               url=bad.as_uri())
+        fetch.fetch_flatlandia(tmp_path / "data", pd.DataFrame({"scene": [], "city": [], "name": []}), url=bad.as_uri())
     assert not (tmp_path / "data").exists()
 
 
 def test_workflow_fetches_when_the_data_folder_is_missing(repo, upstream_zip, tmp_path):
     cfg = tmp_path / "fetch.yaml"
-    cfg.write_text(f"flatlandia_root: {tmp_path / 'nowhere'}\n"
-                   f"fetch: {{url: '{upstream_zip.as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n")
-    res = smk(repo, tmp_path, "--cores", "1", "results/12/queries/queries.parquet", "results/tables/dataset_stats.parquet",
-              "--configfile", str(cfg), "--config", "select=[12]")
+    cfg.write_text(
+        f"flatlandia_root: {tmp_path / 'nowhere'}\n"
+        f"fetch: {{url: '{upstream_zip.as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
+    )
+    res = smk(
+        repo,
+        tmp_path,
+        "--cores",
+        "1",
+        "results/12/queries/queries.parquet",
+        "results/tables/dataset_stats.parquet",
+        "--configfile",
+        str(cfg),
+        "--config",
+        "select=[12]",
+    )
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert (tmp_path / "fetched/local_maps.json").exists()
     assert len(pd.read_parquet(tmp_path / "results/12/queries/queries.parquet")) == 3

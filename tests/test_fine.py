@@ -7,14 +7,10 @@ import pandas as pd
 import pytest
 import torch
 
-from flatlandia.fine import learned
-from flatlandia import geo
-from flatlandia import io
-from flatlandia.data import localmaps
-from flatlandia.data import map_files
-from flatlandia.fine import solver
-from flatlandia.fine import evaluation
+from flatlandia import geo, io
 from flatlandia.classes import CLASSES
+from flatlandia.data import localmaps, map_files
+from flatlandia.fine import evaluation, learned, solver
 
 torch.set_num_threads(1)
 
@@ -32,6 +28,7 @@ def scene(flat_root):
 
 
 # ----------------------------------------------------------------------------- solver
+
 
 def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
     ref, q = scene
@@ -95,7 +92,7 @@ def test_compiled_scoring_equals_padded_numpy_costs(metric):
     cost = pb.costs(t, th, s)
     best = cost.argmin(2)
     bc = np.take_along_axis(cost, best[..., None], 2)[..., 0]
-    tau2 = pb.cfg.tau ** 2
+    tau2 = pb.cfg.tau**2
     np.testing.assert_allclose(total, np.minimum(bc, tau2).sum(1), rtol=1e-4, atol=1e-4)
     ok = np.abs(bc - tau2) > 1e-3  # float32 reference: leave exact ties with the cap aside
     assert (inl == (bc < tau2))[ok].all() and inl.sum() > 100
@@ -126,10 +123,10 @@ def test_covisibility_prior_breaks_a_repeated_pattern(seen_copy):
     cls = rng.integers(0, 4, 6)
     ref = np.vstack([pattern, pattern + [200.0, 0.0]])
     ref_cls = np.concatenate([cls, cls])
-    depth = pattern / np.median(np.linalg.norm(pattern, axis=1))      # camera at a copy's origin, heading 0
+    depth = pattern / np.median(np.linalg.norm(pattern, axis=1))  # camera at a copy's origin, heading 0
     prior = np.array([[0.0, 0.0, 0.0], [200.0, 0.0, 0.0]])
     seen = np.zeros((2, 12), bool)
-    seen[seen_copy, 6 * seen_copy:6 * seen_copy + 6] = True             # only one camera saw its copy
+    seen[seen_copy, 6 * seen_copy : 6 * seen_copy + 6] = True  # only one camera saw its copy
     cfg = {"covis_weight": 2.0}
     s = solver.solve(depth, cls, ref, ref_cls, metric=False, config=cfg, prior_xy=prior, prior_seen=seen)
     assert np.hypot(s.x - 200.0 * seen_copy, s.y) < 1e-3 and abs(geo.wrap_angle(s.theta)) < 1e-6
@@ -143,7 +140,7 @@ def test_training_priors_come_from_the_training_split_only(scene):
     assert len(prior) == len(seen) == len(train)
     assert np.allclose(prior[:, :2], train[["x_m", "y_m"]].to_numpy())
     assert evaluation.training_priors(q, {"camera_prior": False}) == (None, None)
-    assert evaluation.training_priors(q, {})[1] is None                          # no co-visibility cost: no sets
+    assert evaluation.training_priors(q, {})[1] is None  # no co-visibility cost: no sets
 
 
 def test_solver_returns_none_without_candidates():
@@ -158,14 +155,22 @@ def test_fit_priors():
 
 # ----------------------------------------------------------------------------- metrics
 
+
 def test_pose_errors_wrap_around():
     e_m, e_deg = evaluation.pose_errors(3.0, 4.0, math.radians(179.0), 0.0, 0.0, math.radians(-179.0))
     assert e_m == pytest.approx(5.0) and e_deg == pytest.approx(2.0)
 
 
 def test_summary_on_hand_made_errors():
-    e = pd.DataFrame({"error_m": [0.1, 0.8, 4.0, 9.0, 50.0, np.inf], "error_deg": [1.0, 4.0, 9.0, 30.0, 1.0, 180.0],
-                      "solvable": [True] * 5 + [False], "seconds": [0.01] * 6, "error_paper_m": [0.0] * 6})
+    e = pd.DataFrame(
+        {
+            "error_m": [0.1, 0.8, 4.0, 9.0, 50.0, np.inf],
+            "error_deg": [1.0, 4.0, 9.0, 30.0, 1.0, 180.0],
+            "solvable": [True] * 5 + [False],
+            "seconds": [0.01] * 6,
+            "error_paper_m": [0.0] * 6,
+        }
+    )
     s = evaluation.summarise(e)
     assert s["pct_0.5m_2deg"] == pytest.approx(100 / 6)
     assert s["pct_1m_5deg"] == pytest.approx(200 / 6)
@@ -192,14 +197,27 @@ def test_gtbb_box_and_paper_units():
 
 
 def test_markdown_table_layout():
-    rows = [dict(method="MLP", map_type=mt, strategy="GT-BB", median_m=5.0, median_deg=9.0, median_paper_m=6.0,
-                 mean_query_s=0.002, failure_pct=0.0, gross_pct=1.0, **{c: 10.0 for c in evaluation._TH_COLS})
-            for mt in ("gt", "depth")]
+    rows = [
+        dict(
+            method="MLP",
+            map_type=mt,
+            strategy="GT-BB",
+            median_m=5.0,
+            median_deg=9.0,
+            median_paper_m=6.0,
+            mean_query_s=0.002,
+            failure_pct=0.0,
+            gross_pct=1.0,
+            **{c: 10.0 for c in evaluation._TH_COLS},
+        )
+        for mt in ("gt", "depth")
+    ]
     md = evaluation.render_markdown(evaluation.table_rows(rows))
     assert "Table 4" in md and "| MLP | GT-BB |" in md and "13.3" in md  # the paper's depth MLP median
 
 
 # ----------------------------------------------------------------------------- learned models
+
 
 def _toy_samples(n, cfg, seed=0):
     rng = np.random.default_rng(seed)
@@ -345,15 +363,29 @@ def test_simulated_coarse_proposals_look_like_2n_lm(scene):
 
 def test_crop_to_densest_keeps_the_densest_group(scene):
     """Two groups of objects 200 m apart: the crop keeps the larger one, whole, and nothing else."""
-    ref = pd.DataFrame({"obj_idx": np.arange(7), "x_m": [0, 5, 10, 12, 200, 205, 210.0], "y_m": np.zeros(7),
-                        "class_id": np.zeros(7, int)})
-    props = pd.DataFrame({"scene": ["9"] * 2, "token": ["a", "b"], "strategy": ["2N_LM"] * 2,
-                          "proposal": [[0, 1, 2, 3, 4, 5], [4, 5, 6, 0]]})
+    ref = pd.DataFrame(
+        {
+            "obj_idx": np.arange(7),
+            "x_m": [0, 5, 10, 12, 200, 205, 210.0],
+            "y_m": np.zeros(7),
+            "class_id": np.zeros(7, int),
+        }
+    )
+    props = pd.DataFrame(
+        {
+            "scene": ["9"] * 2,
+            "token": ["a", "b"],
+            "strategy": ["2N_LM"] * 2,
+            "proposal": [[0, 1, 2, 3, 4, 5], [4, 5, 6, 0]],
+        }
+    )
     out = evaluation.crop_to_densest(ref, props, 30.0)
     assert out["proposal"].tolist() == [[0, 1, 2, 3], [4, 5, 6]]
     assert evaluation.crop_to_densest(ref, props, 0.0) is props  # 0: off
     ref9, q9 = scene
-    real = evaluation.crop_to_densest(ref9, evaluation.simulated_coarse_proposals(ref9, q9, np.random.default_rng(1)), 30.0)
+    real = evaluation.crop_to_densest(
+        ref9, evaluation.simulated_coarse_proposals(ref9, q9, np.random.default_rng(1)), 30.0
+    )
     xy = dict(zip(ref9["obj_idx"].astype(int), ref9[["x_m", "y_m"]].to_numpy()))
     for p in real["proposal"]:  # every kept object within 2 radii of every other
         pts = np.array([xy[o] for o in p])
@@ -364,10 +396,14 @@ def test_training_proposals_regimes(scene):
     ref, q = scene
     gt = evaluation.training_proposals(ref, q, "gtbb", np.random.default_rng(0))
     assert len(gt) == 1 and gt[0]["strategy"].eq("GT-BB").all()
-    co = evaluation.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=3, keep_gtbb=True, crop_m=30.0)
+    co = evaluation.training_proposals(
+        ref, q, "coarse", np.random.default_rng(0), copies=3, keep_gtbb=True, crop_m=30.0
+    )
     assert len(co) == 4 and co[0]["strategy"].eq("GT-BB").all()
     assert all(p["strategy"].eq("simulated 2N_LM").all() and len(p) == len(q) for p in co[1:])
     assert co[1]["proposal"].map(list).tolist() != co[2]["proposal"].map(list).tolist()  # fresh draws
-    assert len(evaluation.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=2, keep_gtbb=False)) == 2
+    assert (
+        len(evaluation.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=2, keep_gtbb=False)) == 2
+    )
     with pytest.raises(ValueError, match="gtbb or coarse"):
         evaluation.training_proposals(ref, q, "whole", np.random.default_rng(0))

@@ -2,8 +2,7 @@ import numpy as np
 import pytest
 from pyproj import Geod
 
-from flatlandia import geo
-from flatlandia import io
+from flatlandia import geo, io
 
 
 def test_metric_frame_round_trip_and_known_distance():

@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 
 from flatlandia import geo
-from flatlandia.images import gps_alignment
-from flatlandia.objects import clustering
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
+from flatlandia.images import gps_alignment
+from flatlandia.objects import clustering
 
 FRAME = geo.MetricFrame(lon0=13.195, lat0=55.698)
 
@@ -46,8 +46,17 @@ def walk():
     gps_xy = world[:, :2] + rng.normal(0, 5.0, (n, 2))
     gps_xy[[4, 17]] += [[80.0, -60.0], [-70.0, 90.0]]  # two wild fixes
     compass = 90.0 - np.degrees(yaws)  # clockwise from north
-    return dict(world=world, centres=centres, R=R_sfm, lonlat=FRAME.to_lonlat(gps_xy), s0=s0, Q=Q, t0=t0,
-                compass=compass, alt=world[:, 2] + 30.0)
+    return dict(
+        world=world,
+        centres=centres,
+        R=R_sfm,
+        lonlat=FRAME.to_lonlat(gps_xy),
+        s0=s0,
+        Q=Q,
+        t0=t0,
+        compass=compass,
+        alt=world[:, 2] + 30.0,
+    )
 
 
 def test_up_axis_and_right_handed_basis(walk):
@@ -59,8 +68,15 @@ def test_up_axis_and_right_handed_basis(walk):
 
 
 def test_alignment_of_a_straight_walk_with_noisy_gps_and_outliers(walk):
-    out = gps_alignment.fit_gps_alignment(walk["centres"], walk["R"], walk["lonlat"], altitude=walk["alt"],
-                                   compass_deg=walk["compass"], threshold_m=15.0, seed=0)
+    out = gps_alignment.fit_gps_alignment(
+        walk["centres"],
+        walk["R"],
+        walk["lonlat"],
+        altitude=walk["alt"],
+        compass_deg=walk["compass"],
+        threshold_m=15.0,
+        seed=0,
+    )
     # the two wild fixes are outliers, the rest inliers
     assert out["inliers"] >= 26 and not out["inlier_mask"][4] and not out["inlier_mask"][17]
     assert out["metres_per_sfm_unit"] == pytest.approx(1 / walk["s0"], rel=0.05)
@@ -83,7 +99,7 @@ def test_alignment_needs_three_cameras_with_gps(walk):
 
 def _points(clusters, rng):
     rows = []
-    for (cx, cy, cls, n) in clusters:
+    for cx, cy, cls, n in clusters:
         xyz = np.array([cx, cy, 0.0]) + rng.normal(0, 0.15, (n, 3))
         rows += [(x, y, z, cls) for x, y, z in xyz]
     bg = rng.uniform(-20, 20, (200, 3))
@@ -97,8 +113,13 @@ def test_scene_objects_cluster_label_and_place(walk):
     rng = np.random.default_rng(0)
     pole, sign = CLASSES.index("object--support--pole"), CLASSES.index("object--traffic-sign")
     pts = _points([(5, 5, pole, 30), (12, -3, pole, 25), (-8, 4, sign, 20)], rng)
-    alignment = {"A": [[1.0, 0, 0], [0, 1.0, 0]], "b": [0.0, 0.0], "metres_per_sfm_unit": 1.0,
-                 "frame_lon0": FRAME.lon0, "frame_lat0": FRAME.lat0}
+    alignment = {
+        "A": [[1.0, 0, 0], [0, 1.0, 0]],
+        "b": [0.0, 0.0],
+        "metres_per_sfm_unit": 1.0,
+        "frame_lon0": FRAME.lon0,
+        "frame_lat0": FRAME.lat0,
+    }
     objs, member = gps_alignment.scene_objects("t", pts, alignment, clustering.ClusterParams(eps_m=1.0), CLASSES)
     assert len(objs) == 3
     got = sorted(zip(np.round(objs["x_m"]).astype(int), np.round(objs["y_m"]).astype(int), objs["class_id"]))
@@ -112,8 +133,13 @@ def test_scene_objects_cluster_label_and_place(walk):
 def test_scene_without_object_points_is_an_empty_result():
     rng = np.random.default_rng(1)
     pts = _points([], rng)
-    alignment = {"A": [[1.0, 0, 0], [0, 1.0, 0]], "b": [0.0, 0.0], "metres_per_sfm_unit": 1.0,
-                 "frame_lon0": FRAME.lon0, "frame_lat0": FRAME.lat0}
+    alignment = {
+        "A": [[1.0, 0, 0], [0, 1.0, 0]],
+        "b": [0.0, 0.0],
+        "metres_per_sfm_unit": 1.0,
+        "frame_lon0": FRAME.lon0,
+        "frame_lat0": FRAME.lat0,
+    }
     objs, member = gps_alignment.scene_objects("t", pts, alignment, clustering.ClusterParams(), CLASSES)
     assert objs.empty and (member == -1).all() and {"x_m", "class_id", "box_cx"} <= set(objs.columns)
 

@@ -28,7 +28,9 @@ def street():
             pts[pid] = c + rng.uniform(-0.2, 0.2, 3)
             point_object[pid] = oid
             pid += 1
-        corners = np.array([[c[0] + dx, c[1] + dy, c[2] + dz] for dx in (-.2, .2) for dy in (-.2, .2) for dz in (-.2, .2)])
+        corners = np.array(
+            [[c[0] + dx, c[1] + dy, c[2] + dz] for dx in (-0.2, 0.2) for dy in (-0.2, 0.2) for dz in (-0.2, 0.2)]
+        )
         rows.append({"object_id": oid, "corners": corners.tolist()})
     objects = pd.DataFrame(rows)
     views = []
@@ -65,6 +67,7 @@ def test_pose_detections_and_local_maps(street):
 
 def test_too_few_objects_make_no_query(street):
     views, objects, point_object, pts, A, b, obj_xy = street
-    q = image_queries.scene_queries("s", views, objects, point_object, pts, A, b, obj_xy, {1: 1, 2: 2, 3: 3, 4: 4},
-                         min_objects=4)
+    q = image_queries.scene_queries(
+        "s", views, objects, point_object, pts, A, b, obj_xy, {1: 1, 2: 2, 3: 3, 4: 4}, min_objects=4
+    )
     assert q.empty and "gt_local_xy_m" in q.columns

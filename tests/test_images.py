@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from flatlandia.images import image_audit
-from flatlandia.images import segment
 from flatlandia.errors import InputError
+from flatlandia.images import image_audit, segment
 
 LUND = Path(__file__).resolve().parents[2] / "shared" / "images" / "lund"
 
@@ -87,8 +86,14 @@ def test_offline_backend_masks_sky_but_claims_no_objects():
 
 
 def test_precomputed_backend_maps_vistas_names_to_flatlandia_classes(tmp_path):
-    names = ["void", "human--person", "object--street-light", "object--support--pole", "nature--sky",
-             "marking--discrete--crosswalk-zebra"]
+    names = [
+        "void",
+        "human--person",
+        "object--street-light",
+        "object--support--pole",
+        "nature--sky",
+        "marking--discrete--crosswalk-zebra",
+    ]
     (tmp_path / "labels.json").write_text(json.dumps({"labels": [{"name": n} for n in names]}))
     ids = np.zeros((20, 30), dtype=np.uint8)
     ids[:5] = 4

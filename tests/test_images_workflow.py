@@ -8,23 +8,30 @@ import numpy as np
 import pandas as pd
 import pycolmap
 import pytest
+from snakemake_runner import smk
 
-from flatlandia.images import classify_points
-from flatlandia.images import gps_alignment
-from flatlandia.images import image_queries
 from flatlandia import io
-from flatlandia.objects import clustering
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
-from snakemake_runner import smk
+from flatlandia.images import classify_points, gps_alignment, image_queries
+from flatlandia.objects import clustering
 
 
 @pytest.fixture(scope="module")
 def lund_run(repo, flat_root, tmp_path_factory):
     wd = tmp_path_factory.mktemp("lund")
-    res = smk(repo, wd, "--cores", "2", "results/lund/sfm/classified_points.parquet", "results/lund/sfm/sfm_summary.png",
-              "results/lund/queries/queries.parquet", "results/lund/maps/reference_map.geojson",
-              "--config", f"flatlandia_root={flat_root}")
+    res = smk(
+        repo,
+        wd,
+        "--cores",
+        "2",
+        "results/lund/sfm/classified_points.parquet",
+        "results/lund/sfm/sfm_summary.png",
+        "results/lund/queries/queries.parquet",
+        "results/lund/maps/reference_map.geojson",
+        "--config",
+        f"flatlandia_root={flat_root}",
+    )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd
 
@@ -63,8 +70,11 @@ def test_points_take_the_majority_class_of_their_observations(lund_run):
     pts = classify_points.point_votes(model, maps).set_index("point3D_id")
     checked = 0
     for pid, p in list(model.points3D.items())[:300]:
-        xs = [model.images[e.image_id].points2D[e.point2D_idx].xy[0] - model.cameras[
-            model.images[e.image_id].camera_id].width / 2 for e in p.track.elements]
+        xs = [
+            model.images[e.image_id].points2D[e.point2D_idx].xy[0]
+            - model.cameras[model.images[e.image_id].camera_id].width / 2
+            for e in p.track.elements
+        ]
         if min(abs(x) for x in xs) < 2:  # an observation on the border of the two halves
             continue
         share = np.mean([x < 0 for x in xs])
@@ -137,8 +147,8 @@ def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=12, min_sep_px
         for pid in all_ids[np.linalg.norm(all_xyz - xyz[c], axis=1) < radius_sfm]:
             groups.setdefault(int(pid), classes[0 if one_class else g % len(classes)])
             group_of.setdefault(int(pid), g)
-    yy, xx = np.mgrid[-radius_px:radius_px + 1, -radius_px:radius_px + 1]
-    disk = yy ** 2 + xx ** 2 <= radius_px ** 2
+    yy, xx = np.mgrid[-radius_px : radius_px + 1, -radius_px : radius_px + 1]
+    disk = yy**2 + xx**2 <= radius_px**2
     maps, instances = {}, {}
     for img in model.images.values():
         cam = model.cameras[img.camera_id]
@@ -164,9 +174,11 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
     pts = classify_points.point_votes(model, maps)
     assert (pts["class_id"] != 255).sum() >= 20
     objs, member = gps_alignment.scene_objects("lund", pts, alignment, clustering.ClusterParams(eps_m=1.0), CLASSES)
-    assert len(objs) >= 3 and set(objs["class_id"]) <= {CLASSES.index("object--support--pole"),
-                                                       CLASSES.index("object--street-light"),
-                                                       CLASSES.index("object--traffic-sign")}
+    assert len(objs) >= 3 and set(objs["class_id"]) <= {
+        CLASSES.index("object--support--pole"),
+        CLASSES.index("object--street-light"),
+        CLASSES.index("object--traffic-sign"),
+    }
     cams = np.array([v.centre for v in image_queries.views_from_colmap(model)])
     cam_xy = gps_alignment.map_points(alignment, cams)
     d = np.linalg.norm(objs[["x_m", "y_m"]].to_numpy()[:, None] - cam_xy[None], axis=2).min(1)
@@ -174,10 +186,17 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
     objs["corners"] = [clustering.box_corners(r).tolist() for r in objs.itertuples(index=False)]
     point_object = {int(p): int(o) for p, o in zip(pts["point3D_id"], member) if o >= 0}
     point_xyz = {int(pid): np.asarray(p.xyz) for pid, p in model.points3D.items()}
-    q = image_queries.scene_queries("lund", image_queries.views_from_colmap(model), objs, point_object, point_xyz,
-                                   np.asarray(alignment["A"]), np.asarray(alignment["b"]),
-                                   dict(zip(objs["object_id"], objs[["x_m", "y_m"]].to_numpy())),
-                                   dict(zip(objs["object_id"], objs["class_id"])))
+    q = image_queries.scene_queries(
+        "lund",
+        image_queries.views_from_colmap(model),
+        objs,
+        point_object,
+        point_xyz,
+        np.asarray(alignment["A"]),
+        np.asarray(alignment["b"]),
+        dict(zip(objs["object_id"], objs[["x_m", "y_m"]].to_numpy())),
+        dict(zip(objs["object_id"], objs["class_id"])),
+    )
     assert len(q) >= 1
     for r in q.itertuples(index=False):
         gt = np.asarray(r.gt_local_xy_m)
@@ -196,8 +215,9 @@ def test_lund_instance_images_split_merged_objects(lund_run, tmp_path):
     wd = lund_run
     model = pycolmap.Reconstruction(str(wd / "results/lund/sfm/model"))
     alignment = json.loads((wd / "results/lund/align/alignment.json").read_text())
-    maps, n_groups, inst_maps = _painted_label_maps(model, radius_sfm=1.5 / alignment["metres_per_sfm_unit"],
-                                                    one_class=True)
+    maps, n_groups, inst_maps = _painted_label_maps(
+        model, radius_sfm=1.5 / alignment["metres_per_sfm_unit"], one_class=True
+    )
     from PIL import Image
 
     for name, ids in inst_maps.items():

@@ -2,11 +2,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import geo
-from flatlandia import io
-from flatlandia.data import localmaps
-from flatlandia.data import map_files
+from flatlandia import geo, io
 from flatlandia.classes import CLASSES
+from flatlandia.data import localmaps, map_files
 
 
 @pytest.fixture(scope="module")
@@ -42,8 +40,9 @@ def test_published_maps_carried_into_the_metric_frame(scene9, flat_root):
     rec = localmaps.recover_scene("9", ref[["lon", "lat"]].to_numpy(), ref["class_id"].to_numpy(), local)
     mpd = frame.metres_per_degree()
     for r, qr in zip(rec.itertuples(), q.itertuples()):
-        carried = localmaps.published_to_metric_frame(local[r.token]["GT"], np.radians(r.theta_lonlat_deg),
-                                                      np.radians(qr.theta_deg), mpd)
+        carried = localmaps.published_to_metric_frame(
+            local[r.token]["GT"], np.radians(r.theta_lonlat_deg), np.radians(qr.theta_deg), mpd
+        )
         assert np.abs(carried - localmaps.xy(qr.gt_local_xy_m)).max() < 0.01
 
 
@@ -62,8 +61,22 @@ def test_depth_maps_normalised_with_metric_bearings(scene9):
 
 def test_query_table_schema(scene9):
     _, _, _, q = scene9
-    need = {"scene", "token", "n_objects", "ref_idx", "classes", "lon", "lat", "x_m", "y_m", "theta_deg",
-            "split", "gt_local_xy_m", "depth_local_xy", "ambiguous"}
+    need = {
+        "scene",
+        "token",
+        "n_objects",
+        "ref_idx",
+        "classes",
+        "lon",
+        "lat",
+        "x_m",
+        "y_m",
+        "theta_deg",
+        "split",
+        "gt_local_xy_m",
+        "depth_local_xy",
+        "ambiguous",
+    }
     assert need <= set(q.columns)
     assert (q["n_objects"] == q["ref_idx"].map(len)).all()
     assert q["split"].isin(["train", "val", "test"]).all()

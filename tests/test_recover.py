@@ -1,11 +1,9 @@
 import numpy as np
 import pytest
 
-from flatlandia import geo
-from flatlandia import io
-from flatlandia.data import localmaps
-from flatlandia.data import registration
+from flatlandia import geo, io
 from flatlandia.classes import CLASSES
+from flatlandia.data import localmaps, registration
 
 MPD = (73_000.0, 111_200.0)  # metres per degree (lon, lat) near 49 N
 
@@ -46,8 +44,9 @@ def test_symmetric_map_is_flagged_ambiguous_and_classes_resolve_it():
     same = np.array([1, 2, 3, 1, 2, 3])
     assert registration.classify_ambiguity(rec, same) == "same_classes"
     # knowing the query's classes makes the registration unique
-    rec2 = registration.register(local, registration.PairIndex(ref), MPD, local_classes=np.array([4, 5, 6]),
-                            ref_classes=classes)
+    rec2 = registration.register(
+        local, registration.PairIndex(ref), MPD, local_classes=np.array([4, 5, 6]), ref_classes=classes
+    )
     assert rec2.best.ref_idx == (3, 4, 5) and not rec2.others
 
 
@@ -66,8 +65,7 @@ def test_all_published_queries_recovered_and_consistent(flat_root, all_local_map
     n, worst_res, worst_map = 0, 0.0, 0.0
     unresolved = 0
     for scene in sorted(all_local_maps, key=int):
-        lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{scene}.json",
-                                                len(CLASSES))
+        lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
         local = io.read_local_maps(flat_root / "local_maps.json", scene)
         rec = localmaps.recover_scene(scene, lonlat, classes, local)
         assert rec["recovered"].all(), scene

@@ -6,13 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
-
 from conftest import data_root
-from flatlandia import geo
-from flatlandia import io
-from flatlandia.objects import clustering
-from flatlandia.objects import bounds
+
+from flatlandia import geo, io
 from flatlandia.errors import InputError
+from flatlandia.objects import bounds, clustering
 
 ROOT = data_root()
 
@@ -89,7 +87,14 @@ def _scene(scene):
     t = io.read_transformations(maps / "transformations.json")
     ref_ll, ref_cl = io.read_reference_map(ROOT / "individual_reference_maps" / f"map_{scene}.json")
     frame = geo.frame_for(ref_ll)
-    return pts, labels, clustering.metres_per_unit(t), frame.to_xy(geo.sfm_to_lonlat(pts, t)), frame.to_xy(ref_ll), ref_cl
+    return (
+        pts,
+        labels,
+        clustering.metres_per_unit(t),
+        frame.to_xy(geo.sfm_to_lonlat(pts, t)),
+        frame.to_xy(ref_ll),
+        ref_cl,
+    )
 
 
 def test_dbscan_objects_are_tree_nodes_real():
@@ -113,11 +118,18 @@ def test_published_colours_scene2_real():
     pts, labels, mpu, xy, ref_xy, ref_cl = _scene("2")
     fg = labels != clustering.BACKGROUND
     nearest = clustering.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg])
-    exact = bounds.published_colours(ref_xy, np.full(len(ref_xy), "?", dtype=object), pts[fg], labels[fg], xy[fg],
-                                max_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu)
+    exact = bounds.published_colours(
+        ref_xy,
+        np.full(len(ref_xy), "?", dtype=object),
+        pts[fg],
+        labels[fg],
+        xy[fg],
+        max_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu,
+    )
     made = exact != "?"
     assert made.sum() == 59
     assert (exact[made] != nearest[made]).sum() == 16
-    both = clustering.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg],
-                                     exact_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu)
+    both = clustering.published_macro_classes(
+        ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg], exact_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu
+    )
     assert (both[made] == exact[made]).all() and (both[~made] == nearest[~made]).all()

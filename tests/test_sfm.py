@@ -5,10 +5,10 @@ import shutil
 import numpy as np
 import pytest
 from PIL import Image
-
-from flatlandia.images import sfm
-from flatlandia.errors import InputError
 from test_images import LUND
+
+from flatlandia.errors import InputError
+from flatlandia.images import sfm
 
 OPTS = sfm.SfmOptions(num_threads=1, max_image_size=800)
 

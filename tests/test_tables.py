@@ -5,8 +5,17 @@ from flatlandia import tables
 
 
 def _recovery_row(**kw):
-    row = dict(scene="1", queries=3, recovered=3, max_residual_m=1e-9, ambiguous=0, resolved_exact_fit=0,
-               same_classes=0, unresolved=0, seconds=0.1)
+    row = dict(
+        scene="1",
+        queries=3,
+        recovered=3,
+        max_residual_m=1e-9,
+        ambiguous=0,
+        resolved_exact_fit=0,
+        same_classes=0,
+        unresolved=0,
+        seconds=0.1,
+    )
     row.update(kw)
     return pd.DataFrame([row])
 
@@ -32,5 +41,6 @@ def test_renderings_hold_the_same_numbers(tmp_path):
 
 
 def test_docs_match_the_schemas(repo):
-    assert (repo / "docs/tables.md").read_text() == tables.schema_markdown(), \
+    assert (repo / "docs/tables.md").read_text() == tables.schema_markdown(), (
         "docs/tables.md is stale: regenerate it with tables.schema_markdown()"
+    )

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from snakemake_runner import smk
 
 from flatlandia import io
-from snakemake_runner import smk
 
 
 @pytest.fixture(scope="module")
@@ -43,9 +43,13 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert (wd / f"logs/recover/{scene}.log").read_text().count("queries recovered") == 1
         assert (wd / f"benchmarks/recover/{scene}.tsv").exists()
-    for t, flat in (("dataset_stats", "dataset_stats"), ("recovery", "recovery"),  # one line per Parquet row
-                    ("reference_map_reproduction", "reference_map_reproduction"),
-                    ("coarse_localization", "coarse_localization_rows"), ("fine_localization", "fine_localization_rows")):
+    for t, flat in (
+        ("dataset_stats", "dataset_stats"),
+        ("recovery", "recovery"),  # one line per Parquet row
+        ("reference_map_reproduction", "reference_map_reproduction"),
+        ("coarse_localization", "coarse_localization_rows"),
+        ("fine_localization", "fine_localization_rows"),
+    ):
         md = [ln for ln in (wd / f"results/tables/{flat}.md").read_text().splitlines() if ln.startswith("| ")]
         assert len(md) == 1 + len(pd.read_parquet(wd / f"results/tables/{t}.parquet"))
         assert (wd / f"results/tables/{t}.tex").read_text().startswith("\\begin{table}")
@@ -78,8 +82,12 @@ def test_manifest_and_audit_trace_every_artifact(run_two_scenes):
     assert inputs["results/12/queries/recovered.parquet"] == io.sha256(wd / "results/12/queries/recovered.parquet")
     assert man["git_commit"].str.len().min() >= 7 and man["config_hash"].nunique() == 1
     assert {"ingest", "recover", "reference_map", "plot_reference_map", "dataset_stats"} <= set(man["rule"])
-    res = subprocess.run([str(Path(sys.executable).parent / "flatlandia"), "audit", "--scene", "12"], cwd=wd,
-                         capture_output=True, text=True)
+    res = subprocess.run(
+        [str(Path(sys.executable).parent / "flatlandia"), "audit", "--scene", "12"],
+        cwd=wd,
+        capture_output=True,
+        text=True,
+    )
     assert res.returncode == 0 and q in res.stdout and "results/9/" not in res.stdout
 
 
@@ -96,8 +104,14 @@ def test_report_holds_every_figure(run_two_scenes, repo, flat_root):
     res = smk(repo, wd, "--report", "results/report.zip", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     names = "\n".join(zipfile.ZipFile(wd / "results/report.zip").namelist())
-    for figure in ("reference_map.png", "training_curves.png", "fine_error_cdf.png", "fine_error_vs_objects.png",
-                   "coarse_scores_", "reference_map_reproduction.png"):
+    for figure in (
+        "reference_map.png",
+        "training_curves.png",
+        "fine_error_cdf.png",
+        "fine_error_vs_objects.png",
+        "coarse_scores_",
+        "reference_map_reproduction.png",
+    ):
         assert figure in names, figure
 
 
@@ -105,26 +119,52 @@ def test_dry_run_lists_the_full_dag(repo, flat_root, tmp_path):
     res = smk(repo, tmp_path, "-n", "all", "--config", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stderr[-2000:]
     out = res.stdout + res.stderr
-    counts = {"ingest": 20, "recover": 20, "reference_map": 20, "queries": 20, "plot_reference_map": 21,
-              "objects": 12, "align": 12, "images_align": 1, "images_queries": 1, "coarse_similarity": 20,
-              "coarse_train": 3, "fine_table": 1, "figures_fine_errors": 1, "manifest": 1}
+    counts = {
+        "ingest": 20,
+        "recover": 20,
+        "reference_map": 20,
+        "queries": 20,
+        "plot_reference_map": 21,
+        "objects": 12,
+        "align": 12,
+        "images_align": 1,
+        "images_queries": 1,
+        "coarse_similarity": 20,
+        "coarse_train": 3,
+        "fine_table": 1,
+        "figures_fine_errors": 1,
+        "manifest": 1,
+    }
     for rule, n in counts.items():  # 20 published scenes (12 with a class cloud) + the Lund images scene
         assert any(line.split()[:2] == [rule, str(n)] for line in out.splitlines()), rule
-
 
 
 @pytest.mark.slow
 def test_paper_config_merges_over_the_default(repo, flat_root, tmp_path):
     """config/paper.yaml only names what differs: the default's other keys survive the merge and
     its runs widen the DAG (5 methods x 2 map types x 4 proposals + 4 whole-map runs)."""
-    res = smk(repo, tmp_path, "-n", "all", "--configfile", str(repo / "config/paper.yaml"),
-              "--config", f"flatlandia_root={flat_root}")
+    res = smk(
+        repo,
+        tmp_path,
+        "-n",
+        "all",
+        "--configfile",
+        str(repo / "config/paper.yaml"),
+        "--config",
+        f"flatlandia_root={flat_root}",
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     out = res.stdout + res.stderr
-    counts = {"fine_train": 16, "fine_eval": 44, "coarse_train": 3, "coarse_similarity": 20}  # 4 models x 2 maps x 2 trainings
+    counts = {
+        "fine_train": 16,
+        "fine_eval": 44,
+        "coarse_train": 3,
+        "coarse_similarity": 20,
+    }  # 4 models x 2 maps x 2 trainings
     for rule, n in counts.items():
         assert any(line.split()[:2] == [rule, str(n)] for line in out.splitlines()), rule
     assert "results/fine/gat_att_depth_coarse-trip/errors.parquet" in out
+
 
 def test_select_a_city(repo, flat_root, tmp_path):
     res = smk(repo, tmp_path, "-n", "all", "--config", "select=[Berlin]", f"flatlandia_root={flat_root}")
@@ -157,8 +197,7 @@ def test_bad_reference_map_stops_the_rule_without_output(repo, flat_root, tmp_pa
     bad.write_text(json.dumps(objs))
     wd = tmp_path / "wd"
     wd.mkdir()
-    res = smk(repo, wd, "--cores", "1", "results/12/maps/reference_map.parquet",
-              "--config", f"flatlandia_root={data}")
+    res = smk(repo, wd, "--cores", "1", "results/12/maps/reference_map.parquet", "--config", f"flatlandia_root={data}")
     assert res.returncode != 0
     log = (wd / "logs/ingest/12.log").read_text()
     assert "map_12.json" in log and "malformed object entry" in log
@@ -168,8 +207,10 @@ def test_bad_reference_map_stops_the_rule_without_output(repo, flat_root, tmp_pa
 
 def test_missing_data_is_fetched_or_fails_fast_offline(repo, tmp_path):
     cfg = tmp_path / "offline.yaml"
-    cfg.write_text(f"flatlandia_root: {tmp_path / 'nowhere'}\n"
-                   f"fetch: {{url: 'http://127.0.0.1:9/x.zip', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n")
+    cfg.write_text(
+        f"flatlandia_root: {tmp_path / 'nowhere'}\n"
+        f"fetch: {{url: 'http://127.0.0.1:9/x.zip', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
+    )
     res = smk(repo, tmp_path, "--cores", "1", "results/12/ingest/ingest.json", "--configfile", str(cfg))
     assert res.returncode != 0
     log = (tmp_path / "logs/fetch_flatlandia/fetch.log").read_text()
@@ -178,8 +219,16 @@ def test_missing_data_is_fetched_or_fails_fast_offline(repo, tmp_path):
 
 
 def test_slurm_profile_dry_runs_with_the_expected_resources(repo, flat_root, tmp_path):
-    res = smk(repo, tmp_path, "--profile", str(repo / "profiles/slurm"), "-n", "all",
-              "--config", f"flatlandia_root={flat_root}")
+    res = smk(
+        repo,
+        tmp_path,
+        "--profile",
+        str(repo / "profiles/slurm"),
+        "-n",
+        "all",
+        "--config",
+        f"flatlandia_root={flat_root}",
+    )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     out = res.stdout + res.stderr
     resources = {}
@@ -197,16 +246,28 @@ def test_slurm_profile_dry_runs_with_the_expected_resources(repo, flat_root, tmp
 def test_rerun_from_scratch_gives_identical_tables(run_two_scenes, repo, flat_root, tmp_path):
     res = smk(repo, tmp_path, "--cores", "2", "all", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stderr[-2000:]
-    tables = ["results/12/queries/queries.parquet", "results/9/queries/queries.parquet",
-              "results/12/maps/reference_map.parquet", "results/tables/dataset_stats.parquet",
-              "results/tables/dataset_stats_per_scene.parquet", "results/tables/availability.parquet"]
+    tables = [
+        "results/12/queries/queries.parquet",
+        "results/9/queries/queries.parquet",
+        "results/12/maps/reference_map.parquet",
+        "results/tables/dataset_stats.parquet",
+        "results/tables/dataset_stats_per_scene.parquet",
+        "results/tables/availability.parquet",
+    ]
     for t in tables:
-        pd.testing.assert_frame_equal(pd.read_parquet(run_two_scenes / t), pd.read_parquet(tmp_path / t), check_exact=True)
+        pd.testing.assert_frame_equal(
+            pd.read_parquet(run_two_scenes / t), pd.read_parquet(tmp_path / t), check_exact=True
+        )
     # trained models too (CPU, seeded); wall-clock columns are the only ones allowed to differ
-    for t in ("results/tables/recovery.parquet", "results/tables/coarse_localization.parquet",
-              "results/tables/fine_localization.parquet", "results/coarse/simtrip/proposals.parquet",
-              "results/fine/mlp_depth_gtbb/errors.parquet", "results/12/objects/objects.parquet",
-              "results/tables/reference_map_reproduction.parquet"):
+    for t in (
+        "results/tables/recovery.parquet",
+        "results/tables/coarse_localization.parquet",
+        "results/tables/fine_localization.parquet",
+        "results/coarse/simtrip/proposals.parquet",
+        "results/fine/mlp_depth_gtbb/errors.parquet",
+        "results/12/objects/objects.parquet",
+        "results/tables/reference_map_reproduction.parquet",
+    ):
         a, b = pd.read_parquet(run_two_scenes / t), pd.read_parquet(tmp_path / t)
         timing = [c for c in a.columns if re.search(r"(seconds|_s$|_ms$|_time)", c)]
         pd.testing.assert_frame_equal(a.drop(columns=timing), b.drop(columns=timing), check_exact=True, obj=t)

@@ -57,16 +57,20 @@ def plot_training_curves(curves: dict[str, pd.DataFrame], path: str | Path) -> N
             ax2 = ax.twinx()
             ok = h[val].notna()
             ax2.plot(h.loc[ok, "epoch"], h.loc[ok, val], c="tab:orange", lw=1)
-            ax2.set_ylabel({"val_metric": "validation score (higher better)",
-                            "val_median_m": "validation median error (m)"}[val], color="tab:orange", fontsize=8)
-    for ax in axes.ravel()[len(curves):]:
+            ax2.set_ylabel(
+                {"val_metric": "validation score (higher better)", "val_median_m": "validation median error (m)"}[val],
+                color="tab:orange",
+                fontsize=8,
+            )
+    for ax in axes.ravel()[len(curves) :]:
         ax.axis("off")
     fig.tight_layout()
     _save(fig, path)
 
 
-def plot_error_cdfs(errors: dict[str, pd.DataFrame], path: str | Path, max_m: float = 100.0,
-                    max_deg: float = 180.0) -> None:
+def plot_error_cdfs(
+    errors: dict[str, pd.DataFrame], path: str | Path, max_m: float = 100.0, max_deg: float = 180.0
+) -> None:
     """CDF of position (m) and orientation (deg) error per run; failures never reach the top."""
     plt = _plt()
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
@@ -91,8 +95,9 @@ def plot_error_cdfs(errors: dict[str, pd.DataFrame], path: str | Path, max_m: fl
 def errors_by(errors: pd.DataFrame, column: str) -> pd.DataFrame:
     """Median position / orientation error and query count per value of ``column``."""
     g = errors.groupby(column)
-    return pd.DataFrame({"queries": g.size(), "median_m": g["error_m"].median(),
-                         "median_deg": g["error_deg"].median()}).reset_index()
+    return pd.DataFrame(
+        {"queries": g.size(), "median_m": g["error_m"].median(), "median_deg": g["error_deg"].median()}
+    ).reset_index()
 
 
 def plot_error_vs_objects(errors: dict[str, pd.DataFrame], path: str | Path) -> None:
@@ -107,10 +112,15 @@ def plot_error_vs_objects(errors: dict[str, pd.DataFrame], path: str | Path) -> 
             t = t[t["queries"] >= 3]
             ax_m.plot(t[col], t["median_m"], "-o", ms=3, lw=1, label=label)
             ax_d.plot(t[col], t["median_deg"], "-o", ms=3, lw=1, label=label)
-    for ax, (xl, yl) in zip(axes.ravel(), [("objects in the local map", "median position error (m)"),
-                                           ("distinct classes", "median position error (m)"),
-                                           ("objects in the local map", "median orientation error (deg)"),
-                                           ("distinct classes", "median orientation error (deg)")]):
+    for ax, (xl, yl) in zip(
+        axes.ravel(),
+        [
+            ("objects in the local map", "median position error (m)"),
+            ("distinct classes", "median position error (m)"),
+            ("objects in the local map", "median orientation error (deg)"),
+            ("distinct classes", "median orientation error (deg)"),
+        ],
+    ):
         ax.set_xlabel(xl)
         ax.set_ylabel(yl)
         ax.set_yscale("symlog", linthresh=1.0)
@@ -121,8 +131,15 @@ def plot_error_vs_objects(errors: dict[str, pd.DataFrame], path: str | Path) -> 
     _save(fig, path)
 
 
-def plot_score_heatmap(ref: pd.DataFrame, scores: dict[str, np.ndarray], positives: np.ndarray,
-                       cam_xy: np.ndarray, theta_deg: float, path: str | Path, title: str) -> None:
+def plot_score_heatmap(
+    ref: pd.DataFrame,
+    scores: dict[str, np.ndarray],
+    positives: np.ndarray,
+    cam_xy: np.ndarray,
+    theta_deg: float,
+    path: str | Path,
+    title: str,
+) -> None:
     """Coarse scores of one query over its scene's reference map (darker = more likely seen).
 
     Scores are distances in embedding space (lower = better), shown as rank percentiles so the
@@ -135,8 +152,15 @@ def plot_score_heatmap(ref: pd.DataFrame, scores: dict[str, np.ndarray], positiv
     for ax, (label, s) in zip(axes[0], scores.items()):
         rank = np.argsort(np.argsort(np.asarray(s, float))) / max(len(s) - 1, 1)
         sc = ax.scatter(xy[:, 0], xy[:, 1], c=1 - rank, cmap="magma_r", s=22, vmin=0, vmax=1)
-        ax.scatter(xy[positives, 0], xy[positives, 1], s=90, facecolors="none", edgecolors="tab:green", lw=1.2,
-                   label="seen by the query")
+        ax.scatter(
+            xy[positives, 0],
+            xy[positives, 1],
+            s=90,
+            facecolors="none",
+            edgecolors="tab:green",
+            lw=1.2,
+            label="seen by the query",
+        )
         ax.plot(*cam_xy, marker="^", c="tab:blue", ms=8, label="camera")
         d = np.array([np.cos(np.radians(theta_deg)), np.sin(np.radians(theta_deg))]) * 15
         ax.annotate("", xy=cam_xy + d, xytext=cam_xy, arrowprops={"arrowstyle": "->", "color": "tab:blue"})

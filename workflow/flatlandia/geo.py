@@ -56,10 +56,17 @@ class MetricFrame:
     def metres_per_degree(self) -> tuple[float, float]:
         """Local scale (metres per degree of lon, metres per degree of lat) at the origin."""
         eps = 1e-4
-        pts = self.to_xy(np.array([[self.lon0 - eps, self.lat0], [self.lon0 + eps, self.lat0],
-                                   [self.lon0, self.lat0 - eps], [self.lon0, self.lat0 + eps]]))
-        return (float(np.linalg.norm(pts[1] - pts[0]) / (2 * eps)),
-                float(np.linalg.norm(pts[3] - pts[2]) / (2 * eps)))
+        pts = self.to_xy(
+            np.array(
+                [
+                    [self.lon0 - eps, self.lat0],
+                    [self.lon0 + eps, self.lat0],
+                    [self.lon0, self.lat0 - eps],
+                    [self.lon0, self.lat0 + eps],
+                ]
+            )
+        )
+        return (float(np.linalg.norm(pts[1] - pts[0]) / (2 * eps)), float(np.linalg.norm(pts[3] - pts[2]) / (2 * eps)))
 
     def heading_to_metric(self, theta_deg_space: np.ndarray) -> np.ndarray:
         """Turn a direction angle measured in isotropic lon/lat degrees into the metric frame.

@@ -13,8 +13,9 @@ import json
 import math
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -29,8 +30,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
-                               dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
     os.close(fd)
     tmp = Path(tmp)
     try:
@@ -143,8 +143,9 @@ def read_reference_map(path: str | Path, n_classes: int | None = None) -> tuple[
         raise InputError(path, f"malformed object entry: {e}") from e
     bad = ~np.isfinite(lonlat).all(axis=1)
     if bad.any():
-        raise InputError(path, f"{int(bad.sum())} object(s) with NaN/inf coordinates, first at index "
-                               f"{int(np.flatnonzero(bad)[0])}")
+        raise InputError(
+            path, f"{int(bad.sum())} object(s) with NaN/inf coordinates, first at index {int(np.flatnonzero(bad)[0])}"
+        )
     if (np.abs(lonlat[:, 0]) > 180).any() or (np.abs(lonlat[:, 1]) > 90).any():
         raise InputError(path, "coordinates outside lon [-180, 180] / lat [-90, 90]")
     if n_classes is not None and ((classes < 0) | (classes >= n_classes)).any():
@@ -168,8 +169,9 @@ def read_local_maps(path: str | Path, scene: str, min_objects: int = 3) -> dict[
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(path, f"scene {scene} query {token}: malformed local map ({e})") from e
         if len(gt) < min_objects:
-            raise InputError(path, f"scene {scene} query {token}: local map has {len(gt)} object(s), "
-                                   f"fewer than {min_objects}")
+            raise InputError(
+                path, f"scene {scene} query {token}: local map has {len(gt)} object(s), fewer than {min_objects}"
+            )
         if len(depth) != len(gt):
             raise InputError(path, f"scene {scene} query {token}: GT has {len(gt)} objects, depth {len(depth)}")
         if not (np.isfinite(gt).all() and np.isfinite(depth).all()):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import subprocess
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pandas as pd
@@ -44,10 +44,15 @@ def git_commit() -> str:
     """The commit of the workflow's code, with '+dirty' when it has uncommitted changes."""
     repo = Path(__file__).resolve().parents[2]
     try:
-        head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True,
-                              timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10).stdout.strip()
+        head = subprocess.run(
+            ["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         return "unknown"
     return (head or "unknown") + ("+dirty" if dirty else "")
@@ -59,7 +64,7 @@ def record(smk) -> dict:
     return {
         "rule": smk.rule,
         "wildcards": wildcards,
-        "finished_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "finished_at": datetime.now(UTC).isoformat(timespec="seconds"),
         "config_hash": config_hash(dict(smk.config)),
         "package_version": __version__,
         "git_commit": git_commit(),
@@ -86,13 +91,32 @@ def manifest(folder: str | Path = PROVENANCE_DIR) -> pd.DataFrame:
     for f in sorted(Path(folder).rglob("*.json")):
         rec = json.loads(f.read_text())
         for path, out in rec["outputs"].items():
-            rows.append({
-                "artifact": path, "rule": rec["rule"], "scene": rec["wildcards"].get("scene", ""),
-                "wildcards": json.dumps(rec["wildcards"], sort_keys=True), "sha256": out["sha256"],
-                "bytes": int(out["bytes"]), "inputs": json.dumps(rec["inputs"], sort_keys=True),
-                "config_hash": rec["config_hash"], "package_version": rec["package_version"],
-                "git_commit": rec["git_commit"], "finished_at": rec["finished_at"],
-            })
-    cols = ["artifact", "rule", "scene", "wildcards", "sha256", "bytes", "inputs", "config_hash",
-            "package_version", "git_commit", "finished_at"]
+            rows.append(
+                {
+                    "artifact": path,
+                    "rule": rec["rule"],
+                    "scene": rec["wildcards"].get("scene", ""),
+                    "wildcards": json.dumps(rec["wildcards"], sort_keys=True),
+                    "sha256": out["sha256"],
+                    "bytes": int(out["bytes"]),
+                    "inputs": json.dumps(rec["inputs"], sort_keys=True),
+                    "config_hash": rec["config_hash"],
+                    "package_version": rec["package_version"],
+                    "git_commit": rec["git_commit"],
+                    "finished_at": rec["finished_at"],
+                }
+            )
+    cols = [
+        "artifact",
+        "rule",
+        "scene",
+        "wildcards",
+        "sha256",
+        "bytes",
+        "inputs",
+        "config_hash",
+        "package_version",
+        "git_commit",
+        "finished_at",
+    ]
     return pd.DataFrame(rows, columns=cols).sort_values(["scene", "rule", "artifact"], ignore_index=True)

@@ -6,8 +6,9 @@ import contextlib
 import logging
 import os
 import sys
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable, TypeVar
+from typing import TypeVar
 
 from tqdm import tqdm
 
@@ -50,9 +51,8 @@ def run(main, smk) -> None:
     An :class:`InputError` (or any error) is written to the rule's log and to stderr as
     ``ERROR: <file>: <problem>`` and the script exits 1, so Snakemake reports the rule failed.
     """
-    from flatlandia.errors import InputError
-
     from flatlandia import provenance
+    from flatlandia.errors import InputError
 
     logger = setup(smk.log[0] if len(smk.log) else None)
     try:

@@ -62,8 +62,15 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("method", "str", "", "geo (geometric solver) | mlp | mlp_att | gat | gat_att"),
         Column("method_label", "str", "", "geometric solver | MLP | MLP+ATT | GAT | GAT+ATT"),
         Column("map_type", "str", "", "gt or depth local maps"),
-        Column("proposal", "str", "", "gtbb (oracle box) | whole (whole reference map) | coarse-sim | coarse-trip | coarse-simtrip"),
-        Column("strategy", "str", "", "GT-BB | whole map | {Sim, Trip, Sim+Trip} {N_LM, 2N_LM, R_30} (coarse proposals)"),
+        Column(
+            "proposal",
+            "str",
+            "",
+            "gtbb (oracle box) | whole (whole reference map) | coarse-sim | coarse-trip | coarse-simtrip",
+        ),
+        Column(
+            "strategy", "str", "", "GT-BB | whole map | {Sim, Trip, Sim+Trip} {N_LM, 2N_LM, R_30} (coarse proposals)"
+        ),
         Column("queries", "int", "", "test queries"),
         Column("median_m", "float", "m", "median position error, true metres (failed queries count as infinite)"),
         Column("median_deg", "float", "deg", "median orientation error"),
@@ -76,19 +83,41 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("gross_pct", "float", "%", "position error over 30 m (true metres)"),
         Column("median_query_ms", "float", "ms", "median time per query, one CPU thread (wall clock)"),
         Column("mean_query_ms", "float", "ms", "mean time per query, one CPU thread (wall clock)"),
-        Column("median_query_cpu_ms", "float", "ms", "median CPU time per query (process time: robust to other load on the machine)"),
+        Column(
+            "median_query_cpu_ms",
+            "float",
+            "ms",
+            "median CPU time per query (process time: robust to other load on the machine)",
+        ),
         Column("train_s", "float", "s", "training wall time (learned models; 0 for the solver), 1 CPU thread"),
         Column("epochs", "int", "", "training epochs (0 for the solver)"),
         Column("n_parameters", "int", "", "trainable parameters (0 for the solver)"),
         Column("model_mb", "float", "MB", "checkpoint size on disk (0 for the solver)"),
-        Column("ref_map_kb", "float", "kB", "mean per scene: reference map the method reads, 9 B per object (2 x float32 + class)"),
-        Column("median_pu", "float", "paper m", "median position error in the paper's convention (local-map units x 215)"),
-        Column("trained_on", "str", "", "learned models: training proposals, GT-BB or simulated coarse (cut to a radius); '' for the solver"),
+        Column(
+            "ref_map_kb",
+            "float",
+            "kB",
+            "mean per scene: reference map the method reads, 9 B per object (2 x float32 + class)",
+        ),
+        Column(
+            "median_pu", "float", "paper m", "median position error in the paper's convention (local-map units x 215)"
+        ),
+        Column(
+            "trained_on",
+            "str",
+            "",
+            "learned models: training proposals, GT-BB or simulated coarse (cut to a radius); '' for the solver",
+        ),
         Column("pct_pu_0.5m_2deg", "float", "%", "queries under 0.5 paper m and 2 deg (paper convention)"),
         Column("pct_pu_1m_5deg", "float", "%", "queries under 1 paper m and 5 deg (paper convention)"),
         Column("pct_pu_5m_10deg", "float", "%", "queries under 5 paper m and 10 deg (paper convention)"),
         Column("pct_pu_10m_20deg", "float", "%", "queries under 10 paper m and 20 deg (paper convention)"),
-        Column("paper_row", "str", "", "the paper's row beside ours (Table 4 by model; best MLP row for the solver; Table 5 MLP Sim+Trip 2N_LM), '' if none"),
+        Column(
+            "paper_row",
+            "str",
+            "",
+            "the paper's row beside ours (Table 4 by model; best MLP row for the solver; Table 5 MLP Sim+Trip 2N_LM), '' if none",
+        ),
         Column("paper_pct_0.5m_2deg", "float", "%", "the paper's Table 4 (paper convention)"),
         Column("paper_pct_1m_5deg", "float", "%", "the paper's Table 4"),
         Column("paper_pct_5m_10deg", "float", "%", "the paper's Table 4"),
@@ -101,7 +130,12 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("scene", "str", "", "class-cloud scene id, or 'all'"),
         Column("published", "int", "", "objects of the published reference map"),
         Column("ours", "int", "", "objects we cluster from the scene's class point cloud"),
-        Column("matched", "int", "", "published objects matched to one of ours (same macro-class: a published object takes the colour of the cluster it is the exact mean of, else of its nearest coloured point; Hungarian, within objects.audit_radius_m)"),
+        Column(
+            "matched",
+            "int",
+            "",
+            "published objects matched to one of ours (same macro-class: a published object takes the colour of the cluster it is the exact mean of, else of its nearest coloured point; Hungarian, within objects.audit_radius_m)",
+        ),
         Column("within_0.05m", "int", "", "matched within 0.05 m"),
         Column("within_0.5m", "int", "", "matched within 0.5 m"),
         Column("within_2m", "int", "", "matched within 2 m"),
@@ -168,8 +202,14 @@ def to_latex(df: pd.DataFrame, floatfmt: str = ".3g", caption: str = "") -> str:
         return str(v).replace("_", r"\_").replace("%", r"\%").replace("&", r"\&")
 
     cols = list(df.columns)
-    lines = [r"\begin{table}[t]", r"\centering", r"\begin{tabular}{" + "l" * len(cols) + "}", r"\hline",
-             " & ".join(esc(c) for c in cols) + r" \\", r"\hline"]
+    lines = [
+        r"\begin{table}[t]",
+        r"\centering",
+        r"\begin{tabular}{" + "l" * len(cols) + "}",
+        r"\hline",
+        " & ".join(esc(c) for c in cols) + r" \\",
+        r"\hline",
+    ]
     lines += [" & ".join(esc(v) for v in row) + r" \\" for row in df.itertuples(index=False)]
     lines += [r"\hline", r"\end{tabular}"]
     if caption:
@@ -178,8 +218,15 @@ def to_latex(df: pd.DataFrame, floatfmt: str = ".3g", caption: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_table(df: pd.DataFrame, name: str, parquet: str | Path, markdown: str | Path | None = None,
-                latex: str | Path | None = None, title: str = "", note: str = "") -> None:
+def write_table(
+    df: pd.DataFrame,
+    name: str,
+    parquet: str | Path,
+    markdown: str | Path | None = None,
+    latex: str | Path | None = None,
+    title: str = "",
+    note: str = "",
+) -> None:
     """Check the schema, then write Parquet (schema in its metadata) and the renderings."""
     check_schema(df, name)
     meta = {"table": name, "columns": {c.name: {"unit": c.unit, "meaning": c.meaning} for c in SCHEMAS[name]}}
@@ -193,8 +240,10 @@ def write_table(df: pd.DataFrame, name: str, parquet: str | Path, markdown: str 
 
 def schema_markdown() -> str:
     """Documentation of every table's columns (rendered into docs/tables.md)."""
-    out = ["# Result tables\n", "Generated from `workflow/flatlandia/tables.py`; every table is checked "
-           "against this schema when written.\n"]
+    out = [
+        "# Result tables\n",
+        "Generated from `workflow/flatlandia/tables.py`; every table is checked against this schema when written.\n",
+    ]
     for name, cols in SCHEMAS.items():
         out.append(f"\n## `results/tables/{name}.parquet`\n")
         out.append("| column | type | unit | meaning |\n|---|---|---|---|")

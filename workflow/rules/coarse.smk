@@ -3,24 +3,25 @@
 # and Table 3 on the test split. Settings: the `coarse:` section of config/config.yaml (a short
 # default run); config/paper.yaml has the paper's 800 epochs. No lambdas in rules.
 
+
 rule coarse_similarity:
     input:
         reference_map="results/{scene}/maps/reference_map.parquet",
         queries="results/{scene}/queries/queries.parquet",
     output:
         similarity="results/{scene}/coarse/similarity.parquet",
-    params:
-        similarity=COARSE.get("similarity", {}),
-    threads: 1
     log:
         "logs/coarse_similarity/{scene}.log",
     benchmark:
         "benchmarks/coarse_similarity/{scene}.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    conda:
-        "../../envs/flatlandia.yaml"
+    params:
+        similarity=COARSE.get("similarity", {}),
     script:
         "../scripts/coarse_similarity.py"
 
@@ -33,20 +34,20 @@ rule coarse_train:
     output:
         model="results/coarse/{loss}/model.pt",
         history="results/coarse/{loss}/training.parquet",
-    params:
-        train=COARSE_TRAIN,
-    wildcard_constraints:
-        loss="|".join(COARSE_LOSSES),
-    threads: 1
     log:
         "logs/coarse_train/{loss}.log",
     benchmark:
         "benchmarks/coarse_train/{loss}.tsv"
+    wildcard_constraints:
+        loss="|".join(COARSE_LOSSES),
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
     resources:
         mem_mb=4000,
         runtime=60,
-    conda:
-        "../../envs/flatlandia.yaml"
+    params:
+        train=COARSE_TRAIN,
     script:
         "../scripts/coarse_train.py"
 
@@ -63,18 +64,18 @@ rule coarse_eval:
         markdown="results/tables/coarse_localization.md",
         rows_markdown="results/tables/coarse_localization_rows.md",
         latex="results/tables/coarse_localization.tex",
-    params:
-        losses=coarse_losses(),
-        seed=COARSE_SEED,
-    threads: 1
     log:
         "logs/coarse_eval/all.log",
     benchmark:
         "benchmarks/coarse_eval/all.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
     resources:
         mem_mb=4000,
         runtime=20,
-    conda:
-        "../../envs/flatlandia.yaml"
+    params:
+        losses=coarse_losses(),
+        seed=COARSE_SEED,
     script:
         "../scripts/coarse_eval.py"

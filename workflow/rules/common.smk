@@ -6,7 +6,6 @@ from pathlib import Path
 import pandas as pd
 from snakemake.utils import validate
 
-
 validate(config, schema="../schemas/config.schema.yaml")
 
 
@@ -148,8 +147,12 @@ def products_of_the_run():
         + per_scene("results/{scene}/maps/reference_map.geojson")
         + per_scene("results/{scene}/maps/reference_map.png")
         + per_scene("results/{scene}/queries/queries.parquet")
-        + ["results/tables/dataset_stats.parquet", "results/tables/dataset_stats.md",
-           "results/tables/recovery.parquet", "results/tables/availability.parquet"]
+        + [
+            "results/tables/dataset_stats.parquet",
+            "results/tables/dataset_stats.md",
+            "results/tables/recovery.parquet",
+            "results/tables/availability.parquet",
+        ]
         + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
         + per_scene("results/{scene}/sfm/sfm_summary.png", images_scenes())
         + per_scene("results/{scene}/align/alignment.json", images_scenes())
@@ -179,9 +182,7 @@ def objects_inputs(wildcards):
         "reference_map": flatlandia_file(f"individual_reference_maps/map_{s}.json"),
         # label transfer uses the class labels of the *other* scenes' maps
         "other_maps": [
-            flatlandia_file(f"individual_reference_maps/map_{o}.json")
-            for o in published_scenes()
-            if o != s
+            flatlandia_file(f"individual_reference_maps/map_{o}.json") for o in published_scenes() if o != s
         ],
     }
 
@@ -233,14 +234,20 @@ def fine_cfg():
 def fine_runs():
     """Run names {method}_{map_type}_{proposal} from config fine.runs (methods x map types x proposals)."""
     runs = fine_cfg().get("runs", {})
-    grid = [f"{m}_{t}_{p}" for m in runs.get("methods", ["geo"]) for t in runs.get("map_types", ["gt", "depth"])
-            for p in runs.get("proposals", ["gtbb"])]
+    grid = [
+        f"{m}_{t}_{p}"
+        for m in runs.get("methods", ["geo"])
+        for t in runs.get("map_types", ["gt", "depth"])
+        for p in runs.get("proposals", ["gtbb"])
+    ]
     return grid + [r for r in runs.get("extra", []) if r not in grid]
 
 
 def fine_eval_inputs(wildcards):
-    inp = {"reference_maps": per_scene("results/{scene}/maps/reference_map.parquet"),
-           "queries": per_scene("results/{scene}/queries/queries.parquet")}
+    inp = {
+        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet"),
+        "queries": per_scene("results/{scene}/queries/queries.parquet"),
+    }
     if wildcards.method != "geo":
         regime = fine_train_regime(wildcards.proposal)
         inp["checkpoint"] = f"results/fine/models/{wildcards.method}_{wildcards.map_type}_{regime}/checkpoint.pt"
@@ -263,8 +270,14 @@ def fine_eval_params(wildcards):
     label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
     regime = fine_train_regime(p) if wildcards.method != "geo" else ""  # "": the solver, not trained
     crop = float(fine_cfg().get("coarse_training", {}).get("crop_m", 0.0)) if regime == "coarse" else 0.0
-    return {"method": wildcards.method, "proposal": p, "strategy": strategy, "strategy_label": label,
-            "train_regime": regime, "crop_m": crop}
+    return {
+        "method": wildcards.method,
+        "proposal": p,
+        "strategy": strategy,
+        "strategy_label": label,
+        "train_regime": regime,
+        "crop_m": crop,
+    }
 
 
 def fine_model_name(wildcards):
@@ -298,8 +311,11 @@ def heatmap_scene():
 def report_figures():
     if not published_scenes():
         return []
-    out = ["results/figures/training_curves.png", "results/figures/fine_error_cdf.png",
-           "results/figures/fine_error_vs_objects.png"]
+    out = [
+        "results/figures/training_curves.png",
+        "results/figures/fine_error_cdf.png",
+        "results/figures/fine_error_vs_objects.png",
+    ]
     return out + [f"results/figures/coarse_scores_{heatmap_scene()}.png"]
 
 

@@ -6,15 +6,15 @@ if FLAT_FETCH:
     rule fetch_flatlandia:
         output:
             flag=FETCH_FLAG,
+        log:
+            "logs/fetch_flatlandia/fetch.log",
+        conda:
+            "../../envs/flatlandia.yaml"
         params:
             dest=config["fetch"]["dest"],
             url=config["fetch"]["url"],
             timeout_s=config["fetch"].get("timeout_s", 30),
             scenes=str(config_path(config["scenes"])),
-        log:
-            "logs/fetch_flatlandia/fetch.log",
-        conda:
-            "../../envs/flatlandia.yaml"
         script:
             "../scripts/fetch_flatlandia.py"
 
@@ -24,31 +24,31 @@ rule ingest:
         unpack(scene_data_inputs),
     output:
         report="results/{scene}/ingest/ingest.json",
-    params:
-        root=str(FLAT_ROOT),
-        verify_sha256=config.get("ingest", {}).get("verify_sha256", True),
     log:
         "logs/ingest/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        root=str(FLAT_ROOT),
+        verify_sha256=config.get("ingest", {}).get("verify_sha256", True),
     script:
         "../scripts/ingest.py"
 
 
 rule reference_map:
-    wildcard_constraints:
-        scene=PUBLISHED_SCENE,
     input:
         unpack(scene_data_inputs),
         ingest="results/{scene}/ingest/ingest.json",
     output:
         parquet="results/{scene}/maps/reference_map.parquet",
         geojson="results/{scene}/maps/reference_map.geojson",
-    params:
-        root=str(FLAT_ROOT),
     log:
         "logs/reference_map/{scene}.log",
+    wildcard_constraints:
+        scene=PUBLISHED_SCENE,
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        root=str(FLAT_ROOT),
     script:
         "../scripts/reference_map.py"

@@ -4,6 +4,7 @@
 # (simulated coarse proposals, for the runs evaluated on real coarse proposals; fine.coarse_training).
 # Runs come from config fine.runs; their input functions are in common.smk (no lambdas in rules).
 
+
 rule fine_train:
     input:
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
@@ -11,24 +12,24 @@ rule fine_train:
     output:
         checkpoint="results/fine/models/{model}_{map_type}_{train}/checkpoint.pt",
         history="results/fine/models/{model}_{map_type}_{train}/history.parquet",
-    params:
-        model=fine_model_name,
-        train=fine_train_params,
-        coarse_training=fine_cfg().get("coarse_training", {}),
-    wildcard_constraints:
-        model="|".join(FINE_MODELS),
-        map_type="gt|depth",
-        train="gtbb|coarse",
-    threads: 1
     log:
         "logs/fine_train/{model}_{map_type}_{train}.log",
     benchmark:
         "benchmarks/fine_train/{model}_{map_type}_{train}.tsv"
+    wildcard_constraints:
+        model="|".join(FINE_MODELS),
+        map_type="gt|depth",
+        train="gtbb|coarse",
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
     resources:
         mem_mb=4000,
         runtime=120,
-    conda:
-        "../../envs/flatlandia.yaml"
+    params:
+        model=fine_model_name,
+        train=fine_train_params,
+        coarse_training=fine_cfg().get("coarse_training", {}),
     script:
         "../scripts/fine_train.py"
 
@@ -39,23 +40,23 @@ rule fine_eval:
     output:
         errors="results/fine/{method}_{map_type}_{proposal}/errors.parquet",
         summary="results/fine/{method}_{map_type}_{proposal}/summary.json",
-    params:
-        p=fine_eval_params,
-        geo=fine_cfg().get("geo", {}),
-    wildcard_constraints:
-        method="geo|" + "|".join(FINE_MODELS),
-        map_type="gt|depth",
-        proposal="gtbb|whole|" + "|".join(FINE_COARSE),
-    threads: 1
     log:
         "logs/fine_eval/{method}_{map_type}_{proposal}.log",
     benchmark:
         "benchmarks/fine_eval/{method}_{map_type}_{proposal}.tsv"
+    wildcard_constraints:
+        method="geo|" + "|".join(FINE_MODELS),
+        map_type="gt|depth",
+        proposal="gtbb|whole|" + "|".join(FINE_COARSE),
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
     resources:
         mem_mb=4000,
         runtime=60,
-    conda:
-        "../../envs/flatlandia.yaml"
+    params:
+        p=fine_eval_params,
+        geo=fine_cfg().get("geo", {}),
     script:
         "../scripts/fine_eval.py"
 

@@ -4,13 +4,13 @@
 rule fetch_images:
     output:
         images=directory("resources/images/{scene}"),
-    params:
-        source=images_fetch_params,
-        timeout_s=config["fetch"].get("timeout_s", 30),
     log:
         "logs/fetch_images/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        source=images_fetch_params,
+        timeout_s=config["fetch"].get("timeout_s", 30),
     script:
         "../scripts/fetch_images.py"
 
@@ -20,13 +20,13 @@ rule images_audit:
         images=images_dir,
     output:
         table="results/{scene}/images/images.parquet",
-    params:
-        dedup_threshold=config["images"]["dedup_threshold"],
-        missing_gps=config["images"].get("missing_gps", "keep"),
     log:
         "logs/images_audit/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        dedup_threshold=config["images"]["dedup_threshold"],
+        missing_gps=config["images"].get("missing_gps", "keep"),
     script:
         "../scripts/images_audit.py"
 
@@ -39,20 +39,20 @@ rule segment:
         masks=directory("results/{scene}/segment/masks"),
         classes=directory("results/{scene}/segment/classes"),
         stats="results/{scene}/segment/segment_stats.parquet",
+    log:
+        "logs/segment/{scene}.log",
+    benchmark:
+        "benchmarks/segment/{scene}.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    resources:
+        mem_mb=4000,
+        runtime=30,
     params:
         backend=config["segment"]["backend"],
         weights=config["segment"].get("weights"),
         labels_dir=config["segment"].get("labels_dir"),
         watermark_box=config["segment"].get("watermark_box"),
-    log:
-        "logs/segment/{scene}.log",
-    benchmark:
-        "benchmarks/segment/{scene}.tsv"
-    resources:
-        mem_mb=4000,
-        runtime=30,
-    conda:
-        "../../envs/flatlandia.yaml"
     script:
         "../scripts/segment.py"
 
@@ -66,19 +66,19 @@ rule sfm:
         model=directory("results/{scene}/sfm/model"),
         stats="results/{scene}/sfm/sfm_stats.parquet",
         cameras="results/{scene}/sfm/cameras.parquet",
-    params:
-        options=config["sfm"],
-        seed=config["seed"],
-    threads: 2
     log:
         "logs/sfm/{scene}.log",
     benchmark:
         "benchmarks/sfm/{scene}.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 2
     resources:
         mem_mb=8000,
         runtime=120,
-    conda:
-        "../../envs/flatlandia.yaml"
+    params:
+        options=config["sfm"],
+        seed=config["seed"],
     script:
         "../scripts/sfm.py"
 
@@ -91,14 +91,14 @@ rule classify_points:
         points="results/{scene}/sfm/classified_points.parquet",
         ply="results/{scene}/sfm/classified_points.ply",
         instances="results/{scene}/sfm/point_instances.parquet",
-    params:
-        instances_dir=config["segment"].get("instances_dir"),
     log:
         "logs/classify_points/{scene}.log",
     benchmark:
         "benchmarks/classify_points/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        instances_dir=config["segment"].get("instances_dir"),
     script:
         "../scripts/classify_points.py"
 
@@ -125,29 +125,27 @@ rule plot_sfm:
 
 # ---- back half: GPS alignment -> objects -> reference map -> queries (shares flatlandia.objects)
 rule images_align:
-    wildcard_constraints:
-        scene=IMAGES_SCENE,
     input:
         model="results/{scene}/sfm/model",
         cameras="results/{scene}/sfm/cameras.parquet",
     output:
         json="results/{scene}/align/alignment.json",
-    params:
-        align=config["images"]["align"],
-        seed=config["seed"],
     log:
         "logs/images_align/{scene}.log",
     benchmark:
         "benchmarks/images_align/{scene}.tsv"
+    wildcard_constraints:
+        scene=IMAGES_SCENE,
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        align=config["images"]["align"],
+        seed=config["seed"],
     script:
         "../scripts/images_align.py"
 
 
 rule images_objects:
-    wildcard_constraints:
-        scene=IMAGES_SCENE,
     input:
         points="results/{scene}/sfm/classified_points.parquet",
         instances="results/{scene}/sfm/point_instances.parquet",
@@ -156,21 +154,21 @@ rule images_objects:
         parquet="results/{scene}/objects/objects.parquet",
         ply="results/{scene}/objects/objects.ply",
         members="results/{scene}/objects/point_objects.parquet",
-    params:
-        cluster=config["objects"]["cluster"],
     log:
         "logs/images_objects/{scene}.log",
     benchmark:
         "benchmarks/images_objects/{scene}.tsv"
+    wildcard_constraints:
+        scene=IMAGES_SCENE,
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        cluster=config["objects"]["cluster"],
     script:
         "../scripts/images_objects.py"
 
 
 rule images_reference_map:
-    wildcard_constraints:
-        scene=IMAGES_SCENE,
     input:
         objects="results/{scene}/objects/objects.parquet",
     output:
@@ -178,6 +176,8 @@ rule images_reference_map:
         geojson="results/{scene}/maps/reference_map.geojson",
     log:
         "logs/images_reference_map/{scene}.log",
+    wildcard_constraints:
+        scene=IMAGES_SCENE,
     conda:
         "../../envs/flatlandia.yaml"
     script:
@@ -185,8 +185,6 @@ rule images_reference_map:
 
 
 rule images_queries:
-    wildcard_constraints:
-        scene=IMAGES_SCENE,
     input:
         model="results/{scene}/sfm/model",
         alignment="results/{scene}/align/alignment.json",
@@ -195,6 +193,14 @@ rule images_queries:
         reference_map="results/{scene}/maps/reference_map.parquet",
     output:
         queries="results/{scene}/queries/queries.parquet",
+    log:
+        "logs/images_queries/{scene}.log",
+    benchmark:
+        "benchmarks/images_queries/{scene}.tsv"
+    wildcard_constraints:
+        scene=IMAGES_SCENE,
+    conda:
+        "../../envs/flatlandia.yaml"
     params:
         min_objects=config["images"]["min_objects"],
         min_points=config["images"]["min_points"],
@@ -202,11 +208,5 @@ rule images_queries:
         images_dir=images_dir,
         seed=config["seed"],
         split=config["split"],
-    log:
-        "logs/images_queries/{scene}.log",
-    benchmark:
-        "benchmarks/images_queries/{scene}.tsv"
-    conda:
-        "../../envs/flatlandia.yaml"
     script:
         "../scripts/images_queries.py"

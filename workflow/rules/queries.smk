@@ -2,45 +2,45 @@
 
 
 rule recover:
-    wildcard_constraints:
-        scene=PUBLISHED_SCENE,
     input:
         unpack(scene_data_inputs),
         ingest="results/{scene}/ingest/ingest.json",
     output:
         recovered="results/{scene}/queries/recovered.parquet",
-    params:
-        root=str(FLAT_ROOT),
-        tol_m=config["recover"]["tol_m"],
     log:
         "logs/recover/{scene}.log",
     benchmark:
         "benchmarks/recover/{scene}.tsv"
+    wildcard_constraints:
+        scene=PUBLISHED_SCENE,
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        root=str(FLAT_ROOT),
+        tol_m=config["recover"]["tol_m"],
     script:
         "../scripts/recover.py"
 
 
 rule queries:
-    wildcard_constraints:
-        scene=PUBLISHED_SCENE,
     input:
         unpack(scene_data_inputs),
         recovered="results/{scene}/queries/recovered.parquet",
         reference_map="results/{scene}/maps/reference_map.parquet",
     output:
         queries="results/{scene}/queries/queries.parquet",
-    params:
-        root=str(FLAT_ROOT),
-        seed=config["seed"],
-        split=config["split"],
     log:
         "logs/queries/{scene}.log",
     benchmark:
         "benchmarks/queries/{scene}.tsv"
+    wildcard_constraints:
+        scene=PUBLISHED_SCENE,
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        root=str(FLAT_ROOT),
+        seed=config["seed"],
+        split=config["split"],
     script:
         "../scripts/queries.py"
 
@@ -56,11 +56,11 @@ rule plot_reference_map:
             category="Reference maps",
             labels={"scene": "{scene}"},
         ),
-    params:
-        city=scene_city,
     log:
         "logs/plot_reference_map/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        city=scene_city,
     script:
         "../scripts/plot_reference_map.py"

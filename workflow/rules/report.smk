@@ -8,13 +8,15 @@ rule figures_training:
         fine=[f"results/fine/models/{m}_{t}_{r}/history.parquet" for m, t, r in fine_trained_models()],
     output:
         png=report("results/figures/training_curves.png", caption="../report/training_curves.rst", category="Training"),
-    params:
-        coarse_labels=coarse_losses(),
-        fine_labels=[f"{m} ({t} maps, {'GT-BB' if r == 'gtbb' else 'coarse'} training)" for m, t, r in fine_trained_models()],
     log:
         "logs/figures_training/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        coarse_labels=coarse_losses(),
+        fine_labels=[
+            f"{m} ({t} maps, {'GT-BB' if r == 'gtbb' else 'coarse'} training)" for m, t, r in fine_trained_models()
+        ],
     script:
         "../scripts/figures_training.py"
 
@@ -24,15 +26,20 @@ rule figures_fine_errors:
         errors=expand("results/fine/{run}/errors.parquet", run=fine_runs()),
         queries=per_scene("results/{scene}/queries/queries.parquet"),
     output:
-        cdf=report("results/figures/fine_error_cdf.png", caption="../report/fine_error_cdf.rst", category="Fine localization"),
-        vs_objects=report("results/figures/fine_error_vs_objects.png", caption="../report/fine_error_vs_objects.rst",
-                          category="Fine localization"),
-    params:
-        runs=fine_runs(),
+        cdf=report(
+            "results/figures/fine_error_cdf.png", caption="../report/fine_error_cdf.rst", category="Fine localization"
+        ),
+        vs_objects=report(
+            "results/figures/fine_error_vs_objects.png",
+            caption="../report/fine_error_vs_objects.rst",
+            category="Fine localization",
+        ),
     log:
         "logs/figures_fine_errors/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        runs=fine_runs(),
     script:
         "../scripts/figures_fine_errors.py"
 
@@ -44,14 +51,18 @@ rule figures_coarse_heatmap:
         queries="results/{scene}/queries/queries.parquet",
         similarity="results/{scene}/coarse/similarity.parquet",
     output:
-        png=report("results/figures/coarse_scores_{scene}.png", caption="../report/coarse_scores.rst",
-                   category="Coarse localization", labels={"scene": "{scene}"}),
-    params:
-        losses=coarse_losses(),
-        map_type=config.get("report", {}).get("heatmap_map_type", "depth"),
+        png=report(
+            "results/figures/coarse_scores_{scene}.png",
+            caption="../report/coarse_scores.rst",
+            category="Coarse localization",
+            labels={"scene": "{scene}"},
+        ),
     log:
         "logs/figures_coarse_heatmap/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        losses=coarse_losses(),
+        map_type=config.get("report", {}).get("heatmap_map_type", "depth"),
     script:
         "../scripts/figures_coarse_heatmap.py"

@@ -11,12 +11,12 @@ rule dataset_stats:
         per_scene="results/tables/dataset_stats_per_scene.parquet",
         markdown=report("results/tables/dataset_stats.md", caption="../report/dataset_stats.rst", category="Tables"),
         latex="results/tables/dataset_stats.tex",
-    params:
-        cities=published_cities(),
     log:
         "logs/dataset_stats/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    params:
+        cities=published_cities(),
     script:
         "../scripts/dataset_stats.py"
 

@@ -6,11 +6,8 @@ similarity (flatlandia.objects.principal_plane.ransac_similarity) is exercised o
 
 import numpy as np
 
-from flatlandia.objects import principal_plane
-from flatlandia import geo
-from flatlandia import io
-from flatlandia import runlog
-from flatlandia.objects import clustering
+from flatlandia import geo, io, runlog
+from flatlandia.objects import clustering, principal_plane
 
 
 def main(smk, log):
@@ -20,9 +17,14 @@ def main(smk, log):
     step = max(1, len(pts) // int(smk.params.max_points))
     # street plane through the ground classes (Cauchy IRLS, lengths in metres; see fit_ground_plane)
     plane, plane_points = principal_plane.fit_ground_plane(
-        pts, labels, clustering.metres_per_unit(t), min_ground_points=int(smk.params.min_ground_points),
-        ground_scale_m=float(smk.params.ground_scale_m), fallback_scale_m=float(smk.params.fallback_scale_m),
-        source=str(smk.input.cloud))
+        pts,
+        labels,
+        clustering.metres_per_unit(t),
+        min_ground_points=int(smk.params.min_ground_points),
+        ground_scale_m=float(smk.params.ground_scale_m),
+        fallback_scale_m=float(smk.params.fallback_scale_m),
+        source=str(smk.input.cloud),
+    )
     rpp = np.asarray(t["to_principal_plane"], float)
     r2 = np.asarray(t["to_mapillary"]["rotation"], float)
     pub_n = principal_plane.published_normal(rpp)
@@ -48,8 +50,13 @@ def main(smk, log):
         "our_plane_rotation": principal_plane.plane_rotation(plane.normal).tolist(),
     }
     io.write_json(out, smk.output.json)
-    log.info("scene %s: plane angle to published %.2f deg; Rpp reflection %s, R2 reflection %s", scene, angle,
-             out["published_rpp_is_reflection"], out["published_r2_is_reflection"])
+    log.info(
+        "scene %s: plane angle to published %.2f deg; Rpp reflection %s, R2 reflection %s",
+        scene,
+        angle,
+        out["published_rpp_is_reflection"],
+        out["published_r2_is_reflection"],
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -4,9 +4,7 @@ import json
 
 import pandas as pd
 
-from flatlandia import io
-from flatlandia import runlog
-from flatlandia import tables
+from flatlandia import io, runlog, tables
 
 
 def main(smk, log):

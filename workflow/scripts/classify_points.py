@@ -5,9 +5,8 @@ from pathlib import Path
 
 import pycolmap
 
+from flatlandia import io, runlog
 from flatlandia.images import classify_points
-from flatlandia import io
-from flatlandia import runlog
 
 
 def main(smk, log):
@@ -20,10 +19,18 @@ def main(smk, log):
     io.write_parquet(inst, smk.output.instances, {"instances_dir": str(smk.params.instances_dir)})
     classify_points.write_classified_ply(pts, Path(smk.output.ply))
     n_obj = int((pts["class_id"] != 255).sum())
-    log.info("%d observations on %d instances (segment.instances_dir %s)", len(inst), inst["key"].nunique(),
-             smk.params.instances_dir)
-    log.info("%d points, %d on objects (%s)", len(pts), n_obj,
-             pts.loc[pts["class_id"] != 255, "class_id"].value_counts().to_dict())
+    log.info(
+        "%d observations on %d instances (segment.instances_dir %s)",
+        len(inst),
+        inst["key"].nunique(),
+        smk.params.instances_dir,
+    )
+    log.info(
+        "%d points, %d on objects (%s)",
+        len(pts),
+        n_obj,
+        pts.loc[pts["class_id"] != 255, "class_id"].value_counts().to_dict(),
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -10,10 +10,8 @@ also a flat markdown ``coarse_localization_rows.md`` and LaTeX) and markdown lai
 import pandas as pd
 import torch
 
+from flatlandia import io, runlog, tables
 from flatlandia.coarse import retrieval
-from flatlandia import io
-from flatlandia import runlog
-from flatlandia import tables
 
 
 def main(smk, log):
@@ -25,31 +23,49 @@ def main(smk, log):
     cfgs = [c for _, c in models.values()]
     graph_keys = ("scale_m", "depth_unit_m", "knn")
     if any(tuple(getattr(c, k) for k in graph_keys) != tuple(getattr(cfgs[0], k) for k in graph_keys) for c in cfgs):
-        raise ValueError(f"the models were trained with different graph settings {graph_keys}: "
-                         f"{[tuple(getattr(c, k) for k in graph_keys) for c in cfgs]}")
-    scenes = [(pd.read_parquet(r), pd.read_parquet(q), pd.read_parquet(s))
-              for r, q, s in zip(smk.input.reference_maps, smk.input.queries, smk.input.similarity)]
+        raise ValueError(
+            f"the models were trained with different graph settings {graph_keys}: "
+            f"{[tuple(getattr(c, k) for k in graph_keys) for c in cfgs]}"
+        )
+    scenes = [
+        (pd.read_parquet(r), pd.read_parquet(q), pd.read_parquet(s))
+        for r, q, s in zip(smk.input.reference_maps, smk.input.queries, smk.input.similarity)
+    ]
     ds = retrieval.build_dataset(scenes, cfgs[0], splits=("test",))
     log.info("%d test queries over %d scenes; models %s", len(ds.samples), len(scenes), list(models))
     per_query = retrieval.evaluate(models, ds, "test", baselines=True, seed=int(smk.params.seed))
     for loss, path in zip(losses, smk.output.proposals):
         rows = per_query[per_query["loss"] == retrieval.LOSSES[loss]].reset_index(drop=True)
-        io.write_parquet(rows, path, {"loss": retrieval.LOSSES[loss], "config": models[retrieval.LOSSES[loss]][1].to_dict(),
-                                      "split": "test"})
+        io.write_parquet(
+            rows,
+            path,
+            {"loss": retrieval.LOSSES[loss], "config": models[retrieval.LOSSES[loss]][1].to_dict(), "split": "test"},
+        )
     table = retrieval.summarise(per_query)
     timing = retrieval.time_one_query(next(iter(models.values()))[0], ds, ds.samples[0]) if ds.samples else {}
     trained = ", ".join(f"{k}: {c.epochs} epochs" for k, (_, c) in models.items())
     c0 = cfgs[0]
-    note = (f"Ours: test split of every scene; one model per loss trained on GT and depth maps ({trained}; batch "
-            f"{c0.batch_size}, Adam lr {c0.lr:g} {c0.lr_schedule}; triplet negatives {100 * c0.hard_negatives:.0f}% "
-            "hardest unmatched, the rest random (paper: all random)). "
-            "'random' scores nodes uniformly at random; 'S oracle' ranks by the Sim target itself (needs the GT map). ")
+    note = (
+        f"Ours: test split of every scene; one model per loss trained on GT and depth maps ({trained}; batch "
+        f"{c0.batch_size}, Adam lr {c0.lr:g} {c0.lr_schedule}; triplet negatives {100 * c0.hard_negatives:.0f}% "
+        "hardest unmatched, the rest random (paper: all random)). "
+        "'random' scores nodes uniformly at random; 'S oracle' ranks by the Sim target itself (needs the GT map). "
+    )
     if timing:
-        note += (f"Scoring one query: {1000 * timing['score_cached_ref_s']:.2f} ms with the scene's reference "
-                 f"embeddings cached, {1000 * timing['score_with_ref_s']:.2f} ms including them (1 CPU thread).")
+        note += (
+            f"Scoring one query: {1000 * timing['score_cached_ref_s']:.2f} ms with the scene's reference "
+            f"embeddings cached, {1000 * timing['score_with_ref_s']:.2f} ms including them (1 CPU thread)."
+        )
     # schema-checked Parquet + flat markdown + LaTeX, then the Table-3 layout (ours beside the paper's)
-    tables.write_table(table, "coarse_localization", smk.output.table, smk.output.rows_markdown, smk.output.latex,
-                       title="Coarse map localization (Table 3): precision / recall / success, test split", note=note)
+    tables.write_table(
+        table,
+        "coarse_localization",
+        smk.output.table,
+        smk.output.rows_markdown,
+        smk.output.latex,
+        title="Coarse map localization (Table 3): precision / recall / success, test split",
+        note=note,
+    )
     io.write_text(retrieval.render_markdown(table, note=note), smk.output.markdown)
     log.info("\n%s", table.to_string())
 

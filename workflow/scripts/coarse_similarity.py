@@ -8,8 +8,7 @@ import time
 
 import pandas as pd
 
-from flatlandia import io
-from flatlandia import runlog
+from flatlandia import io, runlog
 from flatlandia.coarse import target
 
 
@@ -22,12 +21,23 @@ def main(smk, log):
     t0 = time.perf_counter()
     table = target.scene_similarity(ref, queries, cfg, progress=runlog.progress(log, f"similarity {scene}"))
     seconds = time.perf_counter() - t0
-    meta = {"scene": scene, "config": cfg.to_dict(), "seconds": seconds,
-            "per_query_ms": 1000 * seconds / max(len(queries), 1), "map_type": "gt",
-            "definition": "S = (1 - d_p) (1 - d_s); see flatlandia.coarse.target"}
+    meta = {
+        "scene": scene,
+        "config": cfg.to_dict(),
+        "seconds": seconds,
+        "per_query_ms": 1000 * seconds / max(len(queries), 1),
+        "map_type": "gt",
+        "definition": "S = (1 - d_p) (1 - d_s); see flatlandia.coarse.target",
+    }
     io.write_parquet(table, smk.output.similarity, meta)
-    log.info("scene %s: %d rows in %.2f s (%.1f ms per query), mean S %.3f", scene, len(table), seconds,
-             meta["per_query_ms"], float(table["S"].mean()) if len(table) else float("nan"))
+    log.info(
+        "scene %s: %d rows in %.2f s (%.1f ms per query), mean S %.3f",
+        scene,
+        len(table),
+        seconds,
+        meta["per_query_ms"],
+        float(table["S"].mean()) if len(table) else float("nan"),
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -7,9 +7,8 @@ Best-on-validation weights are saved with their resolved config (torch.save({'st
 import pandas as pd
 import torch
 
+from flatlandia import io, runlog
 from flatlandia.coarse import retrieval
-from flatlandia import io
-from flatlandia import runlog
 
 
 def main(smk, log):
@@ -20,16 +19,33 @@ def main(smk, log):
         q = pd.read_parquet(q_path)
         scenes.append((pd.read_parquet(ref_path), q, pd.read_parquet(s_path)))
     ds = retrieval.build_dataset(scenes, cfg, splits=("train", "val"))
-    log.info("%s: %d train / %d val queries over %d scenes; config %s", retrieval.LOSSES[cfg.loss],
-             len(ds.split("train")), len(ds.split("val")), len(scenes), cfg.to_dict())
+    log.info(
+        "%s: %d train / %d val queries over %d scenes; config %s",
+        retrieval.LOSSES[cfg.loss],
+        len(ds.split("train")),
+        len(ds.split("val")),
+        len(scenes),
+        cfg.to_dict(),
+    )
     res = retrieval.train(ds, cfg, log=log, progress=runlog.progress(log, f"coarse {cfg.loss}"))
     retrieval.save_checkpoint(res, smk.output.model)
-    meta = {"config": res["config"], "best_epoch": res["best_epoch"], "best_val": res["best_val"],
-            "seconds": res["seconds"], "seconds_per_epoch": res["seconds_per_epoch"],
-            "n_parameters": retrieval.n_parameters(res["model"])}
+    meta = {
+        "config": res["config"],
+        "best_epoch": res["best_epoch"],
+        "best_val": res["best_val"],
+        "seconds": res["seconds"],
+        "seconds_per_epoch": res["seconds_per_epoch"],
+        "n_parameters": retrieval.n_parameters(res["model"]),
+    }
     io.write_parquet(pd.DataFrame(res["history"]), smk.output.history, meta)
-    log.info("best epoch %d (validation %.4f); %.1f s, %.2f s per training epoch; %d parameters",
-             res["best_epoch"], res["best_val"], res["seconds"], res["seconds_per_epoch"], meta["n_parameters"])
+    log.info(
+        "best epoch %d (validation %.4f); %.1f s, %.2f s per training epoch; %d parameters",
+        res["best_epoch"],
+        res["best_val"],
+        res["seconds"],
+        res["seconds_per_epoch"],
+        meta["n_parameters"],
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

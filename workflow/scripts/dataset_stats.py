@@ -4,10 +4,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io
-from flatlandia import runlog
+from flatlandia import io, runlog, tables
 from flatlandia.data import stats
-from flatlandia import tables
 
 
 def main(smk, log):
@@ -30,11 +28,16 @@ def main(smk, log):
     table = stats.city_table(per_scene, union)
     io.write_parquet(per_scene, smk.output.per_scene)
     tables.write_table(
-        table, "dataset_stats", smk.output.parquet, smk.output.markdown, smk.output.latex,
+        table,
+        "dataset_stats",
+        smk.output.parquet,
+        smk.output.markdown,
+        smk.output.latex,
         title="Dataset statistics (paper Table 2)",
         note="Per city: mean per scene of area (convex hull of the objects, km2), map size (kB, compact JSON), "
-             "images (SfM tokens), objects and queries; density = objects per 1000 m2. `paper_*`: the paper's "
-             "figures.")
+        "images (SfM tokens), objects and queries; density = objects per 1000 m2. `paper_*`: the paper's "
+        "figures.",
+    )
     log.info("\n%s", tables.to_markdown(table))
 
 

@@ -2,8 +2,8 @@
 
 import pandas as pd
 
-from flatlandia.data import fetch
 from flatlandia import runlog
+from flatlandia.data import fetch
 
 
 def main(smk, log):

@@ -1,7 +1,7 @@
 """Rule fetch_images: an images scene's folder from its public source, when no local copy exists."""
 
-from flatlandia.data import fetch
 from flatlandia import runlog
+from flatlandia.data import fetch
 
 
 def main(smk, log):

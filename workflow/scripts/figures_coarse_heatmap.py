@@ -3,15 +3,16 @@
 import pandas as pd
 import torch
 
+from flatlandia import figures, runlog
 from flatlandia.coarse import retrieval
-from flatlandia import figures
-from flatlandia import runlog
 
 
 def main(smk, log):
     torch.set_num_threads(1)
     ref, q, sim = (pd.read_parquet(p) for p in (smk.input.reference_map, smk.input.queries, smk.input.similarity))
-    models = {retrieval.LOSSES[loss]: retrieval.load_checkpoint(p) for loss, p in zip(smk.params.losses, smk.input.models)}
+    models = {
+        retrieval.LOSSES[loss]: retrieval.load_checkpoint(p) for loss, p in zip(smk.params.losses, smk.input.models)
+    }
     cfg0 = next(iter(models.values()))[1]
     ds = retrieval.build_dataset([(ref, q, sim)], cfg0, splits=("test",))
     if not ds.samples:
@@ -20,12 +21,23 @@ def main(smk, log):
     mt = smk.params.map_type
     scores = {label: retrieval.score_samples(model, ds, [sample], mt)[0] for label, (model, _) in models.items()}
     row = q.set_index(q["token"].astype(str)).loc[sample.token]
-    figures.plot_score_heatmap(ds.refs[0], scores, sample.positives, row[["x_m", "y_m"]].to_numpy(float),
-                               float(row["theta_deg"]), smk.output.png,
-                               f"scene {smk.wildcards.scene}, query {sample.token} ({sample.split}, "
-                               f"{sample.n_objects} objects, {mt} local map)")
-    log.info("scene %s query %s: %d reference objects scored by %s", smk.wildcards.scene, sample.token, len(ref),
-             list(scores))
+    figures.plot_score_heatmap(
+        ds.refs[0],
+        scores,
+        sample.positives,
+        row[["x_m", "y_m"]].to_numpy(float),
+        float(row["theta_deg"]),
+        smk.output.png,
+        f"scene {smk.wildcards.scene}, query {sample.token} ({sample.split}, "
+        f"{sample.n_objects} objects, {mt} local map)",
+    )
+    log.info(
+        "scene %s query %s: %d reference objects scored by %s",
+        smk.wildcards.scene,
+        sample.token,
+        len(ref),
+        list(scores),
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

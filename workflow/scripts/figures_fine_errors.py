@@ -3,8 +3,7 @@
 import numpy as np
 import pandas as pd
 
-from flatlandia import figures
-from flatlandia import runlog
+from flatlandia import figures, runlog
 
 
 def main(smk, log):
@@ -17,7 +16,9 @@ def main(smk, log):
         e = pd.read_parquet(path)
         e["n_classes"] = [classes.get((str(s), str(t)), np.nan) for s, t in zip(e["scene"], e["token"])]
         errors[run] = e
-        log.info("%s: %d queries, median %.2f m / %.2f deg", run, len(e), e["error_m"].median(), e["error_deg"].median())
+        log.info(
+            "%s: %d queries, median %.2f m / %.2f deg", run, len(e), e["error_m"].median(), e["error_deg"].median()
+        )
     figures.plot_error_cdfs(errors, smk.output.cdf)
     figures.plot_error_vs_objects(errors, smk.output.vs_objects)
 

@@ -2,8 +2,7 @@
 
 import pandas as pd
 
-from flatlandia import figures
-from flatlandia import runlog
+from flatlandia import figures, runlog
 
 
 def main(smk, log):
@@ -14,7 +13,9 @@ def main(smk, log):
         curves[f"fine {label}"] = pd.read_parquet(path)
     figures.plot_training_curves(curves, smk.output.png)
     for k, h in curves.items():
-        log.info("%s: %d epochs, training loss %.4g -> %.4g", k, len(h), h["train_loss"].iloc[0], h["train_loss"].iloc[-1])
+        log.info(
+            "%s: %d epochs, training loss %.4g -> %.4g", k, len(h), h["train_loss"].iloc[0], h["train_loss"].iloc[-1]
+        )
 
 
 runlog.run(main, snakemake)  # noqa: F821

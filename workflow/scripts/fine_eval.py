@@ -13,22 +13,19 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia.fine import learned
-from flatlandia import io
+from flatlandia import io, runlog
 from flatlandia.data import localmaps
-from flatlandia import runlog
-from flatlandia.fine import solver
-from flatlandia.fine import evaluation
+from flatlandia.fine import evaluation, learned, solver
 
 
 def proposals_for(smk, ref, queries, coarse):
-    kind = smk.params.p['proposal']
+    kind = smk.params.p["proposal"]
     if kind == "gtbb":
         return evaluation.gtbb_proposals(ref, queries)
     if kind == "whole":
         return evaluation.whole_map_proposals(ref, queries)
     scene = str(ref["scene"].iloc[0])
-    p = coarse[(coarse["scene"].astype(str) == scene) & (coarse["strategy"] == smk.params.p['strategy'])]
+    p = coarse[(coarse["scene"].astype(str) == scene) & (coarse["strategy"] == smk.params.p["strategy"])]
     return p[p["token"].astype(str).isin(queries["token"].astype(str))]
 
 
@@ -39,14 +36,15 @@ def run_name(smk):
 
 def main(smk, log):
     torch.set_num_threads(int(smk.threads))
-    method, mt = smk.params.p['method'], smk.wildcards.map_type
+    method, mt = smk.params.p["method"], smk.wildcards.map_type
     coarse = pd.read_parquet(smk.input.coarse) if smk.input.get("coarse") else None
     qs = {p: pd.read_parquet(p) for p in smk.input.queries}
     geo_cfg = dict(smk.params.geo)
     scale_prior = None
     if method == "geo" and mt == "depth" and geo_cfg.get("scale_prior", True):
-        scale_prior = solver.fit_priors([localmaps.xy(c) for q in qs.values()
-                                         for c in q.loc[q["split"] == "train", "gt_local_xy_m"]])
+        scale_prior = solver.fit_priors(
+            [localmaps.xy(c) for q in qs.values() for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
+        )
         log.info("depth scale prior (log metres per unit): %s", scale_prior)
     model = cfg = None
     if method != "geo":
@@ -59,27 +57,58 @@ def main(smk, log):
         props = proposals_for(smk, ref, test, coarse)
         if method == "geo":
             prior, seen = evaluation.training_priors(q, geo_cfg)
-            parts.append(evaluation.evaluate_solver(ref, test, props, mt, geo_cfg, prior_xy=prior, scale_prior=scale_prior,
-                                            prior_seen=seen,
-                                            method="geometric solver",
-                                            progress=runlog.progress(log, f"scene {ref['scene'].iloc[0]}")))
+            parts.append(
+                evaluation.evaluate_solver(
+                    ref,
+                    test,
+                    props,
+                    mt,
+                    geo_cfg,
+                    prior_xy=prior,
+                    scale_prior=scale_prior,
+                    prior_seen=seen,
+                    method="geometric solver",
+                    progress=runlog.progress(log, f"scene {ref['scene'].iloc[0]}"),
+                )
+            )
         else:  # learned models on coarse proposals see them cut like their training proposals
-            parts.append(learned.evaluate_model(model, cfg, ref, test,
-                                             evaluation.crop_to_densest(ref, props, float(smk.params.p["crop_m"]))))
+            parts.append(
+                learned.evaluate_model(
+                    model, cfg, ref, test, evaluation.crop_to_densest(ref, props, float(smk.params.p["crop_m"]))
+                )
+            )
     errors = pd.concat(parts, ignore_index=True)
-    errors["strategy"] = smk.params.p['strategy_label']
-    meta = {"run": run_name(smk), "method": method, "map_type": mt, "proposal": smk.params.p['proposal'],
-            "geo": geo_cfg if method == "geo" else None, "model_config": cfg.to_dict() if cfg else None}
+    errors["strategy"] = smk.params.p["strategy_label"]
+    meta = {
+        "run": run_name(smk),
+        "method": method,
+        "map_type": mt,
+        "proposal": smk.params.p["proposal"],
+        "geo": geo_cfg if method == "geo" else None,
+        "model_config": cfg.to_dict() if cfg else None,
+    }
     io.write_parquet(errors, smk.output.errors, meta)
     summary = evaluation.summarise(errors)
-    summary.update(method=str(errors["method"].iloc[0]), method_slug=method, map_type=mt,
-                   proposal=smk.params.p['proposal'], strategy=smk.params.p['strategy_label'], run=run_name(smk),
-                   ref_map_kb=float(np.mean(map_kb)) if map_kb else float("nan"), train_s=0.0, epochs=0,
-                   trained_on=evaluation.training_label(smk.params.p["train_regime"], smk.params.p["crop_m"]))
+    summary.update(
+        method=str(errors["method"].iloc[0]),
+        method_slug=method,
+        map_type=mt,
+        proposal=smk.params.p["proposal"],
+        strategy=smk.params.p["strategy_label"],
+        run=run_name(smk),
+        ref_map_kb=float(np.mean(map_kb)) if map_kb else float("nan"),
+        train_s=0.0,
+        epochs=0,
+        trained_on=evaluation.training_label(smk.params.p["train_regime"], smk.params.p["crop_m"]),
+    )
     if model is not None:
         info = learned.checkpoint_info(smk.input.checkpoint)
-        summary.update(n_parameters=learned.n_parameters(model), model_mb=os.path.getsize(smk.input.checkpoint) / 1e6,
-                       train_s=float(info.get("seconds") or 0.0), epochs=int(cfg.epochs))
+        summary.update(
+            n_parameters=learned.n_parameters(model),
+            model_mb=os.path.getsize(smk.input.checkpoint) / 1e6,
+            train_s=float(info.get("seconds") or 0.0),
+            epochs=int(cfg.epochs),
+        )
     io.write_json(evaluation.json_safe(summary), smk.output.summary)
     log.info("%s: %s", run_name(smk), summary)
 

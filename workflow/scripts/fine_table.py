@@ -7,22 +7,29 @@ the paper's Tables 4 and 5) as ``fine_localization.md``.
 
 import json
 
-from flatlandia import io
-from flatlandia import runlog
-from flatlandia import tables
+from flatlandia import io, runlog, tables
 from flatlandia.fine import evaluation
 
 
 def main(smk, log):
     summaries = [json.loads(open(p).read()) for p in smk.input.summaries]
     df = evaluation.table_rows(summaries)
-    note = ("Test split of every scene; errors in true metres (pu: the paper's convention, local-map units x 215). "
-            "Learned models train on the train split (best-on-validation weights) with GT-BB proposals, or, for "
-            "the rows on coarse proposals, with simulated coarse proposals (GT-BB kept; real and simulated "
-            "proposals cut to their densest objects within a radius: see `trained on`); the geometric solver "
-            "uses only camera and scale priors from the training split and the raw proposals.")
-    tables.write_table(df, "fine_localization", smk.output.parquet, smk.output.rows_markdown, smk.output.latex,
-                       title="Fine 3DoF localization (Tables 4-5), test split", note=note)
+    note = (
+        "Test split of every scene; errors in true metres (pu: the paper's convention, local-map units x 215). "
+        "Learned models train on the train split (best-on-validation weights) with GT-BB proposals, or, for "
+        "the rows on coarse proposals, with simulated coarse proposals (GT-BB kept; real and simulated "
+        "proposals cut to their densest objects within a radius: see `trained on`); the geometric solver "
+        "uses only camera and scale priors from the training split and the raw proposals."
+    )
+    tables.write_table(
+        df,
+        "fine_localization",
+        smk.output.parquet,
+        smk.output.rows_markdown,
+        smk.output.latex,
+        title="Fine 3DoF localization (Tables 4-5), test split",
+        note=note,
+    )
     text = evaluation.render_markdown(df, note=note)
     io.write_text(text, smk.output.markdown)
     log.info("\n%s", text)

@@ -11,16 +11,15 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia.fine import learned
-from flatlandia import io
-from flatlandia import runlog
-from flatlandia.fine import evaluation
+from flatlandia import io, runlog
+from flatlandia.fine import evaluation, learned
 
 
 def main(smk, log):
     torch.set_num_threads(int(smk.threads))
-    cfg = learned.FineConfig.from_dict({**dict(smk.params.train), "model": smk.params.model,
-                                     "map_type": smk.wildcards.map_type})
+    cfg = learned.FineConfig.from_dict(
+        {**dict(smk.params.train), "model": smk.params.model, "map_type": smk.wildcards.map_type}
+    )
     regime, ct = smk.wildcards.train, dict(smk.params.coarse_training)
     rng = np.random.default_rng(cfg.seed)
     train, val = [], []
@@ -28,21 +27,42 @@ def main(smk, log):
         ref, q = pd.read_parquet(ref_path), pd.read_parquet(q_path)
         for split, dest, copies in (("train", train, int(ct.get("copies", 2))), ("val", val, 1)):
             qs = q[q["split"] == split]
-            for props in evaluation.training_proposals(ref, qs, regime, rng, copies, bool(ct.get("keep_gtbb", True)),
-                                               float(ct.get("crop_m", 0.0))):
+            for props in evaluation.training_proposals(
+                ref, qs, regime, rng, copies, bool(ct.get("keep_gtbb", True)), float(ct.get("crop_m", 0.0))
+            ):
                 dest += learned.samples_from_queries(ref, qs, props, cfg)[0]
-    log.info("%s on %s maps, %s proposals: %d train / %d val samples, config %s, coarse training %s", cfg.model,
-             cfg.map_type, regime, len(train), len(val), cfg.to_dict(), ct if regime == "coarse" else "-")
+    log.info(
+        "%s on %s maps, %s proposals: %d train / %d val samples, config %s, coarse training %s",
+        cfg.model,
+        cfg.map_type,
+        regime,
+        len(train),
+        len(val),
+        cfg.to_dict(),
+        ct if regime == "coarse" else "-",
+    )
     res = learned.train(train, val, cfg, log=log, progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"))
     learned.save_checkpoint(res, smk.output.checkpoint)
     hist = pd.DataFrame(res["history"])
-    io.write_parquet(hist, smk.output.history, {"config": cfg.to_dict(), "best_epoch": res["best_epoch"],
-                                                "train_proposals": regime,
-                                                "coarse_training": ct if regime == "coarse" else None,
-                                                "n_parameters": learned.n_parameters(res["model"]),
-                                                "train_seconds": res["seconds"]})
-    log.info("best epoch %d, validation median %.2f m, %.1f s, %d parameters", res["best_epoch"],
-             res["best_val_median_m"], res["seconds"], learned.n_parameters(res["model"]))
+    io.write_parquet(
+        hist,
+        smk.output.history,
+        {
+            "config": cfg.to_dict(),
+            "best_epoch": res["best_epoch"],
+            "train_proposals": regime,
+            "coarse_training": ct if regime == "coarse" else None,
+            "n_parameters": learned.n_parameters(res["model"]),
+            "train_seconds": res["seconds"],
+        },
+    )
+    log.info(
+        "best epoch %d, validation median %.2f m, %.1f s, %d parameters",
+        res["best_epoch"],
+        res["best_val_median_m"],
+        res["seconds"],
+        learned.n_parameters(res["model"]),
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -1,15 +1,18 @@
 """Rule images_audit: metadata of every image, kept or dropped and why."""
 
+from flatlandia import io, runlog
 from flatlandia.images import image_audit
-from flatlandia import io
-from flatlandia import runlog
 
 
 def main(smk, log):
     df = image_audit.audit_table(smk.input.images, smk.params.dedup_threshold, smk.params.missing_gps)
     io.write_parquet(df, smk.output.table)
-    log.info("%d images, %d kept; dropped: %s", len(df), int(df["kept"].sum()),
-             df.loc[~df["kept"], "drop_reason"].value_counts().to_dict())
+    log.info(
+        "%d images, %d kept; dropped: %s",
+        len(df),
+        int(df["kept"].sum()),
+        df.loc[~df["kept"], "drop_reason"].value_counts().to_dict(),
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -6,13 +6,10 @@ import numpy as np
 import pandas as pd
 import pycolmap
 
-from flatlandia.images import depth
-from flatlandia import geo
-from flatlandia.images import image_queries
-from flatlandia import io
+from flatlandia import geo, io, runlog
 from flatlandia.data import localmaps
+from flatlandia.images import depth, image_queries
 from flatlandia.objects import clustering
-from flatlandia import runlog
 
 
 def main(smk, log):
@@ -36,29 +33,66 @@ def main(smk, log):
     obj_class = dict(zip(ref["obj_idx"].astype(int), ref["class_id"].astype(int)))
     A, b = np.asarray(alignment["A"], float), np.asarray(alignment["b"], float)
     dcfg = dict(smk.params.depth)
-    lift = depth.make_lifter(dcfg["backend"], point_xyz, images_dir=smk.params.images_dir,
-                             weights=dcfg.get("weights"), inverse=bool(dcfg.get("inverse", True)))
-    q = image_queries.scene_queries(scene, views, objs, point_object, point_xyz, A, b, obj_xy, obj_class,
-                                   min_objects=int(smk.params.min_objects), min_points=int(smk.params.min_points),
-                                   lift=lift)
+    lift = depth.make_lifter(
+        dcfg["backend"],
+        point_xyz,
+        images_dir=smk.params.images_dir,
+        weights=dcfg.get("weights"),
+        inverse=bool(dcfg.get("inverse", True)),
+    )
+    q = image_queries.scene_queries(
+        scene,
+        views,
+        objs,
+        point_object,
+        point_xyz,
+        A,
+        b,
+        obj_xy,
+        obj_class,
+        min_objects=int(smk.params.min_objects),
+        min_points=int(smk.params.min_points),
+        lift=lift,
+    )
     frame = geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
     if len(q):
         ll = frame.to_lonlat(q[["x_m", "y_m"]].to_numpy(float))
         q.insert(5, "lon", ll[:, 0])
         q.insert(6, "lat", ll[:, 1])
-        q["depth_local_xy"] = [localmaps.normalise_depth_map(np.asarray(d, float))[0].tolist()
-                               for d in q["depth_local_xy_m"]]
-        split = localmaps.split_queries(q["token"].tolist(), int(smk.params.seed),
-                                        tuple(smk.params.split[k] for k in ("train", "val", "test")), salt=scene)
+        q["depth_local_xy"] = [
+            localmaps.normalise_depth_map(np.asarray(d, float))[0].tolist() for d in q["depth_local_xy_m"]
+        ]
+        split = localmaps.split_queries(
+            q["token"].tolist(),
+            int(smk.params.seed),
+            tuple(smk.params.split[k] for k in ("train", "val", "test")),
+            salt=scene,
+        )
         q["split"] = q["token"].map(split)
     else:
-        q = q.assign(lon=pd.Series(dtype=float), lat=pd.Series(dtype=float), depth_local_xy=pd.Series(dtype=object),
-                     split=pd.Series(dtype=str))
-    meta = {"scene": scene, "source": "images", "crs": frame.proj4, "views": len(views),
-            "min_objects": int(smk.params.min_objects), "depth_backend": dcfg["backend"]}
+        q = q.assign(
+            lon=pd.Series(dtype=float),
+            lat=pd.Series(dtype=float),
+            depth_local_xy=pd.Series(dtype=object),
+            split=pd.Series(dtype=str),
+        )
+    meta = {
+        "scene": scene,
+        "source": "images",
+        "crs": frame.proj4,
+        "views": len(views),
+        "min_objects": int(smk.params.min_objects),
+        "depth_backend": dcfg["backend"],
+    }
     io.write_parquet(q, smk.output.queries, meta)
-    log.info("scene %s: %d of %d registered images see >= %d objects -> %d queries", scene, len(q), len(views),
-             int(smk.params.min_objects), len(q))
+    log.info(
+        "scene %s: %d of %d registered images see >= %d objects -> %d queries",
+        scene,
+        len(q),
+        len(views),
+        int(smk.params.min_objects),
+        len(q),
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

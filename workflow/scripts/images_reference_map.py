@@ -3,11 +3,9 @@
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo
-from flatlandia import io
-from flatlandia.data import map_files
-from flatlandia import runlog
+from flatlandia import geo, io, runlog
 from flatlandia.classes import CLASSES
+from flatlandia.data import map_files
 
 
 def main(smk, log):

@@ -1,15 +1,18 @@
 """Rule ingest: check a scene's published files and report what is available."""
 
+from flatlandia import io, runlog
 from flatlandia.data import ingest
-from flatlandia import io
-from flatlandia import runlog
 
 
 def main(smk, log):
     rep = ingest.ingest_scene(smk.params.root, smk.wildcards.scene, verify_hash=smk.params.verify_sha256)
     for f in rep["files"]:
-        log.info("%-28s %-8s %s", f["key"], "ok" if f["present"] and not f["problem"] else "MISSING"
-                 if not f["present"] else "PROBLEM", f["problem"])
+        log.info(
+            "%-28s %-8s %s",
+            f["key"],
+            "ok" if f["present"] and not f["problem"] else "MISSING" if not f["present"] else "PROBLEM",
+            f["problem"],
+        )
     log.info("scene %s: %d queries", rep["scene"], rep["n_queries"])
     io.write_json(rep, smk.output.report)
 

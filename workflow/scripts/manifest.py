@@ -1,8 +1,6 @@
 """Rule manifest: every artifact with its producing rule, input hashes, config hash and commit."""
 
-from flatlandia import io
-from flatlandia import provenance
-from flatlandia import runlog
+from flatlandia import io, provenance, runlog
 
 
 def main(smk, log):
@@ -12,8 +10,9 @@ def main(smk, log):
     df = df[[Path(a).exists() for a in df["artifact"]]].reset_index(drop=True)  # drop records of deleted outputs
     missing = sorted(set(map(str, smk.input)) - set(df["artifact"]))
     if missing:
-        log.warning("%d artifacts have no provenance record (produced before records existed?): %s",
-                    len(missing), missing[:5])
+        log.warning(
+            "%d artifacts have no provenance record (produced before records existed?): %s", len(missing), missing[:5]
+        )
     io.write_parquet(df, smk.output.parquet)
     log.info("%d artifacts from %d rules", len(df), df["rule"].nunique())
 

@@ -1,11 +1,8 @@
 """Rule objects: classified point cloud -> objects (clusters per macro-class, boxes) + object map."""
 
-
-from flatlandia import geo
-from flatlandia import io
-from flatlandia import runlog
-from flatlandia.objects import clustering
+from flatlandia import geo, io, runlog
 from flatlandia.classes import CLASSES
+from flatlandia.objects import clustering
 
 
 def main(smk, log):
@@ -23,16 +20,28 @@ def main(smk, log):
     ref = clustering.objects_reference_map(objs, t, frame, prior)
     table = objs.merge(ref.drop(columns=["macro_class", "n_points"]), on="object_id")
     table.insert(0, "scene", scene)
-    meta = {"scene": scene, "crs": frame.proj4, "lon0": frame.lon0, "lat0": frame.lat0,
-            "metres_per_sfm_unit": mpu, "cluster_params": dict(smk.params.cluster),
-            "coordinates": "cx/cy/cz, box_* in SfM units; lon/lat via the published chain; x_m/y_m metric frame",
-            "label_transfer": "per macro-class the most frequent 42-class among the other scenes' published maps",
-            "class_prior": prior}
+    meta = {
+        "scene": scene,
+        "crs": frame.proj4,
+        "lon0": frame.lon0,
+        "lat0": frame.lat0,
+        "metres_per_sfm_unit": mpu,
+        "cluster_params": dict(smk.params.cluster),
+        "coordinates": "cx/cy/cz, box_* in SfM units; lon/lat via the published chain; x_m/y_m metric frame",
+        "label_transfer": "per macro-class the most frequent 42-class among the other scenes' published maps",
+        "class_prior": prior,
+    }
     io.write_parquet(table, smk.output.parquet, meta)
     clustering.write_boxes_ply(objs, smk.output.ply)
-    log.info("scene %s: %d classified of %d points, %d objects (%s), %.4f m per SfM unit", scene,
-             int((labels != clustering.BACKGROUND).sum()), len(pts), len(objs),
-             objs["macro_class"].value_counts().to_dict(), mpu)
+    log.info(
+        "scene %s: %d classified of %d points, %d objects (%s), %.4f m per SfM unit",
+        scene,
+        int((labels != clustering.BACKGROUND).sum()),
+        len(pts),
+        len(objs),
+        objs["macro_class"].value_counts().to_dict(),
+        mpu,
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -2,16 +2,17 @@
 
 import pandas as pd
 
-from flatlandia.data import map_files
 from flatlandia import runlog
+from flatlandia.data import map_files
 
 
 def main(smk, log):
     ref = pd.read_parquet(smk.input.reference_map)
     q = pd.read_parquet(smk.input.queries)
     scene = smk.wildcards.scene
-    map_files.plot_reference_map(ref, q, smk.output.png,
-                            f"scene {scene} ({smk.params.city}): {len(ref)} objects, {len(q)} queries")
+    map_files.plot_reference_map(
+        ref, q, smk.output.png, f"scene {scene} ({smk.params.city}): {len(ref)} objects, {len(q)} queries"
+    )
     log.info("wrote %s", smk.output.png)
 
 

@@ -4,10 +4,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import geo
-from flatlandia import io
+from flatlandia import geo, io, runlog
 from flatlandia.data import localmaps
-from flatlandia import runlog
 
 
 def main(smk, log):
@@ -18,8 +16,9 @@ def main(smk, log):
     rec = pd.read_parquet(smk.input.recovered)
     local = io.read_local_maps(Path(smk.params.root) / "local_maps.json", scene)
     sp = smk.params.split
-    split = localmaps.split_queries(list(rec["token"]), smk.params.seed, (sp["train"], sp["val"], sp["test"]),
-                                    salt=scene)
+    split = localmaps.split_queries(
+        list(rec["token"]), smk.params.seed, (sp["train"], sp["val"], sp["test"]), salt=scene
+    )
     q = localmaps.build_queries(scene, rec, ref, local, frame, split)
     io.write_parquet(q, smk.output.queries, {**meta, "seed": smk.params.seed, "split": sp})
     log.info("scene %s: %d queries, split %s", scene, len(q), q["split"].value_counts().to_dict())

@@ -3,10 +3,9 @@
 import time
 from pathlib import Path
 
-from flatlandia import io
-from flatlandia.data import localmaps
-from flatlandia import runlog
+from flatlandia import io, runlog
 from flatlandia.classes import CLASSES
+from flatlandia.data import localmaps
 
 
 def main(smk, log):
@@ -15,14 +14,22 @@ def main(smk, log):
     lonlat, classes = io.read_reference_map(root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
     local = io.read_local_maps(root / "local_maps.json", scene)
     t0 = time.perf_counter()
-    rec = localmaps.recover_scene(scene, lonlat, classes, local, tol_m=smk.params.tol_m,
-                                  progress=runlog.progress(log, f"recover scene {scene}"))
+    rec = localmaps.recover_scene(
+        scene, lonlat, classes, local, tol_m=smk.params.tol_m, progress=runlog.progress(log, f"recover scene {scene}")
+    )
     dt = time.perf_counter() - t0
     io.write_parquet(rec, smk.output.recovered, {"scene": scene, "tol_m": smk.params.tol_m, "seconds": dt})
     ok = rec["recovered"].sum()
-    log.info("scene %s: %d/%d queries recovered in %.3f s; max residual %.2e m; ambiguous %d (%s)",
-             scene, ok, len(rec), dt, rec["residual_m"].max(), rec["ambiguous"].sum(),
-             rec["resolution"].value_counts().to_dict())
+    log.info(
+        "scene %s: %d/%d queries recovered in %.3f s; max residual %.2e m; ambiguous %d (%s)",
+        scene,
+        ok,
+        len(rec),
+        dt,
+        rec["residual_m"].max(),
+        rec["ambiguous"].sum(),
+        rec["resolution"].value_counts().to_dict(),
+    )
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -2,17 +2,16 @@
 
 from pathlib import Path
 
-from flatlandia import geo
-from flatlandia import io
-from flatlandia.data import map_files
-from flatlandia import runlog
+from flatlandia import geo, io, runlog
 from flatlandia.classes import CLASSES
+from flatlandia.data import map_files
 
 
 def main(smk, log):
     scene = smk.wildcards.scene
-    lonlat, classes = io.read_reference_map(Path(smk.params.root) / f"individual_reference_maps/map_{scene}.json",
-                                            n_classes=len(CLASSES))
+    lonlat, classes = io.read_reference_map(
+        Path(smk.params.root) / f"individual_reference_maps/map_{scene}.json", n_classes=len(CLASSES)
+    )
     frame = geo.frame_for(lonlat)
     ref = map_files.reference_table(scene, lonlat, classes, CLASSES, frame)
     meta = map_files.frame_metadata(scene, frame)

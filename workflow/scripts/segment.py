@@ -6,8 +6,7 @@ from pathlib import Path
 import pandas as pd
 from PIL import Image
 
-from flatlandia import io
-from flatlandia import runlog
+from flatlandia import io, runlog
 from flatlandia.images import segment
 
 

@@ -6,11 +6,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia.images import gps_alignment
-from flatlandia.images import image_queries
-from flatlandia import io
-from flatlandia import runlog
-from flatlandia.images import sfm
+from flatlandia import io, runlog
+from flatlandia.images import gps_alignment, image_queries, sfm
 
 
 def main(smk, log):
@@ -19,10 +16,15 @@ def main(smk, log):
     table = pd.read_parquet(smk.input.table)
     names = list(table.loc[table["kept"], "name"])
     o = dict(smk.params.options)
-    opts = sfm.SfmOptions(matcher=o.get("matcher", "exhaustive"), mapper=o.get("mapper", "global"),
-                          camera_model=o.get("camera_model", "SIMPLE_RADIAL"),
-                          max_image_size=o.get("max_image_size", 1600), seed=smk.params.seed,
-                          num_threads=1 if o.get("deterministic", True) else smk.threads, height_mad_k=o.get("height_mad_k", 6.0))
+    opts = sfm.SfmOptions(
+        matcher=o.get("matcher", "exhaustive"),
+        mapper=o.get("mapper", "global"),
+        camera_model=o.get("camera_model", "SIMPLE_RADIAL"),
+        max_image_size=o.get("max_image_size", 1600),
+        seed=smk.params.seed,
+        num_threads=1 if o.get("deterministic", True) else smk.threads,
+        height_mad_k=o.get("height_mad_k", 6.0),
+    )
     out = Path(smk.output.model)
     work = out.parent / "work"
     pycolmap.logging.logtostderr = True  # COLMAP's own log, redirected into the rule's log below
@@ -35,16 +37,34 @@ def main(smk, log):
     views = {v.name: v for v in image_queries.views_from_colmap(rec)}
     kept = cams.loc[~bad].reset_index(drop=True)
     gps = table.set_index("name").reindex(kept["name"])[["lon", "lat"]].to_numpy(float)
-    far = gps_alignment.gps_outliers(kept[["x", "y", "z"]].to_numpy(), np.array([views[n].R for n in kept["name"]]),
-                              gps, float(o.get("gps_max_residual_m", 50.0)), seed=int(smk.params.seed))
-    removed = pd.concat([removed, kept.loc[far, ["image_id", "name"]].assign(
-        reason=f"over {o.get('gps_max_residual_m', 50.0)} m from its GPS fix after aligning the model to GPS")])
+    far = gps_alignment.gps_outliers(
+        kept[["x", "y", "z"]].to_numpy(),
+        np.array([views[n].R for n in kept["name"]]),
+        gps,
+        float(o.get("gps_max_residual_m", 50.0)),
+        seed=int(smk.params.seed),
+    )
+    removed = pd.concat(
+        [
+            removed,
+            kept.loc[far, ["image_id", "name"]].assign(
+                reason=f"over {o.get('gps_max_residual_m', 50.0)} m from its GPS fix after aligning the model to GPS"
+            ),
+        ]
+    )
     sfm.remove_cameras(rec, removed["image_id"].tolist())
     log.info("removed %d badly localised cameras; final bundle adjustment", len(removed))
     with runlog.native_output_to(smk.log[0]):
-        priors, frame = (sfm.gps_priors(rec, table.set_index("name"), float(o.get("gps_prior_sigma_m", 5.0)),
-                                        float(o.get("gps_prior_alt_sigma_m", 10.0)))
-                         if o.get("gps_prior", True) else ([], None))
+        priors, frame = (
+            sfm.gps_priors(
+                rec,
+                table.set_index("name"),
+                float(o.get("gps_prior_sigma_m", 5.0)),
+                float(o.get("gps_prior_alt_sigma_m", 10.0)),
+            )
+            if o.get("gps_prior", True)
+            else ([], None)
+        )
         used = sfm.final_bundle_adjustment(rec, priors, seed=int(smk.params.seed))
     tmp = out.with_name(out.name + ".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -54,12 +74,16 @@ def main(smk, log):
     tmp.rename(out)
     stats = sfm.stats_table(rec, len(names), removed)
     stats["gps_prior_images"] = len(priors) if used else 0
-    stats["model_frame"] = (f"metric, x east / y north / z up (m) around lon {frame.lon0}, lat {frame.lat0} "
-                            "(aligned to the GPS priors)") if used else "arbitrary SfM frame (no GPS priors)"
+    stats["model_frame"] = (
+        (f"metric, x east / y north / z up (m) around lon {frame.lon0}, lat {frame.lat0} (aligned to the GPS priors)")
+        if used
+        else "arbitrary SfM frame (no GPS priors)"
+    )
     log.info("final bundle adjustment %s", f"with {len(priors)} GPS position priors" if used else "without priors")
     io.write_parquet(stats, smk.output.stats)
-    io.write_parquet(sfm.camera_centres(rec).merge(table[["name", "lat", "lon", "alt", "heading"]], on="name"),
-                     smk.output.cameras)
+    io.write_parquet(
+        sfm.camera_centres(rec).merge(table[["name", "lat", "lon", "alt", "heading"]], on="name"), smk.output.cameras
+    )
     shutil.rmtree(work, ignore_errors=True)
     log.info("\n%s", stats.T.to_string())
 

@@ -38,9 +38,9 @@ REF_KNN = 7
 
 @dataclass(frozen=True)
 class GraphConfig:
-    scale_m: float = 50.0        # metres per normalised unit
-    depth_unit_m: float = 27.0   # metres assumed for one unit of a normalised depth map
-    knn: int = REF_KNN           # reference graph: in-edges from the k nearest neighbours
+    scale_m: float = 50.0  # metres per normalised unit
+    depth_unit_m: float = 27.0  # metres assumed for one unit of a normalised depth map
+    knn: int = REF_KNN  # reference graph: in-edges from the k nearest neighbours
     n_classes: int = N_CLASSES
 
 
@@ -66,7 +66,7 @@ def knn_edges(xy: np.ndarray, k: int = REF_KNN) -> np.ndarray:
     k = min(k, n - 1)
     d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
     np.fill_diagonal(d, np.inf)
-    nbr = np.argsort(d, axis=1, kind="stable")[:, :k]          # (n, k)
+    nbr = np.argsort(d, axis=1, kind="stable")[:, :k]  # (n, k)
     dst = np.repeat(np.arange(n), k)
     return np.stack([nbr.reshape(-1), dst]).astype(np.int64)
 
@@ -82,17 +82,26 @@ def _graph(xy_norm: np.ndarray, classes, edges: np.ndarray, cfg: GraphConfig, **
     xy_norm = np.asarray(xy_norm, np.float32).reshape(-1, 2)
     x = np.concatenate([one_hot(classes, cfg.n_classes), xy_norm], axis=1)
     dist = np.linalg.norm(xy_norm[edges[0]] - xy_norm[edges[1]], axis=1) if edges.size else np.zeros(0)
-    return Data(x=torch.from_numpy(x), edge_index=torch.from_numpy(edges),
-                edge_attr=torch.from_numpy(np.exp(-dist).astype(np.float32)[:, None]),
-                pos=torch.from_numpy(xy_norm), **extra)
+    return Data(
+        x=torch.from_numpy(x),
+        edge_index=torch.from_numpy(edges),
+        edge_attr=torch.from_numpy(np.exp(-dist).astype(np.float32)[:, None]),
+        pos=torch.from_numpy(xy_norm),
+        **extra,
+    )
 
 
 def reference_graph(ref: pd.DataFrame, cfg: GraphConfig = GraphConfig()) -> Data:
     """The kNN graph of a scene's reference map (rows in ``ref`` order; ``obj_idx`` kept)."""
     xy = ref[["x_m", "y_m"]].to_numpy(float)
     xy_norm = (xy - xy.mean(0)) / cfg.scale_m
-    return _graph(xy_norm, ref["class_id"].to_numpy(), knn_edges(xy, cfg.knn), cfg,
-                  obj_idx=torch.tensor(ref["obj_idx"].to_numpy(np.int64)))
+    return _graph(
+        xy_norm,
+        ref["class_id"].to_numpy(),
+        knn_edges(xy, cfg.knn),
+        cfg,
+        obj_idx=torch.tensor(ref["obj_idx"].to_numpy(np.int64)),
+    )
 
 
 def local_map_metres(row, map_type: str, cfg: GraphConfig = GraphConfig()) -> np.ndarray:

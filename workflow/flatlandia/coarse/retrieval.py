@@ -46,8 +46,8 @@ from torch_geometric.data import Batch
 from torch_geometric.nn import GATConv, GATv2Conv, global_mean_pool
 from torch_geometric.utils import add_self_loops
 
-from flatlandia.coarse import graphs
 from flatlandia import tables
+from flatlandia.coarse import graphs
 
 LOSSES = {"sim": "Sim", "trip": "Trip", "simtrip": "Sim+Trip"}
 STRATEGIES = ["N_LM", "2N_LM", "R_30", "GT-BB"]
@@ -55,16 +55,26 @@ MAP_TYPES = ["gt", "depth"]
 
 #: The paper's Table 3: (loss, strategy, map type) -> (precision, recall, success).
 PAPER_TABLE3: dict[tuple[str, str, str], tuple[float, float, float]] = {
-    ("-", "GT-BB", "gt"): (0.258, 1.0, 1.0), ("-", "GT-BB", "depth"): (0.258, 1.0, 1.0),
-    ("Sim", "N_LM", "gt"): (0.146, 0.146, 0.168), ("Sim", "N_LM", "depth"): (0.176, 0.176, 0.179),
-    ("Sim", "2N_LM", "gt"): (0.133, 0.266, 0.328), ("Sim", "2N_LM", "depth"): (0.149, 0.299, 0.326),
-    ("Sim", "R_30", "gt"): (0.105, 0.439, 0.533), ("Sim", "R_30", "depth"): (0.134, 0.531, 0.533),
-    ("Trip", "N_LM", "gt"): (0.222, 0.222, 0.211), ("Trip", "N_LM", "depth"): (0.214, 0.214, 0.211),
-    ("Trip", "2N_LM", "gt"): (0.188, 0.376, 0.403), ("Trip", "2N_LM", "depth"): (0.173, 0.345, 0.372),
-    ("Trip", "R_30", "gt"): (0.142, 0.471, 0.522), ("Trip", "R_30", "depth"): (0.137, 0.458, 0.496),
-    ("Sim+Trip", "N_LM", "gt"): (0.236, 0.236, 0.269), ("Sim+Trip", "N_LM", "depth"): (0.219, 0.219, 0.247),
-    ("Sim+Trip", "2N_LM", "gt"): (0.198, 0.396, 0.473), ("Sim+Trip", "2N_LM", "depth"): (0.193, 0.385, 0.452),
-    ("Sim+Trip", "R_30", "gt"): (0.148, 0.543, 0.600), ("Sim+Trip", "R_30", "depth"): (0.139, 0.506, 0.590),
+    ("-", "GT-BB", "gt"): (0.258, 1.0, 1.0),
+    ("-", "GT-BB", "depth"): (0.258, 1.0, 1.0),
+    ("Sim", "N_LM", "gt"): (0.146, 0.146, 0.168),
+    ("Sim", "N_LM", "depth"): (0.176, 0.176, 0.179),
+    ("Sim", "2N_LM", "gt"): (0.133, 0.266, 0.328),
+    ("Sim", "2N_LM", "depth"): (0.149, 0.299, 0.326),
+    ("Sim", "R_30", "gt"): (0.105, 0.439, 0.533),
+    ("Sim", "R_30", "depth"): (0.134, 0.531, 0.533),
+    ("Trip", "N_LM", "gt"): (0.222, 0.222, 0.211),
+    ("Trip", "N_LM", "depth"): (0.214, 0.214, 0.211),
+    ("Trip", "2N_LM", "gt"): (0.188, 0.376, 0.403),
+    ("Trip", "2N_LM", "depth"): (0.173, 0.345, 0.372),
+    ("Trip", "R_30", "gt"): (0.142, 0.471, 0.522),
+    ("Trip", "R_30", "depth"): (0.137, 0.458, 0.496),
+    ("Sim+Trip", "N_LM", "gt"): (0.236, 0.236, 0.269),
+    ("Sim+Trip", "N_LM", "depth"): (0.219, 0.219, 0.247),
+    ("Sim+Trip", "2N_LM", "gt"): (0.198, 0.396, 0.473),
+    ("Sim+Trip", "2N_LM", "depth"): (0.193, 0.385, 0.452),
+    ("Sim+Trip", "R_30", "gt"): (0.148, 0.543, 0.600),
+    ("Sim+Trip", "R_30", "depth"): (0.139, 0.506, 0.590),
 }
 
 #: Columns of results/tables/coarse_localization.parquet: (name, unit, meaning), from its schema.
@@ -73,35 +83,35 @@ TABLE_COLUMNS = [(c.name, c.unit, c.meaning) for c in tables.SCHEMAS["coarse_loc
 
 @dataclass
 class CoarseConfig:
-    loss: str = "simtrip"            # sim | trip | simtrip
+    loss: str = "simtrip"  # sim | trip | simtrip
     epochs: int = 20
     batch_size: int = 20
-    lr: float = 1e-2                 # peak learning rate
+    lr: float = 1e-2  # peak learning rate
     weight_decay: float = 0.0
-    margin: float = 0.5              # triplet margin (score units)
-    trip_weight: float = 1.0         # Sim+Trip: weight of the triplet term
-    hard_negatives: float = 0.5      # Trip: share of negatives that are the best-ranked unmatched nodes (paper 0)
-    sim_weight_floor: float = 0.1    # Sim: weight S/max(S) + floor
-    grad_clip: float = 1.0           # max gradient norm (0: off); damps the Sim loss spikes
-    lr_schedule: str = "cosine"      # constant | cosine (per step, from lr down to lr * lr_min_factor)
+    margin: float = 0.5  # triplet margin (score units)
+    trip_weight: float = 1.0  # Sim+Trip: weight of the triplet term
+    hard_negatives: float = 0.5  # Trip: share of negatives that are the best-ranked unmatched nodes (paper 0)
+    sim_weight_floor: float = 0.1  # Sim: weight S/max(S) + floor
+    grad_clip: float = 1.0  # max gradient norm (0: off); damps the Sim loss spikes
+    lr_schedule: str = "cosine"  # constant | cosine (per step, from lr down to lr * lr_min_factor)
     lr_min_factor: float = 0.01
     hidden: int = 32
     heads: int = 2
     layers: int = 3
     out_dim: int = 32
     dropout: float = 0.0
-    normalize: bool = True           # L2-normalise embeddings: scores in [0, 2], no blow-ups of the Sim loss
-    conv: str = "gatv2"              # gatv2 | gat
+    normalize: bool = True  # L2-normalise embeddings: scores in [0, 2], no blow-ups of the Sim loss
+    conv: str = "gatv2"  # gatv2 | gat
     train_maps: list = field(default_factory=lambda: ["gt", "depth"])
-    batching: str = "scene"          # scene: each batch holds queries of one scene | mixed: any scenes
+    batching: str = "scene"  # scene: each batch holds queries of one scene | mixed: any scenes
     eval_every: int = 1
     seed: int = 0
     # graph normalisation (graphs.GraphConfig); depth_unit_m null = median range of training GT maps
     scale_m: float = 50.0
     depth_unit_m: float | None = None
     knn: int = graphs.REF_KNN
-    radius_m: float = 30.0           # R_30
-    bb_enlarge: float = 0.10         # GT-BB
+    radius_m: float = 30.0  # R_30
+    bb_enlarge: float = 0.10  # GT-BB
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -115,7 +125,7 @@ class CoarseConfig:
             raise ValueError(f"train_maps must be a non-empty subset of {MAP_TYPES}, got {self.train_maps}")
 
     @classmethod
-    def from_dict(cls, d: dict) -> "CoarseConfig":
+    def from_dict(cls, d: dict) -> CoarseConfig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
@@ -126,39 +136,47 @@ class CoarseConfig:
         return asdict(self)
 
     def graph_config(self) -> graphs.GraphConfig:
-        return graphs.GraphConfig(scale_m=self.scale_m, depth_unit_m=float(self.depth_unit_m if self.depth_unit_m is not None else 27.0), knn=self.knn)
+        return graphs.GraphConfig(
+            scale_m=self.scale_m,
+            depth_unit_m=float(self.depth_unit_m if self.depth_unit_m is not None else 27.0),
+            knn=self.knn,
+        )
 
 
 # ----------------------------------------------------------------------------- data
 
+
 @dataclass
 class Sample:
-    scene: int                       # position in the scene list
+    scene: int  # position in the scene list
     token: str
     split: str
-    graphs: dict                     # map type -> query graph (Data)
-    positives: np.ndarray            # rows of the reference table matched by the query (unique)
+    graphs: dict  # map type -> query graph (Data)
+    positives: np.ndarray  # rows of the reference table matched by the query (unique)
     n_objects: int
-    cam_xy: np.ndarray               # true camera (metres), for the GT-BB oracle only
-    S: np.ndarray | None = None      # similarity target per reference row
+    cam_xy: np.ndarray  # true camera (metres), for the GT-BB oracle only
+    S: np.ndarray | None = None  # similarity target per reference row
     negatives: np.ndarray | None = None  # rows not matched by the query (triplet negatives)
 
 
 @dataclass
 class Dataset:
-    scene_ids: list                  # scene id per position
-    refs: list                       # reference tables (rows in obj_idx order as read)
-    ref_graphs: list                 # reference graph per scene
-    ref_batch: Batch                 # every scene's reference graph, batched
-    offsets: np.ndarray              # first node of each scene in ref_batch
+    scene_ids: list  # scene id per position
+    refs: list  # reference tables (rows in obj_idx order as read)
+    ref_graphs: list  # reference graph per scene
+    ref_batch: Batch  # every scene's reference graph, batched
+    offsets: np.ndarray  # first node of each scene in ref_batch
     samples: list
 
     def split(self, name: str) -> list:
         return [s for s in self.samples if s.split == name]
 
 
-def build_dataset(scenes: list[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame | None]], cfg: CoarseConfig,
-                  splits: tuple[str, ...] = ("train", "val", "test")) -> Dataset:
+def build_dataset(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame | None]],
+    cfg: CoarseConfig,
+    splits: tuple[str, ...] = ("train", "val", "test"),
+) -> Dataset:
     """Graphs and targets from (reference map, queries, similarity table or None) per scene.
 
     With ``cfg.depth_unit_m`` unset, it is resolved here (and written into ``cfg``, so the saved
@@ -189,14 +207,26 @@ def build_dataset(scenes: list[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame | 
             S = S_by_token.get(str(r.token))
             if S is not None and np.isnan(S).any():
                 raise ValueError(f"scene {scene_ids[-1]} query {r.token}: similarity table misses objects")
-            samples.append(Sample(k, str(r.token), str(r.split), g, pos, int(r.n_objects),
-                                  np.array([r.x_m, r.y_m], float), S, np.setdiff1d(np.arange(len(ref)), pos)))
+            samples.append(
+                Sample(
+                    k,
+                    str(r.token),
+                    str(r.split),
+                    g,
+                    pos,
+                    int(r.n_objects),
+                    np.array([r.x_m, r.y_m], float),
+                    S,
+                    np.setdiff1d(np.arange(len(ref)), pos),
+                )
+            )
     sizes = np.array([len(r) for r in refs])
     offsets = np.r_[0, np.cumsum(sizes)[:-1]].astype(np.int64)
     return Dataset(scene_ids, refs, ref_graphs, graphs.batch(ref_graphs), offsets, samples)
 
 
 # ----------------------------------------------------------------------------- model
+
 
 class CoarseGAT(nn.Module):
     """Shared node encoder: linear lift, ``layers`` GAT layers with edge features, linear head."""
@@ -205,13 +235,24 @@ class CoarseGAT(nn.Module):
         super().__init__()
         conv = {"gatv2": GATv2Conv, "gat": GATConv}[cfg.conv]
         self.lift = nn.Linear(in_dim, cfg.hidden)
-        self.convs = nn.ModuleList([conv(cfg.hidden, cfg.hidden, heads=cfg.heads, concat=False, edge_dim=1,
-                                         dropout=cfg.dropout, add_self_loops=False)
-                                    for _ in range(cfg.layers)])
+        self.convs = nn.ModuleList(
+            [
+                conv(
+                    cfg.hidden,
+                    cfg.hidden,
+                    heads=cfg.heads,
+                    concat=False,
+                    edge_dim=1,
+                    dropout=cfg.dropout,
+                    add_self_loops=False,
+                )
+                for _ in range(cfg.layers)
+            ]
+        )
         self.head = nn.Linear(cfg.hidden, cfg.out_dim)
         self.act = nn.ELU()
         self.normalize = cfg.normalize
-        self.fast = cfg.conv == "gatv2"       # gatv2_forward: same layer, fewer ops (see there)
+        self.fast = cfg.conv == "gatv2"  # gatv2_forward: same layer, fewer ops (see there)
 
     def forward(self, x, edge_index, edge_attr):
         # self loops once for all layers, edge feature exp(-0) = 1
@@ -219,7 +260,7 @@ class CoarseGAT(nn.Module):
         h = self.act(self.lift(x))
         for conv in self.convs:
             out = gatv2_forward(conv, h, edge_index, edge_attr) if self.fast else conv(h, edge_index, edge_attr)
-            h = h + self.act(out)                              # residual: keeps the class identity
+            h = h + self.act(out)  # residual: keeps the class identity
         out = self.head(h)
         return nn.functional.normalize(out, dim=-1) if self.normalize else out
 
@@ -237,7 +278,7 @@ def gatv2_forward(conv: GATv2Conv, x: torch.Tensor, edge_index: torch.Tensor, ed
     xr = conv.lin_r(x).view(n, H, C)
     xj = xl.index_select(0, src)
     z = xj + xr.index_select(0, dst) + edge_attr.view(-1, 1, 1) * conv.lin_edge.weight.view(1, H, C)
-    logit = (nn.functional.leaky_relu(z, conv.negative_slope) * conv.att).sum(-1)         # (E, H)
+    logit = (nn.functional.leaky_relu(z, conv.negative_slope) * conv.att).sum(-1)  # (E, H)
     gmax = logit.new_full((n, H), -torch.inf).scatter_reduce(0, dst[:, None].expand(-1, H), logit, "amax")
     w = torch.exp(logit - gmax.index_select(0, dst))
     den = w.new_zeros(n, H).index_add(0, dst, w)
@@ -285,6 +326,7 @@ def scores(model, ref_emb: torch.Tensor, q_batch: Batch, node: np.ndarray, qpos:
 
 # ----------------------------------------------------------------------------- losses
 
+
 def sim_loss(s: torch.Tensor, S: torch.Tensor, qpos: torch.Tensor, n_queries: int, floor: float = 0.1) -> torch.Tensor:
     """Weighted regression of ``s`` to ``1 - S``; weights ``S / max_query S + floor``, mean over queries."""
     smax = torch.zeros(n_queries, dtype=S.dtype).scatter_reduce(0, qpos, S, reduce="amax", include_self=True)
@@ -302,8 +344,13 @@ def triplet_loss(s_pos: torch.Tensor, s_neg: torch.Tensor, margin: float) -> tor
     return torch.relu(s_pos - s_neg + margin).mean()
 
 
-def draw_triplets(batch_samples: list[Sample], sizes: list[int], rng: np.random.Generator,
-                  scores: np.ndarray | None = None, hard_fraction: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def draw_triplets(
+    batch_samples: list[Sample],
+    sizes: list[int],
+    rng: np.random.Generator,
+    scores: np.ndarray | None = None,
+    hard_fraction: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Pair positions (into the concatenated pair list) of positives and as many negatives: random
     unmatched nodes (the paper), of which ``hard_fraction`` (rounded, per query) are instead the
     unmatched nodes the model currently ranks best (smallest ``scores``, one per pair position)."""
@@ -320,7 +367,7 @@ def draw_triplets(batch_samples: list[Sample], sizes: list[int], rng: np.random.
                 order = np.argsort(scores[start + neg_pool], kind="stable")
                 hard, pool = neg_pool[order[:n_hard]], neg_pool[np.sort(order[n_hard:])]
             n_rand = n_pos - n_hard
-            if len(pool) >= n_rand:                 # without replacement
+            if len(pool) >= n_rand:  # without replacement
                 rand = pool[rng.permutation(len(pool))[:n_rand]]
             else:
                 rand = neg_pool[rng.integers(0, len(neg_pool), n_rand)]
@@ -344,9 +391,11 @@ def fused_scores(model, ref_graph, query_graphs: list, ref_emb: torch.Tensor | N
     graphs_in = ([] if ref_emb is not None else [ref_graph]) + list(query_graphs)
     sizes = [int(g.x.shape[0]) for g in graphs_in]
     offs = np.r_[0, np.cumsum(sizes)[:-1]]
-    emb = model(torch.cat([g.x for g in graphs_in]),
-                torch.cat([g.edge_index + int(o) for g, o in zip(graphs_in, offs)], 1),
-                torch.cat([g.edge_attr for g in graphs_in]))
+    emb = model(
+        torch.cat([g.x for g in graphs_in]),
+        torch.cat([g.edge_index + int(o) for g, o in zip(graphs_in, offs)], 1),
+        torch.cat([g.edge_attr for g in graphs_in]),
+    )
     if ref_emb is None:
         n_ref = sizes[0]
         ref_emb, emb, sizes = emb[:n_ref], emb[n_ref:], sizes[1:]
@@ -356,8 +405,9 @@ def fused_scores(model, ref_graph, query_graphs: list, ref_emb: torch.Tensor | N
     return torch.linalg.vector_norm(ref_emb[None] - q_mean[:, None], dim=-1)
 
 
-def batch_loss(model, ds: Dataset, batch_samples: list[Sample], map_types: list[str], cfg: CoarseConfig,
-               rng: np.random.Generator) -> tuple[torch.Tensor, dict]:
+def batch_loss(
+    model, ds: Dataset, batch_samples: list[Sample], map_types: list[str], cfg: CoarseConfig, rng: np.random.Generator
+) -> tuple[torch.Tensor, dict]:
     """The configured loss of one batch (map type per sample given); only the reference graphs of
     the batch's scenes are embedded (one fused forward pass when the batch holds one scene)."""
     scenes = {b.scene for b in batch_samples}
@@ -381,8 +431,9 @@ def batch_loss(model, ds: Dataset, batch_samples: list[Sample], map_types: list[
         total = total + ls
     if cfg.loss in ("trip", "simtrip"):
         sizes = [len(ds.refs[b.scene]) for b in batch_samples]
-        ip, ineg = draw_triplets(batch_samples, sizes, rng, s.detach().numpy() if cfg.hard_negatives else None,
-                                 cfg.hard_negatives)
+        ip, ineg = draw_triplets(
+            batch_samples, sizes, rng, s.detach().numpy() if cfg.hard_negatives else None, cfg.hard_negatives
+        )
         lt = triplet_loss(s[torch.from_numpy(ip)], s[torch.from_numpy(ineg)], cfg.margin)
         parts["loss_trip"] = float(lt.detach())
         total = total + cfg.trip_weight * lt
@@ -391,6 +442,7 @@ def batch_loss(model, ds: Dataset, batch_samples: list[Sample], map_types: list[
 
 # ----------------------------------------------------------------------------- scoring
 
+
 @torch.no_grad()
 def score_samples(model, ds: Dataset, samples: list[Sample], map_type: str, batch_size: int = 512) -> list[np.ndarray]:
     """Scores of every reference node (rows of its scene's table) for each sample."""
@@ -398,7 +450,7 @@ def score_samples(model, ds: Dataset, samples: list[Sample], map_type: str, batc
     ref_emb, _ = reference_embeddings(model, ds)
     out = []
     for k in range(0, len(samples), batch_size):
-        chunk = samples[k:k + batch_size]
+        chunk = samples[k : k + batch_size]
         qb = graphs.batch([s.graphs[map_type] for s in chunk])
         node, qpos, _ = pair_index(ds, chunk)
         s = scores(model, ref_emb, qb, node, qpos).numpy()
@@ -420,8 +472,17 @@ def similarity_scores(samples: list[Sample]) -> list[np.ndarray]:
 
 # ----------------------------------------------------------------------------- proposals and metrics
 
-def propose(score: np.ndarray, ref_xy: np.ndarray, n_query: int, strategy: str, radius_m: float = 30.0,
-            matched_rows=None, cam_xy=None, enlarge: float = 0.10) -> np.ndarray:
+
+def propose(
+    score: np.ndarray,
+    ref_xy: np.ndarray,
+    n_query: int,
+    strategy: str,
+    radius_m: float = 30.0,
+    matched_rows=None,
+    cam_xy=None,
+    enlarge: float = 0.10,
+) -> np.ndarray:
     """Rows of the reference table proposed by a strategy (scores: smaller is better).
 
     Ties in the score are broken by row (stable sort), so proposals are deterministic.
@@ -431,7 +492,7 @@ def propose(score: np.ndarray, ref_xy: np.ndarray, n_query: int, strategy: str, 
     if strategy == "N_LM":
         return np.sort(order[:n_query])
     if strategy == "2N_LM":
-        return np.sort(order[:2 * n_query])
+        return np.sort(order[: 2 * n_query])
     if strategy == "R_30":
         best = order[0]
         d = np.linalg.norm(np.asarray(ref_xy, float) - np.asarray(ref_xy, float)[best], axis=1)
@@ -449,13 +510,25 @@ def proposal_metrics(proposal, truth) -> dict:
     """Precision, recall, success (>= 3 correct) of one proposal against the matched objects."""
     p, t = set(int(i) for i in proposal), set(int(i) for i in truth)
     hit = len(p & t)
-    return {"n_proposed": len(p), "n_correct": hit, "precision": hit / len(p) if p else 0.0,
-            "recall": hit / len(t) if t else float("nan"), "success": hit >= 3}
+    return {
+        "n_proposed": len(p),
+        "n_correct": hit,
+        "precision": hit / len(p) if p else 0.0,
+        "recall": hit / len(t) if t else float("nan"),
+        "success": hit >= 3,
+    }
 
 
-def evaluate_scores(ds: Dataset, samples: list[Sample], score_list: list[np.ndarray], loss_label: str,
-                    map_type: str, strategies=("N_LM", "2N_LM", "R_30"), radius_m: float = 30.0,
-                    enlarge: float = 0.10) -> pd.DataFrame:
+def evaluate_scores(
+    ds: Dataset,
+    samples: list[Sample],
+    score_list: list[np.ndarray],
+    loss_label: str,
+    map_type: str,
+    strategies=("N_LM", "2N_LM", "R_30"),
+    radius_m: float = 30.0,
+    enlarge: float = 0.10,
+) -> pd.DataFrame:
     """One row per (query, strategy): the proposal (reference ``obj_idx``) and its metrics."""
     rows = []
     for s, sc in zip(samples, score_list):
@@ -464,21 +537,35 @@ def evaluate_scores(ds: Dataset, samples: list[Sample], score_list: list[np.ndar
         obj = ref["obj_idx"].to_numpy()
         for strat in strategies:
             prop = propose(sc, xy, s.n_objects, strat, radius_m, s.positives, s.cam_xy, enlarge)
-            rows.append({"scene": ds.scene_ids[s.scene], "token": s.token, "loss": loss_label, "map_type": map_type,
-                         "strategy": strat, "proposal": [int(o) for o in obj[prop]],
-                         **proposal_metrics(prop, s.positives)})
+            rows.append(
+                {
+                    "scene": ds.scene_ids[s.scene],
+                    "token": s.token,
+                    "loss": loss_label,
+                    "map_type": map_type,
+                    "strategy": strat,
+                    "proposal": [int(o) for o in obj[prop]],
+                    **proposal_metrics(prop, s.positives),
+                }
+            )
     return pd.DataFrame(rows)
 
 
 def summarise(per_query: pd.DataFrame) -> pd.DataFrame:
     """Mean precision / recall / success per (loss, strategy, map type), the paper's beside."""
     g = per_query.groupby(["loss", "strategy", "map_type"], sort=False)
-    out = g.agg(queries=("token", "size"), precision=("precision", "mean"), recall=("recall", "mean"),
-                success=("success", "mean"), proposal_size=("n_proposed", "mean")).reset_index()
+    out = g.agg(
+        queries=("token", "size"),
+        precision=("precision", "mean"),
+        recall=("recall", "mean"),
+        success=("success", "mean"),
+        proposal_size=("n_proposed", "mean"),
+    ).reset_index()
     out["queries"] = out["queries"].astype(np.int64)
     paper = [PAPER_TABLE3.get((r.loss, r.strategy, r.map_type), (np.nan,) * 3) for r in out.itertuples()]
-    out["paper_precision"], out["paper_recall"], out["paper_success"] = (np.array(paper, float).T if paper
-                                                                         else ([], [], []))
+    out["paper_precision"], out["paper_recall"], out["paper_success"] = (
+        np.array(paper, float).T if paper else ([], [], [])
+    )
     return out[[c for c, _, _ in TABLE_COLUMNS]]
 
 
@@ -489,10 +576,10 @@ def validation_metric(model, ds: Dataset, samples: list[Sample], cfg: CoarseConf
     for mt in MAP_TYPES:
         recall, success = [], []
         for s, sc in zip(samples, score_samples(model, ds, samples, mt)):
-            order = np.argsort(sc, kind="stable")    # = propose() + proposal_metrics(), without DataFrames
+            order = np.argsort(sc, kind="stable")  # = propose() + proposal_metrics(), without DataFrames
             pos = np.zeros(len(sc), bool)
             pos[s.positives] = True
-            recall.append(pos[order[:2 * s.n_objects]].sum() / max(pos.sum(), 1))
+            recall.append(pos[order[: 2 * s.n_objects]].sum() / max(pos.sum(), 1))
             near = np.linalg.norm(xy[s.scene] - xy[s.scene][order[0]], axis=1) <= cfg.radius_m
             success.append((near & pos).sum() >= 3)
         vals += [float(np.mean(recall)), float(np.mean(success))]
@@ -500,6 +587,7 @@ def validation_metric(model, ds: Dataset, samples: list[Sample], cfg: CoarseConf
 
 
 # ----------------------------------------------------------------------------- training
+
 
 def set_determinism(seed: int) -> None:
     torch.manual_seed(seed)
@@ -517,14 +605,14 @@ def epoch_batches(train_s: list[Sample], cfg: CoarseConfig, rng: np.random.Gener
     ``mixed``: one global permutation cut into batches."""
     if cfg.batching == "mixed":
         order = rng.permutation(len(train_s))
-        return [order[k:k + cfg.batch_size] for k in range(0, len(order), cfg.batch_size)]
+        return [order[k : k + cfg.batch_size] for k in range(0, len(order), cfg.batch_size)]
     by_scene: dict[int, list[int]] = {}
     for i, s in enumerate(train_s):
         by_scene.setdefault(s.scene, []).append(i)
     out = []
     for k in sorted(by_scene):
         idx = rng.permutation(np.asarray(by_scene[k]))
-        out += [idx[j:j + cfg.batch_size] for j in range(0, len(idx), cfg.batch_size)]
+        out += [idx[j : j + cfg.batch_size] for j in range(0, len(idx), cfg.batch_size)]
     return [out[i] for i in rng.permutation(len(out))]
 
 
@@ -546,20 +634,22 @@ def train(ds: Dataset, cfg: CoarseConfig, log=None, progress=None) -> dict:
         total = max(cfg.epochs * len(epoch_batches(train_s, cfg, np.random.default_rng(0))), 1)
         lo = cfg.lr_min_factor
         sched = torch.optim.lr_scheduler.LambdaLR(
-            opt, lambda step: lo + (1 - lo) * 0.5 * (1 + np.cos(np.pi * min(step, total) / total)))
+            opt, lambda step: lo + (1 - lo) * 0.5 * (1 + np.cos(np.pi * min(step, total) / total))
+        )
     history, best, best_state, best_epoch = [], -np.inf, None, -1
     t0 = time.perf_counter()
     train_time = 0.0
     epochs = range(cfg.epochs)
-    for ep in (progress(epochs) if progress else epochs):
+    for ep in progress(epochs) if progress else epochs:
         te = time.perf_counter()
         model.train()
         mts = rng.choice(len(cfg.train_maps), size=len(train_s))
         tot, parts_sum, n = 0.0, {}, 0
         for idx in epoch_batches(train_s, cfg, rng):
             opt.zero_grad()
-            loss, parts = batch_loss(model, ds, [train_s[i] for i in idx], [cfg.train_maps[mts[i]] for i in idx],
-                                     cfg, rng)
+            loss, parts = batch_loss(
+                model, ds, [train_s[i] for i in idx], [cfg.train_maps[mts[i]] for i in idx], cfg, rng
+            )
             loss.backward()
             if cfg.grad_clip > 0:
                 nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
@@ -571,8 +661,12 @@ def train(ds: Dataset, cfg: CoarseConfig, log=None, progress=None) -> dict:
                 parts_sum[key] = parts_sum.get(key, 0.0) + v * len(idx)
             n += len(idx)
         train_time += time.perf_counter() - te
-        rec = {"epoch": ep, "train_loss": tot / n, **{k: v / n for k, v in parts_sum.items()},
-               "epoch_seconds": time.perf_counter() - te}
+        rec = {
+            "epoch": ep,
+            "train_loss": tot / n,
+            **{k: v / n for k, v in parts_sum.items()},
+            "epoch_seconds": time.perf_counter() - te,
+        }
         if val_s and (ep % cfg.eval_every == 0 or ep == cfg.epochs - 1):
             rec["val_metric"] = validation_metric(model, ds, val_s, cfg)
             if rec["val_metric"] > best:
@@ -585,9 +679,16 @@ def train(ds: Dataset, cfg: CoarseConfig, log=None, progress=None) -> dict:
         best_state, best_epoch = copy.deepcopy(model.state_dict()), cfg.epochs - 1
     model.load_state_dict(best_state)
     model.eval()
-    return {"model": model, "state_dict": best_state, "config": cfg.to_dict(), "history": history,
-            "best_epoch": best_epoch, "best_val": float(best), "seconds": time.perf_counter() - t0,
-            "seconds_per_epoch": train_time / max(cfg.epochs, 1)}
+    return {
+        "model": model,
+        "state_dict": best_state,
+        "config": cfg.to_dict(),
+        "history": history,
+        "best_epoch": best_epoch,
+        "best_val": float(best),
+        "seconds": time.perf_counter() - t0,
+        "seconds_per_epoch": train_time / max(cfg.epochs, 1),
+    }
 
 
 def save_checkpoint(result: dict, path) -> None:
@@ -595,8 +696,14 @@ def save_checkpoint(result: dict, path) -> None:
     from flatlandia.io import atomic_path
 
     with atomic_path(path) as tmp:
-        torch.save({k: result[k] for k in ("state_dict", "config", "history", "best_epoch", "best_val", "seconds",
-                                           "seconds_per_epoch") if k in result}, tmp)
+        torch.save(
+            {
+                k: result[k]
+                for k in ("state_dict", "config", "history", "best_epoch", "best_val", "seconds", "seconds_per_epoch")
+                if k in result
+            },
+            tmp,
+        )
 
 
 def load_checkpoint(path) -> tuple[CoarseGAT, CoarseConfig]:
@@ -610,8 +717,14 @@ def load_checkpoint(path) -> tuple[CoarseGAT, CoarseConfig]:
 
 # ----------------------------------------------------------------------------- evaluation
 
-def evaluate(models: dict[str, tuple[CoarseGAT, CoarseConfig]], ds: Dataset, split: str = "test",
-             baselines: bool = True, seed: int = 0) -> pd.DataFrame:
+
+def evaluate(
+    models: dict[str, tuple[CoarseGAT, CoarseConfig]],
+    ds: Dataset,
+    split: str = "test",
+    baselines: bool = True,
+    seed: int = 0,
+) -> pd.DataFrame:
     """Per-query proposals and metrics of every model x map type x strategy, plus GT-BB and baselines.
 
     ``models`` maps the loss label (Sim, Trip, Sim+Trip) to (model, config). Baselines: 'random'
@@ -623,17 +736,17 @@ def evaluate(models: dict[str, tuple[CoarseGAT, CoarseConfig]], ds: Dataset, spl
     enlarge = next(iter(models.values()))[1].bb_enlarge if models else 0.10
     for label, (model, cfg) in models.items():
         for mt in MAP_TYPES:
-            parts.append(evaluate_scores(ds, samples, score_samples(model, ds, samples, mt), label, mt,
-                                         radius_m=cfg.radius_m))
+            parts.append(
+                evaluate_scores(ds, samples, score_samples(model, ds, samples, mt), label, mt, radius_m=cfg.radius_m)
+            )
     for mt in MAP_TYPES:
-        parts.append(evaluate_scores(ds, samples, random_scores(ds, samples, seed), "-", mt, ("GT-BB",),
-                                     radius, enlarge))
+        parts.append(
+            evaluate_scores(ds, samples, random_scores(ds, samples, seed), "-", mt, ("GT-BB",), radius, enlarge)
+        )
         if baselines:
-            parts.append(evaluate_scores(ds, samples, random_scores(ds, samples, seed), "random", mt,
-                                         radius_m=radius))
+            parts.append(evaluate_scores(ds, samples, random_scores(ds, samples, seed), "random", mt, radius_m=radius))
             if all(s.S is not None for s in samples):
-                parts.append(evaluate_scores(ds, samples, similarity_scores(samples), "S oracle", mt,
-                                             radius_m=radius))
+                parts.append(evaluate_scores(ds, samples, similarity_scores(samples), "S oracle", mt, radius_m=radius))
     return pd.concat(parts, ignore_index=True)
 
 
@@ -651,17 +764,22 @@ def render_markdown(table: pd.DataFrame, title: str = "Coarse map localization (
     lines = [f"# {title}", ""]
     if note:
         lines += [note, ""]
-    lines += ["P / R / S = precision / recall / success (>= 3 correct nodes), test split.", "",
-              "| loss | NS | GT maps (ours) | GT maps (paper) | depth maps (ours) | depth maps (paper) | queries |",
-              "|---|---|---|---|---|---|---|"]
+    lines += [
+        "P / R / S = precision / recall / success (>= 3 correct nodes), test split.",
+        "",
+        "| loss | NS | GT maps (ours) | GT maps (paper) | depth maps (ours) | depth maps (paper) | queries |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for (loss, strat), g in t.sort_values(["_l", "_s"]).groupby(["loss", "strategy"], sort=False):
         cells = []
         for mt in MAP_TYPES:
             r = g[g["map_type"] == mt]
             if len(r):
                 r = r.iloc[0]
-                cells += [_fmt(r.precision, r.recall, r.success), _fmt(r.paper_precision, r.paper_recall,
-                                                                       r.paper_success)]
+                cells += [
+                    _fmt(r.precision, r.recall, r.success),
+                    _fmt(r.paper_precision, r.paper_recall, r.paper_success),
+                ]
             else:
                 cells += ["", ""]
         lines.append(f"| {loss} | {strat} | " + " | ".join(cells) + f" | {int(g['queries'].iloc[0])} |")

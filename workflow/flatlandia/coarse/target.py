@@ -48,11 +48,11 @@ from flatlandia.data import localmaps
 
 @dataclass(frozen=True)
 class SimilarityConfig:
-    radius_m: float = 30.0       # neighbourhood radius (also the d_s normaliser)
-    max_neighbours: int = 24     # at most this many nearest objects (node included) per neighbourhood
-    cap_m: float = 5.0           # residual cap (d_p normaliser) and inlier threshold
-    pair_tol_m: float = 2.0      # pair lengths must agree within this to generate a motion
-    chunk: int = 20000           # hypotheses evaluated per array chunk
+    radius_m: float = 30.0  # neighbourhood radius (also the d_s normaliser)
+    max_neighbours: int = 24  # at most this many nearest objects (node included) per neighbourhood
+    cap_m: float = 5.0  # residual cap (d_p normaliser) and inlier threshold
+    pair_tol_m: float = 2.0  # pair lengths must agree within this to generate a motion
+    chunk: int = 20000  # hypotheses evaluated per array chunk
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -61,8 +61,7 @@ class SimilarityConfig:
 class SceneIndex:
     """Per-scene precomputation: neighbourhoods and every (node, ordered pair) hypothesis anchor."""
 
-    def __init__(self, ref_xy: np.ndarray, ref_cls, cfg: SimilarityConfig = SimilarityConfig(),
-                 n_classes: int = 64):
+    def __init__(self, ref_xy: np.ndarray, ref_cls, cfg: SimilarityConfig = SimilarityConfig(), n_classes: int = 64):
         self.xy = np.asarray(ref_xy, float).reshape(-1, 2)
         self.cls = np.asarray(ref_cls, int)
         self.cfg = cfg
@@ -70,12 +69,12 @@ class SceneIndex:
         n = len(self.xy)
         d = np.linalg.norm(self.xy[:, None] - self.xy[None], axis=-1)
         k = min(cfg.max_neighbours, n)
-        order = np.argsort(d, axis=1, kind="stable")[:, :k]          # node itself first (distance 0)
+        order = np.argsort(d, axis=1, kind="stable")[:, :k]  # node itself first (distance 0)
         # make sure the node is in its own neighbourhood even with exact duplicates
-        self_pos = (order == np.arange(n)[:, None])
+        self_pos = order == np.arange(n)[:, None]
         missing = ~self_pos.any(1)
         order[missing, 0] = np.flatnonzero(missing)
-        self.nbr = order                                               # (n, k)
+        self.nbr = order  # (n, k)
         self.valid = np.take_along_axis(d, order, 1) <= cfg.radius_m + 1e-9
         self.valid[np.arange(n), 0] |= True
         self.nbr_dist = np.take_along_axis(d, order, 1)
@@ -115,14 +114,14 @@ def _class_mask(index: SceneIndex, q_cls: np.ndarray) -> np.ndarray:
 def _residuals(index: SceneIndex, nodes, c, s, t, q_xy, mask, want_match: bool = True):
     """Per hypothesis: (H, M) capped residuals and matched reference rows (-1: none); vectorised."""
     cfg = index.cfg
-    px = c[:, None] * q_xy[None, :, 0] - s[:, None] * q_xy[None, :, 1] + t[:, None, 0]     # (H, M)
+    px = c[:, None] * q_xy[None, :, 0] - s[:, None] * q_xy[None, :, 1] + t[:, None, 0]  # (H, M)
     py = s[:, None] * q_xy[None, :, 0] + c[:, None] * q_xy[None, :, 1] + t[:, None, 1]
-    nb = index.nbr[nodes]                                                                 # (H, K)
+    nb = index.nbr[nodes]  # (H, K)
     d2 = (px[:, :, None] - index.xy[nb, 0][:, None, :]) ** 2 + (py[:, :, None] - index.xy[nb, 1][:, None, :]) ** 2
     d2 = np.where(mask[nodes], d2, np.inf)
     if not want_match:
         return np.minimum(np.sqrt(d2.min(-1)), cfg.cap_m), None
-    best = d2.argmin(-1)                                                                  # (H, M)
+    best = d2.argmin(-1)  # (H, M)
     r = np.sqrt(np.take_along_axis(d2, best[..., None], -1)[..., 0])
     matched = np.where(r < cfg.cap_m, np.take_along_axis(nb, best, 1), -1)
     return np.minimum(r, cfg.cap_m), matched
@@ -205,7 +204,7 @@ def node_similarity(index: SceneIndex, q_xy: np.ndarray, q_cls) -> pd.DataFrame:
         mt = np.where(use1[:, None], m1, m0)
         dp[has] = np.clip(e, 0.0, 1.0)
         # d_s: mean distance to the node of the matched subset (each reference object once)
-        srt = np.sort(mt, axis=1)                                             # -1 (unmatched) first
+        srt = np.sort(mt, axis=1)  # -1 (unmatched) first
         uniq = (srt >= 0) & np.c_[np.ones(len(has), bool), srt[:, 1:] != srt[:, :-1]]
         dist = np.linalg.norm(index.xy[np.maximum(srt, 0)] - index.xy[has][:, None], axis=-1)
         nmatch[has] = uniq.sum(1)
@@ -216,8 +215,9 @@ def node_similarity(index: SceneIndex, q_xy: np.ndarray, q_cls) -> pd.DataFrame:
     return pd.DataFrame({"S": S, "d_p": dp, "d_s": ds, "n_matched": nmatch})
 
 
-def scene_similarity(ref: pd.DataFrame, queries: pd.DataFrame, cfg: SimilarityConfig = SimilarityConfig(),
-                     progress=None) -> pd.DataFrame:
+def scene_similarity(
+    ref: pd.DataFrame, queries: pd.DataFrame, cfg: SimilarityConfig = SimilarityConfig(), progress=None
+) -> pd.DataFrame:
     """The similarity table of a scene: one row per (query, reference object), GT local maps.
 
     Columns ``scene, token, obj_idx, S, d_p, d_s, n_matched`` (float32 for the scores).
@@ -226,7 +226,7 @@ def scene_similarity(ref: pd.DataFrame, queries: pd.DataFrame, cfg: SimilarityCo
     obj = ref["obj_idx"].to_numpy(np.int64)
     parts = []
     rows = list(queries.itertuples(index=False))
-    for r in (progress(rows) if progress else rows):
+    for r in progress(rows) if progress else rows:
         df = node_similarity(index, localmaps.xy(r.gt_local_xy_m), np.asarray(r.classes, int))
         df.insert(0, "obj_idx", obj)
         df.insert(0, "token", str(r.token))

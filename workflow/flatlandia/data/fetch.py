@@ -70,8 +70,7 @@ def fetch_images(url: str, subfolder: str, dest: str | Path, timeout_s: float = 
     return unpack_subfolder(payload, subfolder, Path(dest), url)
 
 
-def fetch_flatlandia(dest: str | Path, scenes: pd.DataFrame, url: str = UPSTREAM_ZIP,
-                     timeout_s: float = 30.0) -> Path:
+def fetch_flatlandia(dest: str | Path, scenes: pd.DataFrame, url: str = UPSTREAM_ZIP, timeout_s: float = 30.0) -> Path:
     """Download the upstream repository archive and unpack its ``data/`` folder into ``dest``.
 
     Writes ``scenes.tsv`` and ``classes.tsv`` beside it (the upstream keeps them in code).
@@ -87,5 +86,6 @@ def fetch_flatlandia(dest: str | Path, scenes: pd.DataFrame, url: str = UPSTREAM
         raise FetchError(f"{e}. {HOW_TO_POINT}") from e
     scenes[["scene", "city", "name"]].to_csv(dest / "scenes.tsv", sep="\t", index=False)
     pd.DataFrame({"class_id": range(len(CLASSES)), "mapillary_label": CLASSES}).to_csv(
-        dest / "classes.tsv", sep="\t", index=False)
+        dest / "classes.tsv", sep="\t", index=False
+    )
     return dest

@@ -59,8 +59,17 @@ def _parse_check(key: str, path: Path) -> None:
 
 def check_file(root: Path, rel: str, key: str, manifest: dict, verify_hash: bool) -> dict:
     path = root / rel
-    rec = {"key": key, "path": rel, "present": path.exists(), "bytes": None, "manifest": rel in manifest,
-           "size_ok": None, "sha256_ok": None, "parse_ok": None, "problem": ""}
+    rec = {
+        "key": key,
+        "path": rel,
+        "present": path.exists(),
+        "bytes": None,
+        "manifest": rel in manifest,
+        "size_ok": None,
+        "sha256_ok": None,
+        "parse_ok": None,
+        "problem": "",
+    }
     if not rec["present"]:
         rec["problem"] = "missing"
         return rec
@@ -87,8 +96,7 @@ def ingest_scene(root: str | Path, scene: str, verify_hash: bool = True) -> dict
     """Report every file of a scene; raise InputError if a required one is missing or broken."""
     root = Path(root)
     manifest = read_manifest(root)
-    records = [check_file(root, rel.format(scene=scene), key, manifest, verify_hash)
-               for key, rel, _ in SCENE_FILES]
+    records = [check_file(root, rel.format(scene=scene), key, manifest, verify_hash) for key, rel, _ in SCENE_FILES]
     local = check_file(root, "local_maps.json", "local_maps", manifest, verify_hash)
     records.append(local)
     required = {k for k, _, req in SCENE_FILES if req} | {"local_maps"}
@@ -96,5 +104,10 @@ def ingest_scene(root: str | Path, scene: str, verify_hash: bool = True) -> dict
         if rec["key"] in required and (not rec["present"] or rec["problem"]):
             raise InputError(root / rec["path"], f"required file for scene {scene}: {rec['problem']}")
     n_queries = len(io.read_local_maps(root / "local_maps.json", scene))
-    return {"scene": scene, "root": str(root), "files": records, "n_queries": n_queries,
-            "available": {r["key"]: bool(r["present"] and not r["problem"]) for r in records}}
+    return {
+        "scene": scene,
+        "root": str(root),
+        "files": records,
+        "n_queries": n_queries,
+        "available": {r["key"]: bool(r["present"] and not r["problem"]) for r in records},
+    }

@@ -12,35 +12,57 @@ from flatlandia import geo
 from flatlandia.io import atomic_path, write_text
 
 
-def reference_table(scene: str, lonlat: np.ndarray, classes: np.ndarray, labels: list[str],
-                    frame: geo.MetricFrame) -> pd.DataFrame:
+def reference_table(
+    scene: str, lonlat: np.ndarray, classes: np.ndarray, labels: list[str], frame: geo.MetricFrame
+) -> pd.DataFrame:
     """One row per object: its index in the published map, class, lon/lat and metric x/y."""
     xy = frame.to_xy(lonlat)
-    return pd.DataFrame({
-        "scene": scene,
-        "obj_idx": np.arange(len(lonlat), dtype=np.int64),
-        "class_id": np.asarray(classes, dtype=np.int64),
-        "class_label": [labels[c] for c in classes],
-        "lon": lonlat[:, 0], "lat": lonlat[:, 1],
-        "x_m": xy[:, 0], "y_m": xy[:, 1],
-    })
+    return pd.DataFrame(
+        {
+            "scene": scene,
+            "obj_idx": np.arange(len(lonlat), dtype=np.int64),
+            "class_id": np.asarray(classes, dtype=np.int64),
+            "class_label": [labels[c] for c in classes],
+            "lon": lonlat[:, 0],
+            "lat": lonlat[:, 1],
+            "x_m": xy[:, 0],
+            "y_m": xy[:, 1],
+        }
+    )
 
 
 def frame_metadata(scene: str, frame: geo.MetricFrame) -> dict:
-    return {"scene": scene, "crs": frame.proj4, "lon0": frame.lon0, "lat0": frame.lat0,
-            "axes": "x east, y north, metres (transverse Mercator centred on the scene)"}
+    return {
+        "scene": scene,
+        "crs": frame.proj4,
+        "lon0": frame.lon0,
+        "lat0": frame.lat0,
+        "axes": "x east, y north, metres (transverse Mercator centred on the scene)",
+    }
 
 
 def geojson(ref: pd.DataFrame, meta: dict) -> dict:
     """A FeatureCollection of the objects as points in EPSG:4326 (RFC 7946 order lon, lat)."""
-    feats = [{
-        "type": "Feature",
-        "geometry": {"type": "Point", "coordinates": [float(r.lon), float(r.lat)]},
-        "properties": {"obj_idx": int(r.obj_idx), "class_id": int(r.class_id),
-                       "class_label": r.class_label, "x_m": float(r.x_m), "y_m": float(r.y_m)},
-    } for r in ref.itertuples(index=False)]
-    return {"type": "FeatureCollection", "name": f"flatlandia_scene_{meta['scene']}",
-            "flatlandia": meta, "features": feats}
+    feats = [
+        {
+            "type": "Feature",
+            "geometry": {"type": "Point", "coordinates": [float(r.lon), float(r.lat)]},
+            "properties": {
+                "obj_idx": int(r.obj_idx),
+                "class_id": int(r.class_id),
+                "class_label": r.class_label,
+                "x_m": float(r.x_m),
+                "y_m": float(r.y_m),
+            },
+        }
+        for r in ref.itertuples(index=False)
+    ]
+    return {
+        "type": "FeatureCollection",
+        "name": f"flatlandia_scene_{meta['scene']}",
+        "flatlandia": meta,
+        "features": feats,
+    }
 
 
 def write_geojson(ref: pd.DataFrame, meta: dict, path: str | Path) -> None:
@@ -56,6 +78,7 @@ def write_geoparquet(ref: pd.DataFrame, meta: dict, path: str | Path) -> None:
         gdf.to_parquet(tmp, index=False)
         # keep the metric frame next to the geo metadata
         import pyarrow.parquet as pq
+
         table = pq.read_table(tmp)
         md = dict(table.schema.metadata or {})
         md[b"flatlandia"] = json.dumps(meta, sort_keys=True).encode()
@@ -72,13 +95,31 @@ def plot_reference_map(ref: pd.DataFrame, queries: pd.DataFrame | None, path: st
     fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
     cmap = plt.get_cmap("tab20")
     for k, (label, grp) in enumerate(ref.groupby("class_label", sort=True)):
-        ax.scatter(grp["x_m"], grp["y_m"], s=22, color=cmap(k % 20), label=f"{label} ({len(grp)})",
-                   edgecolor="k", linewidth=0.3, zorder=3)
+        ax.scatter(
+            grp["x_m"],
+            grp["y_m"],
+            s=22,
+            color=cmap(k % 20),
+            label=f"{label} ({len(grp)})",
+            edgecolor="k",
+            linewidth=0.3,
+            zorder=3,
+        )
     if queries is not None and len(queries):
         th = np.radians(queries["theta_deg"].to_numpy())
         colours = queries["split"].map({"train": "0.55", "val": "tab:blue", "test": "tab:red"})
-        ax.quiver(queries["x_m"], queries["y_m"], np.cos(th), np.sin(th), color=colours.tolist(),
-                  angles="xy", scale_units="xy", scale=0.25, width=0.003, zorder=2)
+        ax.quiver(
+            queries["x_m"],
+            queries["y_m"],
+            np.cos(th),
+            np.sin(th),
+            color=colours.tolist(),
+            angles="xy",
+            scale_units="xy",
+            scale=0.25,
+            width=0.003,
+            zorder=2,
+        )
         ax.scatter([], [], marker=r"$\rightarrow$", color="0.55", label="query camera (train)")
         ax.scatter([], [], marker=r"$\rightarrow$", color="tab:red", label="query camera (test)")
     ax.set_aspect("equal")

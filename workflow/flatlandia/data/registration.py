@@ -71,9 +71,15 @@ def residual_metres(diff_units: np.ndarray, metres_per_degree: tuple[float, floa
     return np.hypot(diff_units[..., 0] * UNIT_DEG * mx, diff_units[..., 1] * UNIT_DEG * my)
 
 
-def register(local: np.ndarray, index: PairIndex, metres_per_degree: tuple[float, float],
-             tol_m: float = 0.10, local_classes: np.ndarray | None = None,
-             ref_classes: np.ndarray | None = None, max_alternatives: int = 64) -> Recovery | None:
+def register(
+    local: np.ndarray,
+    index: PairIndex,
+    metres_per_degree: tuple[float, float],
+    tol_m: float = 0.10,
+    local_classes: np.ndarray | None = None,
+    ref_classes: np.ndarray | None = None,
+    max_alternatives: int = 64,
+) -> Recovery | None:
     """Register one GT local map (unit space) onto the reference map; None if nothing fits.
 
     ``tol_m`` bounds every object's residual in metres: solutions beyond it are not solutions.
@@ -117,13 +123,19 @@ def register(local: np.ndarray, index: PairIndex, metres_per_degree: tuple[float
     return Recovery(best=ranked[0], others=ranked[1:])
 
 
-def _refit(local: np.ndarray, ref: np.ndarray, assign: tuple[int, ...],
-           metres_per_degree: tuple[float, float]) -> Solution:
+def _refit(
+    local: np.ndarray, ref: np.ndarray, assign: tuple[int, ...], metres_per_degree: tuple[float, float]
+) -> Solution:
     dst = ref[list(assign)]
     theta, t = rigid_fit_2d(local, dst)
     res = residual_metres(local @ rot2(theta).T + t - dst, metres_per_degree)
-    return Solution(ref_idx=tuple(int(x) for x in assign), theta=float(wrap_angle(theta)), cam=t,
-                    rms_m=float(np.sqrt(np.mean(res ** 2))), max_m=float(res.max()))
+    return Solution(
+        ref_idx=tuple(int(x) for x in assign),
+        theta=float(wrap_angle(theta)),
+        cam=t,
+        rms_m=float(np.sqrt(np.mean(res**2))),
+        max_m=float(res.max()),
+    )
 
 
 def classify_ambiguity(rec: Recovery, ref_classes: np.ndarray, exact_m: float = 1e-3) -> str:

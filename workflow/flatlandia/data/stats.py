@@ -42,10 +42,15 @@ def scene_stats(scene: str, city: str, ref: pd.DataFrame, queries: pd.DataFrame,
     area = hull_area_m2(ref[["x_m", "y_m"]].to_numpy())
     cov = hull_area_m2(np.vstack([ref[["x_m", "y_m"]].to_numpy(), queries[["x_m", "y_m"]].to_numpy()]))
     return {
-        "scene": scene, "city": city, "objects": len(ref), "queries": len(queries),
+        "scene": scene,
+        "city": city,
+        "objects": len(ref),
+        "queries": len(queries),
         "images": float(n_images) if n_images is not None else np.nan,
         "classes_in_map": int(ref["class_id"].nunique()),
-        "area_km2": area / 1e6, "covered_km2": cov / 1e6, "kb_per_map": map_kb(ref),
+        "area_km2": area / 1e6,
+        "covered_km2": cov / 1e6,
+        "kb_per_map": map_kb(ref),
         "queries_gt4": int((queries["n_objects"] > 4).sum()),
         "objects_per_query": float(queries["n_objects"].mean()),
     }
@@ -57,17 +62,27 @@ def city_table(per_scene: pd.DataFrame, union_km2: dict[str, float]) -> pd.DataF
     groups = list(per_scene.groupby("city", sort=True)) + [("all", per_scene)]
     for city, g in groups:
         paper = PAPER_TABLE2.get(city, {})
-        rows.append({
-            "city": city, "scenes": len(g), "area_km2": g["area_km2"].mean(),
-            "kb_per_map": g["kb_per_map"].mean(), "images": g["images"].mean(),
-            "objects": g["objects"].mean(), "queries": g["queries"].mean(),
-            "total_objects": int(g["objects"].sum()), "total_queries": int(g["queries"].sum()),
-            "union_area_km2": union_km2.get(city, np.nan),
-            "density_per_1000m2": g["objects"].sum() / (g["area_km2"].sum() * 1000.0),
-            "paper_scenes": paper.get("scenes", np.nan), "paper_objects": paper.get("objects", np.nan),
-            "paper_queries": paper.get("queries", np.nan), "paper_area_km2": paper.get("area_km2", np.nan),
-            "paper_kb_per_map": paper.get("kb_per_map", np.nan), "paper_images": paper.get("images", np.nan),
-        })
+        rows.append(
+            {
+                "city": city,
+                "scenes": len(g),
+                "area_km2": g["area_km2"].mean(),
+                "kb_per_map": g["kb_per_map"].mean(),
+                "images": g["images"].mean(),
+                "objects": g["objects"].mean(),
+                "queries": g["queries"].mean(),
+                "total_objects": int(g["objects"].sum()),
+                "total_queries": int(g["queries"].sum()),
+                "union_area_km2": union_km2.get(city, np.nan),
+                "density_per_1000m2": g["objects"].sum() / (g["area_km2"].sum() * 1000.0),
+                "paper_scenes": paper.get("scenes", np.nan),
+                "paper_objects": paper.get("objects", np.nan),
+                "paper_queries": paper.get("queries", np.nan),
+                "paper_area_km2": paper.get("area_km2", np.nan),
+                "paper_kb_per_map": paper.get("kb_per_map", np.nan),
+                "paper_images": paper.get("images", np.nan),
+            }
+        )
     df = pd.DataFrame(rows)
     floats = [c for c in df.columns if c.startswith("paper_")] + ["images"]
     return df.astype({c: float for c in floats})

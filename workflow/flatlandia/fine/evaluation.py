@@ -14,15 +14,15 @@ from __future__ import annotations
 
 import functools
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import pandas as pd
 
 from flatlandia import geo
 from flatlandia.data import localmaps
-from flatlandia.fine import solver
 from flatlandia.data.registration import UNIT_DEG
+from flatlandia.fine import solver
 
 #: the paper's accuracy thresholds (metres, degrees)
 THRESHOLDS: list[tuple[float, float]] = [(0.5, 2.0), (1.0, 5.0), (5.0, 10.0), (10.0, 20.0)]
@@ -45,6 +45,7 @@ PAPER_TABLE5 = {("MLP", "Sim+Trip", "gt"): (25.1, 25.8), ("MLP", "Sim+Trip", "de
 
 
 # ----------------------------------------------------------------------------- proposals
+
 
 def gtbb_indices(ref_xy: np.ndarray, matched, cam_xy, enlarge: float = 0.10) -> np.ndarray:
     """Reference rows inside the box around the matched objects and the camera, enlarged by ``enlarge``."""
@@ -77,13 +78,20 @@ def gtbb_proposals(ref: pd.DataFrame, queries: pd.DataFrame, enlarge: float = 0.
     for r in queries.itertuples(index=False):
         rows_idx = [pos[int(i)] for i in r.ref_idx]
         idx = gtbb_indices(ref_xy, rows_idx, [r.x_m, r.y_m], enlarge)
-        rows.append({"scene": str(r.scene), "token": str(r.token), "strategy": "GT-BB",
-                     "proposal": [int(o) for o in obj[idx]]})
+        rows.append(
+            {"scene": str(r.scene), "token": str(r.token), "strategy": "GT-BB", "proposal": [int(o) for o in obj[idx]]}
+        )
     return pd.DataFrame(rows, columns=["scene", "token", "strategy", "proposal"])
 
 
-def simulated_coarse_proposals(ref: pd.DataFrame, queries: pd.DataFrame, rng: np.random.Generator,
-                               recall: float = 0.5, size_factor: float = 2.0, fp_scale_m: float = 30.0) -> pd.DataFrame:
+def simulated_coarse_proposals(
+    ref: pd.DataFrame,
+    queries: pd.DataFrame,
+    rng: np.random.Generator,
+    recall: float = 0.5,
+    size_factor: float = 2.0,
+    fp_scale_m: float = 30.0,
+) -> pd.DataFrame:
     """Proposals that look like a coarse model's 2N_LM, for training the learned models on them.
 
     Why: a model trained on GT-BB proposals only has never seen wrong objects, and a coarse
@@ -110,8 +118,14 @@ def simulated_coarse_proposals(ref: pd.DataFrame, queries: pd.DataFrame, rng: np
             w = np.exp(-d / fp_scale_m)
             fp = rng.choice(others, size=min(n_fp, len(others)), replace=False, p=w / w.sum())
             keep = np.concatenate([keep, fp])
-        rows.append({"scene": str(r.scene), "token": str(r.token), "strategy": "simulated 2N_LM",
-                     "proposal": [int(o) for o in obj[np.sort(keep)]]})
+        rows.append(
+            {
+                "scene": str(r.scene),
+                "token": str(r.token),
+                "strategy": "simulated 2N_LM",
+                "proposal": [int(o) for o in obj[np.sort(keep)]],
+            }
+        )
     return pd.DataFrame(rows, columns=["scene", "token", "strategy", "proposal"])
 
 
@@ -139,8 +153,15 @@ def crop_to_densest(ref: pd.DataFrame, proposals: pd.DataFrame, radius_m: float)
     return proposals.assign(proposal=out)
 
 
-def training_proposals(ref: pd.DataFrame, queries: pd.DataFrame, regime: str, rng: np.random.Generator,
-                       copies: int = 2, keep_gtbb: bool = True, crop_m: float = 0.0) -> list[pd.DataFrame]:
+def training_proposals(
+    ref: pd.DataFrame,
+    queries: pd.DataFrame,
+    regime: str,
+    rng: np.random.Generator,
+    copies: int = 2,
+    keep_gtbb: bool = True,
+    crop_m: float = 0.0,
+) -> list[pd.DataFrame]:
     """The proposal tables a learned model trains (or validates) on, one sample per query and table.
 
     ``regime`` ``gtbb``: the oracle GT-BB proposal (the paper's training). ``coarse``: ``copies``
@@ -169,8 +190,13 @@ def training_label(regime: str, crop_m: float = 0.0) -> str:
 
 def whole_map_proposals(ref: pd.DataFrame, queries: pd.DataFrame) -> pd.DataFrame:
     obj = [int(o) for o in ref["obj_idx"]]
-    return pd.DataFrame([{"scene": str(r.scene), "token": str(r.token), "strategy": "whole", "proposal": obj}
-                         for r in queries.itertuples(index=False)], columns=["scene", "token", "strategy", "proposal"])
+    return pd.DataFrame(
+        [
+            {"scene": str(r.scene), "token": str(r.token), "strategy": "whole", "proposal": obj}
+            for r in queries.itertuples(index=False)
+        ],
+        columns=["scene", "token", "strategy", "proposal"],
+    )
 
 
 def solvable(query_classes, proposal_classes, min_objects: int = 3) -> bool:
@@ -185,6 +211,7 @@ def solvable(query_classes, proposal_classes, min_objects: int = 3) -> bool:
 
 
 # ----------------------------------------------------------------------------- errors
+
 
 def pose_errors(x, y, theta_rad, gt_x, gt_y, gt_theta_rad):
     """Position error (m) and absolute wrapped heading error (deg); vectorised."""
@@ -215,8 +242,11 @@ def summarise(errors: pd.DataFrame) -> dict:
     e = errors
     em = e["error_m"].to_numpy(float)
     ed = e["error_deg"].to_numpy(float)
-    out = {"queries": int(len(e)), "median_m": float(np.median(em)) if len(e) else float("nan"),
-           "median_deg": float(np.median(ed)) if len(e) else float("nan")}
+    out = {
+        "queries": int(len(e)),
+        "median_m": float(np.median(em)) if len(e) else float("nan"),
+        "median_deg": float(np.median(ed)) if len(e) else float("nan"),
+    }
     for m, d in THRESHOLDS:
         out[f"pct_{m:g}m_{d:g}deg"] = float(100 * np.mean((em < m) & (ed < d))) if len(e) else float("nan")
     out["failure_pct"] = float(100 * np.mean(~e["solvable"].to_numpy(bool))) if len(e) else float("nan")
@@ -246,6 +276,7 @@ def json_safe(d: dict) -> dict:
 
 # ----------------------------------------------------------------------------- solver evaluation
 
+
 def local_map(row, map_type: str) -> np.ndarray:
     if map_type == "gt":
         return localmaps.xy(row.gt_local_xy_m)
@@ -254,10 +285,18 @@ def local_map(row, map_type: str) -> np.ndarray:
     raise ValueError(f"map_type must be gt or depth, got {map_type!r}")
 
 
-def evaluate_solver(ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.DataFrame, map_type: str,
-                    config: dict | None = None, prior_xy: np.ndarray | None = None,
-                    scale_prior: tuple[float, float] | None = None, method: str = "solver",
-                    progress: Callable | None = None, prior_seen: list | None = None) -> pd.DataFrame:
+def evaluate_solver(
+    ref: pd.DataFrame,
+    queries: pd.DataFrame,
+    proposals: pd.DataFrame,
+    map_type: str,
+    config: dict | None = None,
+    prior_xy: np.ndarray | None = None,
+    scale_prior: tuple[float, float] | None = None,
+    method: str = "solver",
+    progress: Callable | None = None,
+    prior_seen: list | None = None,
+) -> pd.DataFrame:
     """Run the geometric solver on every query of one scene; one row of errors per query.
 
     ``proposals`` has the shape scene, token, strategy, proposal (reference obj_idx); queries
@@ -279,14 +318,26 @@ def evaluate_solver(ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.Data
     solver.warm_up()  # query times without the kernels' compilation
     rows = []
     items = list(queries.itertuples(index=False))
-    for r in (progress(items) if progress else items):
+    for r in progress(items) if progress else items:
         strategy, prop = props.get(str(r.token), ("none", []))
         idx = np.array([pos[int(o)] for o in prop if int(o) in pos], int)
         q = local_map(r, map_type)
         t0, c0 = time.perf_counter(), time.process_time()
-        sol = solver.solve(q, np.asarray(r.classes), ref_xy[idx], ref_cls[idx], metric=(map_type == "gt"),
-                           config=cfg, prior_xy=prior_xy, scale_prior=scale_prior,
-                           prior_seen=seen[:, idx] if seen is not None else None) if len(idx) >= 2 else None
+        sol = (
+            solver.solve(
+                q,
+                np.asarray(r.classes),
+                ref_xy[idx],
+                ref_cls[idx],
+                metric=(map_type == "gt"),
+                config=cfg,
+                prior_xy=prior_xy,
+                scale_prior=scale_prior,
+                prior_seen=seen[:, idx] if seen is not None else None,
+            )
+            if len(idx) >= 2
+            else None
+        )
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         rows.append(_row(r, map_type, strategy, method, sol, dt, idx, ref_cls, lat, pos, ref) | {"cpu_seconds": dc})
     return pd.DataFrame(rows)
@@ -303,13 +354,26 @@ def _row(r, map_type, strategy, method, sol, dt, idx, ref_cls, lat, pos, ref):
         obj = ref["obj_idx"].to_numpy()
         truth = [int(o) for o in r.ref_idx]
         correct = sum(int(obj[idx[c]]) == truth[k] for k, c in sol.inliers)
-    return {"scene": str(r.scene), "token": str(r.token), "method": method, "map_type": map_type,
-            "strategy": strategy, "n_objects": int(r.n_objects), "proposal_size": int(len(idx)),
-            "solvable": bool(solvable(r.classes, ref_cls[idx])) if len(idx) else False,
-            "x": float(x), "y": float(y), "theta_deg": float(np.degrees(th)) if np.isfinite(th) else float("nan"),
-            "error_m": float(e_m), "error_deg": float(e_deg), "error_paper_m": float(paper_metres(e_m, lat)),
-            "confidence": float(conf), "n_inliers": int(n_inl), "n_correct_inliers": int(correct),
-            "seconds": float(dt)}
+    return {
+        "scene": str(r.scene),
+        "token": str(r.token),
+        "method": method,
+        "map_type": map_type,
+        "strategy": strategy,
+        "n_objects": int(r.n_objects),
+        "proposal_size": int(len(idx)),
+        "solvable": bool(solvable(r.classes, ref_cls[idx])) if len(idx) else False,
+        "x": float(x),
+        "y": float(y),
+        "theta_deg": float(np.degrees(th)) if np.isfinite(th) else float("nan"),
+        "error_m": float(e_m),
+        "error_deg": float(e_deg),
+        "error_paper_m": float(paper_metres(e_m, lat)),
+        "confidence": float(conf),
+        "n_inliers": int(n_inl),
+        "n_correct_inliers": int(correct),
+        "seconds": float(dt),
+    }
 
 
 # ----------------------------------------------------------------------------- tables
@@ -352,21 +416,37 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
         strategy = s.get("strategy", "")
         name, p = paper_row(label, s.get("map_type", ""), strategy)
 
-        def f(k, scale=1.0):
+        def f(k, scale=1.0, s=s):
             v = s.get(k)
             return nan if v is None else float(v) * scale
 
-        row = {"run": run, "method": method, "method_label": label, "map_type": s.get("map_type", ""),
-               "proposal": s.get("proposal", run.rsplit("_", 1)[-1] if run else ""), "strategy": strategy,
-               "queries": int(s.get("queries", 0)), "median_m": f("median_m"), "median_deg": f("median_deg")}
+        row = {
+            "run": run,
+            "method": method,
+            "method_label": label,
+            "map_type": s.get("map_type", ""),
+            "proposal": s.get("proposal", run.rsplit("_", 1)[-1] if run else ""),
+            "strategy": strategy,
+            "queries": int(s.get("queries", 0)),
+            "median_m": f("median_m"),
+            "median_deg": f("median_deg"),
+        }
         row.update({c: f(c) for c in _TH_COLS})
-        row.update(failure_pct=f("failure_pct"), no_pose_pct=f("no_pose_pct"), gross_pct=f("gross_pct"),
-                   median_query_ms=f("median_query_s", 1000), mean_query_ms=f("mean_query_s", 1000),
-                   median_query_cpu_ms=f("median_query_cpu_s", 1000),
-                   train_s=f("train_s") if s.get("train_s") is not None else 0.0, epochs=int(s.get("epochs") or 0),
-                   n_parameters=int(s.get("n_parameters") or 0), model_mb=float(s.get("model_mb") or 0.0),
-                   ref_map_kb=f("ref_map_kb"), median_pu=f("median_pu"),
-                   trained_on=str(s.get("trained_on") or ("GT-BB" if method != "geo" else "")))
+        row.update(
+            failure_pct=f("failure_pct"),
+            no_pose_pct=f("no_pose_pct"),
+            gross_pct=f("gross_pct"),
+            median_query_ms=f("median_query_s", 1000),
+            mean_query_ms=f("mean_query_s", 1000),
+            median_query_cpu_ms=f("median_query_cpu_s", 1000),
+            train_s=f("train_s") if s.get("train_s") is not None else 0.0,
+            epochs=int(s.get("epochs") or 0),
+            n_parameters=int(s.get("n_parameters") or 0),
+            model_mb=float(s.get("model_mb") or 0.0),
+            ref_map_kb=f("ref_map_kb"),
+            median_pu=f("median_pu"),
+            trained_on=str(s.get("trained_on") or ("GT-BB" if method != "geo" else "")),
+        )
         row.update({c: f(c) for c in _PU_COLS})
         row["paper_row"] = name
         row.update({f"paper_{c}": float(v) for c, v in zip(_TH_COLS, p[:4])})
@@ -386,9 +466,11 @@ def render_markdown(df: pd.DataFrame, note: str = "") -> str:
 
     def cell(r):
         pct = " / ".join(fmt(r[c], ".1f") for c in _TH_COLS)
-        out = (f"{pct}; {fmt(r['median_m'], '.2f')} m ({fmt(r['median_pu'], '.2f')} pu); {fmt(r['median_deg'], '.1f')}°; "
-               f"QT {fmt(r['median_query_ms'], '.1f')} ms (CPU {fmt(r['median_query_cpu_ms'], '.1f')} ms); F {fmt(r['failure_pct'], '.1f')}%; "
-               f"gross {fmt(r['gross_pct'], '.1f')}%")
+        out = (
+            f"{pct}; {fmt(r['median_m'], '.2f')} m ({fmt(r['median_pu'], '.2f')} pu); {fmt(r['median_deg'], '.1f')}°; "
+            f"QT {fmt(r['median_query_ms'], '.1f')} ms (CPU {fmt(r['median_query_cpu_ms'], '.1f')} ms); F {fmt(r['failure_pct'], '.1f')}%; "
+            f"gross {fmt(r['gross_pct'], '.1f')}%"
+        )
         if r["epochs"]:
             out += f"; train {fmt(r['train_s'] / 60, '.1f')} min ({r['epochs']} ep, {r['trained_on'] or 'GT-BB'})"
         return out
@@ -397,34 +479,52 @@ def render_markdown(df: pd.DataFrame, note: str = "") -> str:
         if not r["paper_row"]:
             return "—"
         pre = "" if r["paper_row"].endswith(r["method_label"]) else r["paper_row"].split(" ", 2)[-1] + ": "
-        pct = " / ".join(fmt(r[f"paper_{c}"], "g") for c in _TH_COLS) + "; " if np.isfinite(r[f"paper_{_TH_COLS[0]}"]) else ""
+        pct = (
+            " / ".join(fmt(r[f"paper_{c}"], "g") for c in _TH_COLS) + "; "
+            if np.isfinite(r[f"paper_{_TH_COLS[0]}"])
+            else ""
+        )
         qt = f"; {fmt(r['paper_query_ms'], 'g')} ms" if np.isfinite(r["paper_query_ms"]) else ""
         return f'{pre}{pct}{fmt(r["paper_median_pu"], "g")} "m"; {fmt(r["paper_median_deg"], "g")}°{qt}'
 
-    out = ["# Fine 3DoF localization (test split)", "",
-           "Cells: % within (0.5 m, 2°) / (1 m, 5°) / (5 m, 10°) / (10 m, 20°) in true metres; median error in true "
-           "metres (in brackets, `pu`: the paper's convention, local-map units x 215); median degrees; median query "
-           "time (one CPU thread); F% (proposal holds fewer than 3 objects of the query's classes); gross errors "
-           "(> 30 m); training time (one CPU thread) for learned models.",
-           "The paper's columns are its own figures, whose metres are units x 215 (\"m\"). GT local maps are exact "
-           "rigid copies of the reference map: on them the task is pure registration.", ""]
+    out = [
+        "# Fine 3DoF localization (test split)",
+        "",
+        "Cells: % within (0.5 m, 2°) / (1 m, 5°) / (5 m, 10°) / (10 m, 20°) in true metres; median error in true "
+        "metres (in brackets, `pu`: the paper's convention, local-map units x 215); median degrees; median query "
+        "time (one CPU thread); F% (proposal holds fewer than 3 objects of the query's classes); gross errors "
+        "(> 30 m); training time (one CPU thread) for learned models.",
+        'The paper\'s columns are its own figures, whose metres are units x 215 ("m"). GT local maps are exact '
+        "rigid copies of the reference map: on them the task is pure registration.",
+        "",
+    ]
     if note:
         out += [note, ""]
-    for title, mask in (("Table 4 (GT-BB proposals)", df["strategy"] == "GT-BB"),
-                        ("Table 5 (coarse proposals and whole map)", df["strategy"] != "GT-BB")):
+    for title, mask in (
+        ("Table 4 (GT-BB proposals)", df["strategy"] == "GT-BB"),
+        ("Table 5 (coarse proposals and whole map)", df["strategy"] != "GT-BB"),
+    ):
         part = df[mask]
         if part.empty:
             continue
-        out += [f"## {title}", "", "| method | proposal | GT maps (ours) | GT maps (paper) | depth maps (ours) | "
-                "depth maps (paper) | params / model / map |", "|---|---|---|---|---|---|---|"]
+        out += [
+            f"## {title}",
+            "",
+            "| method | proposal | GT maps (ours) | GT maps (paper) | depth maps (ours) | "
+            "depth maps (paper) | params / model / map |",
+            "|---|---|---|---|---|---|---|",
+        ]
         for (label, strategy), g in part.groupby(["method_label", "strategy"], sort=False):
             cells = []
             for mt in ("gt", "depth"):
                 r = g[g["map_type"] == mt]
                 cells += [cell(r.iloc[0]), paper_cell(r.iloc[0])] if len(r) else ["—", "—"]
             r0 = g.iloc[0]
-            size = (f"{r0['n_parameters']:,} / {r0['model_mb']:.2f} MB / {r0['ref_map_kb']:.2f} kB" if r0["n_parameters"]
-                    else f"– / – / {r0['ref_map_kb']:.2f} kB")
+            size = (
+                f"{r0['n_parameters']:,} / {r0['model_mb']:.2f} MB / {r0['ref_map_kb']:.2f} kB"
+                if r0["n_parameters"]
+                else f"– / – / {r0['ref_map_kb']:.2f} kB"
+            )
             out.append(f"| {label} | {strategy} | " + " | ".join(cells) + f" | {size} |")
         out.append("")
     return "\n".join(out) + "\n"

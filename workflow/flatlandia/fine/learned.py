@@ -50,29 +50,29 @@ MODELS = ("MLP", "MLP+ATT", "GAT", "GAT+ATT")
 @dataclass
 class FineConfig:
     model: str = "MLP"
-    map_type: str = "depth"          # gt | depth
+    map_type: str = "depth"  # gt | depth
     hidden: int = 64
     heads: int = 4
-    rounds: int = 3                  # GAT: rounds of (2 intra-map layers + 1 inter-map layer)
-    knn: int = 3                     # GAT: region kNN for intra-map edges
+    rounds: int = 3  # GAT: rounds of (2 intra-map layers + 1 inter-map layer)
+    knn: int = 3  # GAT: region kNN for intra-map edges
     epochs: int = 20
     batch_size: int = 32
     lr: float = 1e-3
     weight_decay: float = 0.0
-    lr_schedule: str = "none"        # none | cosine (to 1% of lr over the epochs)
-    scale_m: float = 15.0            # metres per normalised unit (tuned on val: 100 -> 15 m, MLP 5.7 -> 3.6 m)
-    depth_unit_m: float = 25.0       # metres assumed per depth-map unit (typical median object range)
+    lr_schedule: str = "none"  # none | cosine (to 1% of lr over the epochs)
+    scale_m: float = 15.0  # metres per normalised unit (tuned on val: 100 -> 15 m, MLP 5.7 -> 3.6 m)
+    depth_unit_m: float = 25.0  # metres assumed per depth-map unit (typical median object range)
     angle_weight: float = 1.0
     augment: bool = True
-    aug_rotate_deg: float = 180.0    # max |rotation| of the augmentation (180: any rotation)
-    aug_translate: float = 0.25      # max translation (normalised units) of the augmentation
-    aug_depth_scale: float = 0.2     # std of log scale jitter of depth query maps (0: none)
+    aug_rotate_deg: float = 180.0  # max |rotation| of the augmentation (180: any rotation)
+    aug_translate: float = 0.25  # max translation (normalised units) of the augmentation
+    aug_depth_scale: float = 0.2  # std of log scale jitter of depth query maps (0: none)
     seed: int = 0
     eval_every: int = 1
     extra: dict = field(default_factory=dict)
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "FineConfig":
+    def from_dict(cls, d: dict | None) -> FineConfig:
         d = dict(d or {})
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
@@ -82,21 +82,23 @@ class FineConfig:
 
 # ----------------------------------------------------------------------------- samples
 
+
 def _knn_edges(pos: np.ndarray, k: int) -> np.ndarray:
     n = len(pos)
     if n < 2 or k < 1:
         return np.zeros((2, 0), int)
     d = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
     np.fill_diagonal(d, np.inf)
-    nb = np.argsort(d, axis=1, kind="stable")[:, :min(k, n - 1)]
+    nb = np.argsort(d, axis=1, kind="stable")[:, : min(k, n - 1)]
     src = np.repeat(np.arange(n), nb.shape[1])
     e = np.stack([src, nb.ravel()])
     e = np.concatenate([e, e[::-1]], axis=1)  # symmetric
     return np.unique(e, axis=1)
 
 
-def make_sample(q_local: np.ndarray, q_cls, r_xy: np.ndarray, r_cls, cfg: FineConfig,
-                cam_xy=None, theta: float | None = None) -> Data:
+def make_sample(
+    q_local: np.ndarray, q_cls, r_xy: np.ndarray, r_cls, cfg: FineConfig, cam_xy=None, theta: float | None = None
+) -> Data:
     """One query as a graph: nodes = query objects then region objects (positions normalised).
 
     ``q_pos`` is the query in its camera frame (normalised); ``pos`` holds the node positions used
@@ -136,8 +138,9 @@ def make_sample(q_local: np.ndarray, q_cls, r_xy: np.ndarray, r_cls, cfg: FineCo
     )
 
 
-def samples_from_queries(ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.DataFrame,
-                         cfg: FineConfig) -> tuple[list[Data], pd.DataFrame]:
+def samples_from_queries(
+    ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.DataFrame, cfg: FineConfig
+) -> tuple[list[Data], pd.DataFrame]:
     """Samples of one scene's queries with their proposals; also the kept query rows (same order)."""
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
     ref_cls = ref["class_id"].to_numpy()
@@ -153,6 +156,7 @@ def samples_from_queries(ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd
 
 # ----------------------------------------------------------------------------- dense batches (MLP models)
 
+
 @dataclass
 class DenseMaps:
     """Padded per-query tensors (query objects, region objects, target) for the MLP models.
@@ -161,13 +165,13 @@ class DenseMaps:
     whole split is padded once and a batch is a row selection, trimmed to its longest map.
     """
 
-    q_cls: torch.Tensor   # (N, Lq) class ids (0 on padding)
-    q_xy: torch.Tensor    # (N, Lq, 2) query objects, normalised camera frame
+    q_cls: torch.Tensor  # (N, Lq) class ids (0 on padding)
+    q_xy: torch.Tensor  # (N, Lq, 2) query objects, normalised camera frame
     q_mask: torch.Tensor  # (N, Lq) True on real objects
-    r_cls: torch.Tensor   # (N, Lr)
-    r_xy: torch.Tensor    # (N, Lr, 2) region objects, normalised region frame
+    r_cls: torch.Tensor  # (N, Lr)
+    r_xy: torch.Tensor  # (N, Lr, 2) region objects, normalised region frame
     r_mask: torch.Tensor  # (N, Lr)
-    y: torch.Tensor       # (N, 3) target pose
+    y: torch.Tensor  # (N, 3) target pose
 
     @property
     def num_graphs(self) -> int:
@@ -176,12 +180,19 @@ class DenseMaps:
     def __len__(self) -> int:
         return self.num_graphs
 
-    def __getitem__(self, idx) -> "DenseMaps":
+    def __getitem__(self, idx) -> DenseMaps:
         idx = torch.as_tensor(idx, dtype=torch.long)
         lq = max(int(self.q_mask[idx].sum(1).max()), 1) if len(idx) else 1
         lr = max(int(self.r_mask[idx].sum(1).max()), 1) if len(idx) else 1
-        return DenseMaps(self.q_cls[idx, :lq], self.q_xy[idx, :lq], self.q_mask[idx, :lq],
-                         self.r_cls[idx, :lr], self.r_xy[idx, :lr], self.r_mask[idx, :lr], self.y[idx])
+        return DenseMaps(
+            self.q_cls[idx, :lq],
+            self.q_xy[idx, :lq],
+            self.q_mask[idx, :lq],
+            self.r_cls[idx, :lr],
+            self.r_xy[idx, :lr],
+            self.r_mask[idx, :lr],
+            self.y[idx],
+        )
 
 
 def dense_maps(samples) -> DenseMaps:
@@ -206,6 +217,7 @@ def _masked_max(h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
 
 
 # ----------------------------------------------------------------------------- models
+
 
 def _mlp(sizes: list[int], last_relu: bool = True) -> nn.Sequential:
     layers: list[nn.Module] = []
@@ -298,8 +310,9 @@ class GATModel(_Base):
         self.pi_n = _mlp([N_CLASSES + 2, h, h])
         self.pi_e = _mlp([3, h, h])
         self.pi_x = _mlp([3, h, h])
-        self.intra = nn.ModuleList([GATv2Conv(h, h, heads=cfg.heads, concat=False, edge_dim=h)
-                                    for _ in range(2 * cfg.rounds)])
+        self.intra = nn.ModuleList(
+            [GATv2Conv(h, h, heads=cfg.heads, concat=False, edge_dim=h) for _ in range(2 * cfg.rounds)]
+        )
         self.inter = nn.ModuleList([_EdgeLayer(h, cfg.heads) for _ in range(cfg.rounds)])
         self.att = nn.MultiheadAttention(h, cfg.heads, batch_first=True) if attention else None
 
@@ -313,7 +326,7 @@ class GATModel(_Base):
         ea = self.pi_e(_edge_geom(pos, batch.intra_edge_index))
         ex = self.pi_x(_edge_geom(pos, batch.inter_edge_index))
         for r in range(self.cfg.rounds):
-            for layer in self.intra[2 * r:2 * r + 2]:
+            for layer in self.intra[2 * r : 2 * r + 2]:
                 x = x + torch.relu(layer(x, batch.intra_edge_index, ea))
             x, ex = self.inter[r](x, batch.inter_edge_index, ex)
         eb = batch.batch[batch.inter_edge_index[0]]
@@ -337,6 +350,7 @@ def n_parameters(model: nn.Module) -> int:
 
 # ----------------------------------------------------------------------------- loss, augmentation
 
+
 def angle_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Absolute wrapped angle difference in radians, in [0, pi]."""
     d = a - b
@@ -358,8 +372,11 @@ def augment(batch, cfg: FineConfig, gen: torch.Generator):
     tr = (torch.rand(n_graphs, 2, generator=gen) * 2 - 1) * cfg.aug_translate
     c, s = torch.cos(phi), torch.sin(phi)
     rot = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # (B, 2, 2)
-    scale = (torch.exp(torch.randn(n_graphs, generator=gen) * cfg.aug_depth_scale)
-             if cfg.map_type == "depth" and cfg.aug_depth_scale > 0 else None)
+    scale = (
+        torch.exp(torch.randn(n_graphs, generator=gen) * cfg.aug_depth_scale)
+        if cfg.map_type == "depth" and cfg.aug_depth_scale > 0
+        else None
+    )
     y = batch.y.clone()
     y[:, :2] = torch.einsum("bij,bj->bi", rot, y[:, :2]) + tr
     y[:, 2] = torch.atan2(torch.sin(y[:, 2] + phi), torch.cos(y[:, 2] + phi))
@@ -379,6 +396,7 @@ def augment(batch, cfg: FineConfig, gen: torch.Generator):
 
 # ----------------------------------------------------------------------------- training
 
+
 def set_determinism(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed)
@@ -394,9 +412,9 @@ def _batches(samples, batch_size: int, order: np.ndarray | None = None):
     idx = np.arange(len(samples)) if order is None else order
     for k in range(0, len(idx), batch_size):
         if isinstance(samples, DenseMaps):
-            yield samples[idx[k:k + batch_size]]
+            yield samples[idx[k : k + batch_size]]
         else:
-            yield Batch.from_data_list([samples[i] for i in idx[k:k + batch_size]])
+            yield Batch.from_data_list([samples[i] for i in idx[k : k + batch_size]])
 
 
 @torch.no_grad()
@@ -431,8 +449,11 @@ def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, l
     set_determinism(cfg.seed)
     model = build_model(cfg)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
-    sched = (torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.epochs, 1), eta_min=0.01 * cfg.lr)
-             if cfg.lr_schedule == "cosine" else None)
+    sched = (
+        torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.epochs, 1), eta_min=0.01 * cfg.lr)
+        if cfg.lr_schedule == "cosine"
+        else None
+    )
     gen = torch.Generator().manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     history, best, best_state, best_epoch = [], float("inf"), None, -1
@@ -442,7 +463,7 @@ def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, l
         data = dense_maps(train_samples)
         val_data = dense_maps(val_samples) if val_samples else val_samples
     epochs = range(cfg.epochs)
-    for ep in (progress(epochs) if progress else epochs):
+    for ep in progress(epochs) if progress else epochs:
         model.train()
         tot, n = 0.0, 0
         for batch in _batches(data, cfg.batch_size, rng.permutation(len(train_samples))):
@@ -469,8 +490,15 @@ def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, l
     if best_state is None:
         best_state = copy.deepcopy(model.state_dict())
     model.load_state_dict(best_state)
-    return {"model": model, "state_dict": best_state, "config": cfg.to_dict(), "history": history,
-            "best_epoch": best_epoch, "best_val_median_m": best, "seconds": time.perf_counter() - t0}
+    return {
+        "model": model,
+        "state_dict": best_state,
+        "config": cfg.to_dict(),
+        "history": history,
+        "best_epoch": best_epoch,
+        "best_val_median_m": best,
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def save_checkpoint(result: dict, path) -> None:
@@ -478,8 +506,14 @@ def save_checkpoint(result: dict, path) -> None:
     from flatlandia.io import atomic_path
 
     with atomic_path(path) as tmp:
-        torch.save({k: result[k] for k in ("state_dict", "config", "history", "best_epoch", "best_val_median_m",
-                                           "seconds") if k in result}, tmp)
+        torch.save(
+            {
+                k: result[k]
+                for k in ("state_dict", "config", "history", "best_epoch", "best_val_median_m", "seconds")
+                if k in result
+            },
+            tmp,
+        )
 
 
 def load_checkpoint(path) -> tuple[nn.Module, FineConfig]:
@@ -497,8 +531,14 @@ def checkpoint_info(path) -> dict:
     return {k: ck.get(k) for k in ("config", "best_epoch", "best_val_median_m", "seconds")}
 
 
-def evaluate_model(model: nn.Module, cfg: FineConfig, ref: pd.DataFrame, queries: pd.DataFrame,
-                   proposals: pd.DataFrame, method: str | None = None) -> pd.DataFrame:
+def evaluate_model(
+    model: nn.Module,
+    cfg: FineConfig,
+    ref: pd.DataFrame,
+    queries: pd.DataFrame,
+    proposals: pd.DataFrame,
+    method: str | None = None,
+) -> pd.DataFrame:
     """Per-query error rows (same columns as the solver's) for one scene; query time is the
     single-query inference time (batch of one, after building the sample)."""
     from flatlandia.fine import evaluation
@@ -519,13 +559,27 @@ def evaluate_model(model: nn.Module, cfg: FineConfig, ref: pd.DataFrame, queries
         x, y, th = to_world(p, [s], cfg)[0]
         e_m, e_deg = evaluation.pose_errors(x, y, th, r.x_m, r.y_m, math.radians(r.theta_deg))
         idx = np.array([pos[int(o)] for o in props.get(str(r.token), []) if int(o) in pos], int)
-        rows.append({"scene": str(r.scene), "token": str(r.token), "method": method or cfg.model,
-                     "map_type": cfg.map_type, "strategy": strat.get(str(r.token), "none"),
-                     "n_objects": int(r.n_objects), "proposal_size": int(len(idx)),
-                     "solvable": bool(evaluation.solvable(r.classes, ref_cls[idx])) if len(idx) else False,
-                     "x": float(x), "y": float(y), "theta_deg": float(math.degrees(th)),
-                     "error_m": float(e_m), "error_deg": float(e_deg),
-                     "error_paper_m": float(evaluation.paper_metres(e_m, lat)), "confidence": float("nan"),
-                     "n_inliers": 0, "n_correct_inliers": 0, "seconds": float(dt),
-                     "cpu_seconds": float(dc)})
+        rows.append(
+            {
+                "scene": str(r.scene),
+                "token": str(r.token),
+                "method": method or cfg.model,
+                "map_type": cfg.map_type,
+                "strategy": strat.get(str(r.token), "none"),
+                "n_objects": int(r.n_objects),
+                "proposal_size": int(len(idx)),
+                "solvable": bool(evaluation.solvable(r.classes, ref_cls[idx])) if len(idx) else False,
+                "x": float(x),
+                "y": float(y),
+                "theta_deg": float(math.degrees(th)),
+                "error_m": float(e_m),
+                "error_deg": float(e_deg),
+                "error_paper_m": float(evaluation.paper_metres(e_m, lat)),
+                "confidence": float("nan"),
+                "n_inliers": 0,
+                "n_correct_inliers": 0,
+                "seconds": float(dt),
+                "cpu_seconds": float(dc),
+            }
+        )
     return pd.DataFrame(rows)

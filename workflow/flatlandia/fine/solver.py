@@ -43,35 +43,35 @@ from flatlandia.fine import solver_kernels
 
 @dataclass
 class SolverConfig:
-    bearing_sigma_deg: float = 1.0      # depth maps: bearing noise
-    log_range_sigma: float = 0.5        # depth maps: noise of log(range) after the scale (scoring)
+    bearing_sigma_deg: float = 1.0  # depth maps: bearing noise
+    log_range_sigma: float = 0.5  # depth maps: noise of log(range) after the scale (scoring)
     refine_log_range_sigma: float = 1.0  # depth maps: weaker range weight in the least squares
-    position_sigma_m: float = 0.25      # GT maps: position noise (metres)
-    tau: float = 3.0                    # residuals (in sigmas) beyond this are outliers
-    max_pairs: int = 24                 # query pairs used to hypothesise (best conditioned first)
-    max_triples: int = 30               # depth maps: query triples for 3-bearing resections
-    max_triple_hyp: int = 20_000        # candidate triples per query triple at most (else skipped)
-    max_hyp: int = 300_000              # hypotheses scored per query at most
-    top_k: int = 12                     # hypotheses refined
-    refine_rounds: int = 3              # re-association rounds in the refinement
-    min_scale: float = 2.0              # depth maps: metres per local unit (median object range)
+    position_sigma_m: float = 0.25  # GT maps: position noise (metres)
+    tau: float = 3.0  # residuals (in sigmas) beyond this are outliers
+    max_pairs: int = 24  # query pairs used to hypothesise (best conditioned first)
+    max_triples: int = 30  # depth maps: query triples for 3-bearing resections
+    max_triple_hyp: int = 20_000  # candidate triples per query triple at most (else skipped)
+    max_hyp: int = 300_000  # hypotheses scored per query at most
+    top_k: int = 12  # hypotheses refined
+    refine_rounds: int = 3  # re-association rounds in the refinement
+    min_scale: float = 2.0  # depth maps: metres per local unit (median object range)
     max_scale: float = 150.0
-    prior_radius_m: float = 15.0        # keep hypotheses within this of a prior camera (hard gate)
-    prior_sigma_m: float = 3.0          # soft camera prior: cost (distance to nearest prior camera / sigma)^2
-    prior_weight: float = 1.0           # 0 disables the soft camera prior (the hard gate stays)
+    prior_radius_m: float = 15.0  # keep hypotheses within this of a prior camera (hard gate)
+    prior_sigma_m: float = 3.0  # soft camera prior: cost (distance to nearest prior camera / sigma)^2
+    prior_weight: float = 1.0  # 0 disables the soft camera prior (the hard gate stays)
     prior_heading_sigma_deg: float = 0.0  # >0 and prior headings given: joint (position, heading) prior
-    prior_knn: int = 8                  # prior cameras considered per hypothesis for the joint prior
-    scale_prior_weight: float = 1.0     # depth maps: weight of the log-scale prior (when one is given)
-    covis_weight: float = 0.0           # >0 and prior_seen given: cost per matched object that no prior camera
-                                        #   near the pose saw (co-visibility from the training split)
-    covis_radius_m: float = 10.0        # prior cameras within this of the pose count for co-visibility
-    covis_metric: bool = False          # apply co-visibility to metric (GT) maps too
-    pair_len_tol_m: float = 0.5         # GT maps: same-class pairs must agree in length to this
+    prior_knn: int = 8  # prior cameras considered per hypothesis for the joint prior
+    scale_prior_weight: float = 1.0  # depth maps: weight of the log-scale prior (when one is given)
+    covis_weight: float = 0.0  # >0 and prior_seen given: cost per matched object that no prior camera
+    #   near the pose saw (co-visibility from the training split)
+    covis_radius_m: float = 10.0  # prior cameras within this of the pose count for co-visibility
+    covis_metric: bool = False  # apply co-visibility to metric (GT) maps too
+    pair_len_tol_m: float = 0.5  # GT maps: same-class pairs must agree in length to this
     chunk: int = 8192
-    early_stop: bool = True             # stop hypothesising once a hypothesis explains every object
+    early_stop: bool = True  # stop hypothesising once a hypothesis explains every object
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> "SolverConfig":
+    def from_dict(cls, d: dict | None) -> SolverConfig:
         d = dict(d or {})
         known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
         return cls(**known)
@@ -84,11 +84,11 @@ class SolverConfig:
 class Solution:
     x: float
     y: float
-    theta: float                        # radians, CCW from east
-    scale: float                        # metres per local unit (1 for metric maps)
+    theta: float  # radians, CCW from east
+    scale: float  # metres per local unit (1 for metric maps)
     inliers: list[tuple[int, int]] = field(default_factory=list)  # (query index, candidate index)
     confidence: float = 0.0
-    cost: float = float("inf")          # MSAC cost of the returned pose
+    cost: float = float("inf")  # MSAC cost of the returned pose
     n_hypotheses: int = 0
 
 
@@ -96,10 +96,10 @@ class _Problem:
     """Query, candidates and the same-class candidate lists as a padded (M, K) index matrix."""
 
     def __init__(self, q, q_cls, r, r_cls, metric: bool, cfg: SolverConfig, prior=None, scale_prior=None):
-        self.prior = prior                  # cKDTree of plausible camera positions, or None
-        self.prior_heading = None           # headings (rad) of the prior cameras, or None
-        self.scale_prior = scale_prior      # (mean, std) of log(metres per local unit), or None
-        self.seen = None                    # (P, N) bool: prior camera p saw candidate n (training split), or None
+        self.prior = prior  # cKDTree of plausible camera positions, or None
+        self.prior_heading = None  # headings (rad) of the prior cameras, or None
+        self.scale_prior = scale_prior  # (mean, std) of log(metres per local unit), or None
+        self.seen = None  # (P, N) bool: prior camera p saw candidate n (training split), or None
         self.q = np.asarray(q, float).reshape(-1, 2)
         self.qc = np.asarray(q_cls).astype(int).ravel()
         self.r = np.asarray(r, float).reshape(-1, 2)
@@ -128,7 +128,7 @@ class _Problem:
         kmax = max([len(s) for s in self.same] + [1])
         cand = np.zeros((self.m, kmax), int)
         for k, s in enumerate(self.same):
-            cand[k, :len(s)] = s
+            cand[k, : len(s)] = s
         return cand
 
     @functools.cached_property
@@ -147,7 +147,7 @@ class _Problem:
             lx = c * rx + sn * ry  # world -> camera frame
             ly = c * ry - sn * rx
             d2 = (lx - self.q[None, :, 0, None]) ** 2 + (ly - self.q[None, :, 1, None]) ** 2
-            cost = d2 / self.cfg.position_sigma_m ** 2
+            cost = d2 / self.cfg.position_sigma_m**2
         else:
             # float32 and a tangent for the bearing error: about 4x faster than float64 arctan2 on the
             # (C, M, K) arrays. tan(db) equals db to 0.1 % within the inlier cap (tau sigmas, a few
@@ -180,8 +180,12 @@ class _Problem:
 
     def _covis_on(self) -> bool:
         cfg = self.cfg
-        return (self.seen is not None and cfg.covis_weight > 0 and self.prior is not None
-                and (not self.metric or cfg.covis_metric))
+        return (
+            self.seen is not None
+            and cfg.covis_weight > 0
+            and self.prior is not None
+            and (not self.metric or cfg.covis_metric)
+        )
 
     def _pose_prior_sq(self, t, theta, nb=None) -> np.ndarray:
         """(C,) squared normalised distance of poses to the prior cameras (position [+ heading])."""
@@ -194,7 +198,7 @@ class _Problem:
 
     def prior_cost(self, t, s, theta=None, nb=None) -> np.ndarray:
         """(C,) prior cost: pose vs the nearest prior camera, log-scale; each capped at tau^2."""
-        tau2 = self.cfg.tau ** 2
+        tau2 = self.cfg.tau**2
         out = np.zeros(len(t))
         if self.prior is not None and self.cfg.prior_weight > 0:
             out += self.cfg.prior_weight * np.minimum(self._pose_prior_sq(t, theta, nb), tau2)
@@ -209,8 +213,14 @@ class _Problem:
         if not self._covis_on():
             return np.zeros(len(t))
         d, j = nb if nb is not None else self._prior_neighbours(t)
-        cnt = solver_kernels.covis_counts(np.ascontiguousarray(d), np.ascontiguousarray(j, dtype=np.int64),
-                                          self.seen, match, inl, float(self.cfg.covis_radius_m))
+        cnt = solver_kernels.covis_counts(
+            np.ascontiguousarray(d),
+            np.ascontiguousarray(j, dtype=np.int64),
+            self.seen,
+            match,
+            inl,
+            float(self.cfg.covis_radius_m),
+        )
         return self.cfg.covis_weight * (inl.sum(1) - cnt)
 
     def data_cost(self, t, theta, s):
@@ -218,16 +228,37 @@ class _Problem:
         (``solver_kernels``), equal to the padded numpy :meth:`costs` reduced per object."""
         t = np.ascontiguousarray(t, dtype=float).reshape(-1, 2)
         theta = np.ascontiguousarray(theta, dtype=float).ravel()
-        tau2 = float(self.cfg.tau ** 2)
+        tau2 = float(self.cfg.tau**2)
         if self.metric:
-            return solver_kernels.score_metric(t[:, 0].copy(), t[:, 1].copy(), theta, self.q[:, 0].copy(),
-                                               self.q[:, 1].copy(), self.flat_x, self.flat_y, self.flat_idx,
-                                               self.ptr, float(self.cfg.position_sigma_m), tau2)
-        return solver_kernels.score_depth(t[:, 0].copy(), t[:, 1].copy(), theta,
-                                          np.ascontiguousarray(s, dtype=float).ravel(), self.q_bear,
-                                          self.q_range + self.eps_q, float(self.eps_q), self.flat_x, self.flat_y,
-                                          self.flat_idx, self.ptr, float(self.sb), float(self.cfg.log_range_sigma),
-                                          tau2)
+            return solver_kernels.score_metric(
+                t[:, 0].copy(),
+                t[:, 1].copy(),
+                theta,
+                self.q[:, 0].copy(),
+                self.q[:, 1].copy(),
+                self.flat_x,
+                self.flat_y,
+                self.flat_idx,
+                self.ptr,
+                float(self.cfg.position_sigma_m),
+                tau2,
+            )
+        return solver_kernels.score_depth(
+            t[:, 0].copy(),
+            t[:, 1].copy(),
+            theta,
+            np.ascontiguousarray(s, dtype=float).ravel(),
+            self.q_bear,
+            self.q_range + self.eps_q,
+            float(self.eps_q),
+            self.flat_x,
+            self.flat_y,
+            self.flat_idx,
+            self.ptr,
+            float(self.sb),
+            float(self.cfg.log_range_sigma),
+            tau2,
+        )
 
     def score(self, t, theta, s):
         """MSAC cost (C,), inlier mask (C, M) and best candidate (C, M) per hypothesis."""
@@ -245,10 +276,20 @@ class _Problem:
         dq = self.q[j] - self.q[i]
         if float(np.hypot(*dq)) < 1e-9:
             return None
-        return solver_kernels.pair_fits(a.astype(np.int64), b.astype(np.int64), self.rx, self.ry,
-                                        float(self.q[i, 0]), float(self.q[i, 1]), float(dq[0]), float(dq[1]),
-                                        self.metric, float(self.cfg.pair_len_tol_m), float(self.cfg.min_scale),
-                                        float(self.cfg.max_scale))
+        return solver_kernels.pair_fits(
+            a.astype(np.int64),
+            b.astype(np.int64),
+            self.rx,
+            self.ry,
+            float(self.q[i, 0]),
+            float(self.q[i, 1]),
+            float(dq[0]),
+            float(dq[1]),
+            self.metric,
+            float(self.cfg.pair_len_tol_m),
+            float(self.cfg.min_scale),
+            float(self.cfg.max_scale),
+        )
 
     def triple_hypotheses(self, i: int, j: int, k: int, limit: int):
         """3-bearing resections (range-free) of query objects (i, j, k) onto same-class candidate triples.
@@ -262,9 +303,22 @@ class _Problem:
             return None
         qb, qr = self.q_bear, self.q_range
         return solver_kernels.triple_resections(
-            ca.astype(np.int64), cb.astype(np.int64), cc.astype(np.int64), self.rx, self.ry,
-            float(qb[i]), float(qb[j]), float(qb[k]), float(qr[i]), float(qr[j]), float(qr[k]), float(self.eps_q),
-            float(self.cfg.min_scale), float(self.cfg.max_scale), self.metric)
+            ca.astype(np.int64),
+            cb.astype(np.int64),
+            cc.astype(np.int64),
+            self.rx,
+            self.ry,
+            float(qb[i]),
+            float(qb[j]),
+            float(qb[k]),
+            float(qr[i]),
+            float(qr[j]),
+            float(qr[k]),
+            float(self.eps_q),
+            float(self.cfg.min_scale),
+            float(self.cfg.max_scale),
+            self.metric,
+        )
 
     def query_triples(self) -> list[tuple[int, int, int]]:
         m = self.m
@@ -280,11 +334,17 @@ class _Problem:
 
     def query_pairs(self) -> list[tuple[int, int]]:
         m = self.m
-        pairs = [(i, j) for i in range(m) for j in range(i + 1, m)
-                 if np.hypot(*(self.q[j] - self.q[i])) > 1e-9 and len(self.same[i]) and len(self.same[j])]
+        pairs = [
+            (i, j)
+            for i in range(m)
+            for j in range(i + 1, m)
+            if np.hypot(*(self.q[j] - self.q[i])) > 1e-9 and len(self.same[i]) and len(self.same[j])
+        ]
         if self.metric:  # longest pairs first (best conditioned); rarer classes first among ties
-            key = [(-np.hypot(*(self.q[j] - self.q[i])) / (1 + 0.1 * len(self.same[i]) * len(self.same[j])))
-                   for i, j in pairs]
+            key = [
+                (-np.hypot(*(self.q[j] - self.q[i])) / (1 + 0.1 * len(self.same[i]) * len(self.same[j])))
+                for i, j in pairs
+            ]
         else:  # wide angular separation, similar ranges (ratio well determined), rare classes
             key = []
             for i, j in pairs:
@@ -320,18 +380,37 @@ class _Problem:
                     d, j = self.prior.query(p[:, :2], k=k)
                     d, j = d.reshape(C, k), j.reshape(C, k)
                     dth = geo.wrap_angle(self.prior_heading[j] - p[:, 2:3])
-                    sel = np.argmin((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, 1)
+                    sel = np.argmin(
+                        (d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, 1
+                    )
                     jj = j[np.arange(C), sel]
                     head = self.prior_heading[jj].astype(float)
                 else:
                     jj = self.prior.query(p[:, :2], k=1)[1]
                 cam = np.ascontiguousarray(self.prior.data[jj], dtype=float)
             solver_kernels.refine_gauss_newton(
-                p, R, inl, self.metric, self.q[:, 0].copy(), self.q[:, 1].copy(), self.q_bear, self.q_range,
-                float(self.eps_q), float(self.sb), float(cfg.refine_log_range_sigma), float(cfg.position_sigma_m),
-                cam, float(cfg.prior_weight) if use_prior else 0.0, float(cfg.prior_sigma_m), head,
+                p,
+                R,
+                inl,
+                self.metric,
+                self.q[:, 0].copy(),
+                self.q[:, 1].copy(),
+                self.q_bear,
+                self.q_range,
+                float(self.eps_q),
+                float(self.sb),
+                float(cfg.refine_log_range_sigma),
+                float(cfg.position_sigma_m),
+                cam,
+                float(cfg.prior_weight) if use_prior else 0.0,
+                float(cfg.prior_sigma_m),
+                head,
                 float(np.radians(cfg.prior_heading_sigma_deg)) if use_heading else 0.0,
-                float(mu), float(sd), float(cfg.scale_prior_weight) if use_scale else 0.0, iters)
+                float(mu),
+                float(sd),
+                float(cfg.scale_prior_weight) if use_scale else 0.0,
+                iters,
+            )
         return p[:, :2].copy(), geo.wrap_angle(p[:, 2]), np.exp(p[:, 3]) if not self.metric else np.ones(C)
 
 
@@ -382,9 +461,17 @@ def _prior_gate(cams: np.ndarray, radius: float) -> _PriorGate:
     return _GATES[key]
 
 
-def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: SolverConfig | dict | None = None,
-          prior_xy: np.ndarray | None = None, scale_prior: tuple[float, float] | None = None,
-          prior_seen: np.ndarray | None = None) -> Solution | None:
+def solve(
+    query_xy,
+    query_cls,
+    ref_xy,
+    ref_cls,
+    metric: bool = False,
+    config: SolverConfig | dict | None = None,
+    prior_xy: np.ndarray | None = None,
+    scale_prior: tuple[float, float] | None = None,
+    prior_seen: np.ndarray | None = None,
+) -> Solution | None:
     """Camera pose in the reference frame, or None when no hypothesis can be formed.
 
     ``query_xy``: (M, 2) local map; ``query_cls``: (M,) classes; ``ref_xy``/``ref_cls``: the
@@ -423,7 +510,7 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
                 break
             yield pb.pair_hypotheses(i, j)
 
-    pending: list[tuple] = []          # prior-gated batches waiting to be scored together
+    pending: list[tuple] = []  # prior-gated batches waiting to be scored together
 
     def flush():
         """Score the pending batches in one pass (fewer, larger array operations) and keep each
@@ -434,14 +521,21 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
         t = np.concatenate([b[0] for b in pending])
         th = np.concatenate([b[1] for b in pending])
         s = np.concatenate([b[2] for b in pending])
-        cost = np.concatenate([pb.score(t[o:o + cfg.chunk], th[o:o + cfg.chunk], s[o:o + cfg.chunk])[0]
-                               for o in range(0, len(t), cfg.chunk)])
+        cost = np.concatenate(
+            [
+                pb.score(t[o : o + cfg.chunk], th[o : o + cfg.chunk], s[o : o + cfg.chunk])[0]
+                for o in range(0, len(t), cfg.chunk)
+            ]
+        )
         start = 0
         for bt, _, _ in pending:
-            for o in range(0, len(bt), cfg.chunk):    # top_k per batch chunk, as before
+            for o in range(0, len(bt), cfg.chunk):  # top_k per batch chunk, as before
                 lo, hi = start + o, start + min(o + cfg.chunk, len(bt))
-                top = lo + np.argsort(cost[lo:hi], kind="stable")[:cfg.top_k]
-                cand_cost.append(cost[top]); cand_t.append(t[top]); cand_th.append(th[top]); cand_s.append(s[top])
+                top = lo + np.argsort(cost[lo:hi], kind="stable")[: cfg.top_k]
+                cand_cost.append(cost[top])
+                cand_t.append(t[top])
+                cand_th.append(th[top])
+                cand_s.append(s[top])
                 best_so_far = min(best_so_far, float(cost[top[0]]) if len(top) else np.inf)
             start += len(bt)
         pending.clear()
@@ -478,8 +572,11 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     for w in order.tolist():  # the top_k distinct hypotheses (not within 1 m / 2 deg of a better one)
         if len(chosen) >= cfg.top_k:
             break
-        if any(math.hypot(tx[w] - tx[v], ty[w] - ty[v]) < 1.0
-               and abs((tth[w] - tth[v] + math.pi) % two_pi - math.pi) < two_deg for v in chosen):
+        if any(
+            math.hypot(tx[w] - tx[v], ty[w] - ty[v]) < 1.0
+            and abs((tth[w] - tth[v] + math.pi) % two_pi - math.pi) < two_deg
+            for v in chosen
+        ):
             continue
         chosen.append(w)
     ch = np.array(chosen, int)
@@ -487,7 +584,9 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     c_r, inl_r, match_r = pb.score(t_r, th_r, s_r)
     results = []
     for k in range(len(ch)):
-        if not np.all(np.isfinite(t_r[k])) or (prior is not None and prior.query(t_r[k], k=1)[0] > 2 * cfg.prior_radius_m):
+        if not np.all(np.isfinite(t_r[k])) or (
+            prior is not None and prior.query(t_r[k], k=1)[0] > 2 * cfg.prior_radius_m
+        ):
             continue
         results.append((float(c_r[k]), t_r[k], float(th_r[k]), float(s_r[k]), inl_r[k], match_r[k]))
     if not results:
@@ -497,7 +596,7 @@ def solve(query_xy, query_cls, ref_xy, ref_cls, metric: bool = False, config: So
     inliers = [(int(k), int(match[k])) for k in range(pb.m) if inl[k]]
     # confidence: share of explained objects, lowered when a distinct pose is nearly as good
     conf = len(inliers) / pb.m
-    for c2, t2, th2, *_ in results[1:]:
+    for c2, t2, *_ in results[1:]:
         if np.hypot(*(t2 - t)) > 2.0:
             conf *= float(1 - np.exp(-(c2 - c) / 2.0))
             break
@@ -514,8 +613,17 @@ def warm_up() -> None:
     q, q_cls = rng.uniform(1, 20, (5, 2)), ref_cls[:5]
     prior, seen = rng.uniform(-50, 50, (20, 3)), rng.random((20, 30)) < 0.3
     for metric in (True, False):
-        solve(q, q_cls, ref, ref_cls, metric=metric, config={"covis_weight": 1.0, "prior_heading_sigma_deg": 20.0},
-              prior_xy=prior, scale_prior=(2.0, 0.5), prior_seen=seen)
+        solve(
+            q,
+            q_cls,
+            ref,
+            ref_cls,
+            metric=metric,
+            config={"covis_weight": 1.0, "prior_heading_sigma_deg": 20.0},
+            prior_xy=prior,
+            scale_prior=(2.0, 0.5),
+            prior_seen=seen,
+        )
 
 
 def fit_priors(train_local_maps_m: list[np.ndarray]) -> tuple[float, float]:

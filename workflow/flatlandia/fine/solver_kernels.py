@@ -133,8 +133,29 @@ def _wrap(a):
 
 
 @njit(cache=True)
-def refine_gauss_newton(p, R, inl, metric, qx, qy, q_bear, q_range, eps, sb, sr, sp,
-                        cam, prior_w, prior_sigma, head, head_sigma, scale_mu, scale_sd, scale_w, iters):
+def refine_gauss_newton(
+    p,
+    R,
+    inl,
+    metric,
+    qx,
+    qy,
+    q_bear,
+    q_range,
+    eps,
+    sb,
+    sr,
+    sp,
+    cam,
+    prior_w,
+    prior_sigma,
+    head,
+    head_sigma,
+    scale_mu,
+    scale_sd,
+    scale_w,
+    iters,
+):
     """Robust Gauss-Newton (soft-L1 IRLS, analytic Jacobians) of each hypothesis on its matches.
 
     ``p`` (C, 4): x, y, theta, log scale (updated in place); ``R`` (C, M, 2) matched candidates;

@@ -26,7 +26,10 @@ def point_votes(rec, class_maps: dict[str, np.ndarray]) -> pd.DataFrame:
             if cmap is None:
                 continue
             x, y = img.points2D[el.point2D_idx].xy
-            r, c = int(np.clip(round(y - 0.5), 0, cmap.shape[0] - 1)), int(np.clip(round(x - 0.5), 0, cmap.shape[1] - 1))
+            r, c = (
+                int(np.clip(round(y - 0.5), 0, cmap.shape[0] - 1)),
+                int(np.clip(round(x - 0.5), 0, cmap.shape[1] - 1)),
+            )
             labels.append(int(cmap[r, c]))
         cls, votes = NOT_AN_OBJECT, 0
         if labels:
@@ -35,8 +38,17 @@ def point_votes(rec, class_maps: dict[str, np.ndarray]) -> pd.DataFrame:
             top = counts[order[0]]
             if top * 2 > len(labels) and (len(order) == 1 or counts[order[1]] < top):
                 cls, votes = int(vals[order[0]]), int(top)
-        rows.append({"point3D_id": int(pid), "x": p.xyz[0], "y": p.xyz[1], "z": p.xyz[2],
-                     "class_id": cls, "votes": votes, "observations": len(labels)})
+        rows.append(
+            {
+                "point3D_id": int(pid),
+                "x": p.xyz[0],
+                "y": p.xyz[1],
+                "z": p.xyz[2],
+                "class_id": cls,
+                "votes": votes,
+                "observations": len(labels),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -108,9 +120,19 @@ def write_classified_ply(points: pd.DataFrame, path: Path) -> None:
     rng = np.random.default_rng(0)
     palette = rng.integers(40, 255, size=(256, 3))
     palette[NOT_AN_OBJECT] = (51, 51, 51)  # background grey, as in the published clouds
-    lines = ["ply", "format ascii 1.0", f"element vertex {len(points)}", "property float x", "property float y",
-             "property float z", "property uchar red", "property uchar green", "property uchar blue",
-             "property uchar class_id", "end_header"]
+    lines = [
+        "ply",
+        "format ascii 1.0",
+        f"element vertex {len(points)}",
+        "property float x",
+        "property float y",
+        "property float z",
+        "property uchar red",
+        "property uchar green",
+        "property uchar blue",
+        "property uchar class_id",
+        "end_header",
+    ]
     for r in points.itertuples(index=False):
         col = palette[r.class_id]
         lines.append(f"{r.x:.6f} {r.y:.6f} {r.z:.6f} {col[0]} {col[1]} {col[2]} {r.class_id}")

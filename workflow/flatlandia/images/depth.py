@@ -12,8 +12,8 @@ Two backends behind one call, ``lift(view, box) -> world point or None``:
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -45,7 +45,7 @@ def lift_box(view: View, box: list[float], depth_map: np.ndarray) -> np.ndarray 
     """World point of a detection: its centre pixel's ray at the box's median (scaled) depth."""
     h, w = depth_map.shape
     x0, y0, x1, y1 = (int(np.clip(round(v), 0, m)) for v, m in zip(box, (w, h, w, h)))
-    patch = depth_map[y0:max(y1, y0 + 1), x0:max(x1, x0 + 1)]
+    patch = depth_map[y0 : max(y1, y0 + 1), x0 : max(x1, x0 + 1)]
     patch = patch[np.isfinite(patch) & (patch > 0)]
     if patch.size == 0:
         return None
@@ -59,15 +59,21 @@ class MonocularDepth:
 
     def __init__(self, weights: str | Path | None, inverse: bool = True):
         if not weights:
-            raise InputError("config images.depth.weights", "the transformers depth backend needs a local "
-                                                            "checkpoint folder; nothing is downloaded")
+            raise InputError(
+                "config images.depth.weights",
+                "the transformers depth backend needs a local checkpoint folder; nothing is downloaded",
+            )
         self.weights = Path(weights)
         if not (self.weights / "config.json").exists():
-            raise InputError(self.weights, "not a transformers checkpoint folder (no config.json); nothing is downloaded")
+            raise InputError(
+                self.weights, "not a transformers checkpoint folder (no config.json); nothing is downloaded"
+            )
         try:
             from transformers import AutoImageProcessor, AutoModelForDepthEstimation
         except ImportError as e:  # pragma: no cover - transformers is pinned in envs/requirements.txt
-            raise InputError(self.weights, f"the transformers depth backend needs `pip install transformers` ({e})") from e
+            raise InputError(
+                self.weights, f"the transformers depth backend needs `pip install transformers` ({e})"
+            ) from e
         self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True)
         self.model = AutoModelForDepthEstimation.from_pretrained(self.weights, local_files_only=True).eval()
         self.inverse = inverse
@@ -92,8 +98,13 @@ class MonocularDepth:
         return scaled_depth(pred, fit_scale(pred[r, c], d, self.inverse), self.inverse)
 
 
-def make_lifter(backend: str, point_xyz: dict[int, np.ndarray], images_dir: str | Path | None = None,
-                weights: str | None = None, inverse: bool = True) -> Callable[[View, list[float]], np.ndarray | None]:
+def make_lifter(
+    backend: str,
+    point_xyz: dict[int, np.ndarray],
+    images_dir: str | Path | None = None,
+    weights: str | None = None,
+    inverse: bool = True,
+) -> Callable[[View, list[float]], np.ndarray | None]:
     """The ``lift(view, box)`` function of a backend (``sparse`` or ``transformers``)."""
     if backend == "sparse":
         return lambda view, box: sparse_depth_point(view, box, point_xyz)

@@ -14,10 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia.objects import principal_plane
 from flatlandia import geo
-from flatlandia.objects import clustering
 from flatlandia.errors import InputError
+from flatlandia.objects import clustering, principal_plane
 
 NOT_AN_OBJECT = 255
 
@@ -58,11 +57,19 @@ def compass_to_theta(heading_deg: np.ndarray) -> np.ndarray:
     return np.radians(90.0 - np.asarray(heading_deg, float))
 
 
-def fit_gps_alignment(centres: np.ndarray, rotations: np.ndarray, lonlat: np.ndarray,
-                      altitude: np.ndarray | None = None, compass_deg: np.ndarray | None = None,
-                      threshold_m: float = 15.0, iterations: int = 2000, seed: int = 0,
-                      use_heading: bool = False, heading_threshold_deg: float = 45.0,
-                      source: str = "cameras") -> dict:
+def fit_gps_alignment(
+    centres: np.ndarray,
+    rotations: np.ndarray,
+    lonlat: np.ndarray,
+    altitude: np.ndarray | None = None,
+    compass_deg: np.ndarray | None = None,
+    threshold_m: float = 15.0,
+    iterations: int = 2000,
+    seed: int = 0,
+    use_heading: bool = False,
+    heading_threshold_deg: float = 45.0,
+    source: str = "cameras",
+) -> dict:
     """Align SfM cameras to their GPS positions; returns the affine map and its residuals.
 
     ``centres`` (N, 3) and ``rotations`` (N, 3, 3, cam_from_world) of the cameras that have GPS
@@ -76,8 +83,10 @@ def fit_gps_alignment(centres: np.ndarray, rotations: np.ndarray, lonlat: np.nda
         raise InputError(source, f"{len(centres)} cameras but {len(lonlat)} GPS positions")
     ok = np.isfinite(centres).all(1) & np.isfinite(lonlat).all(1)
     if ok.sum() < 3:
-        raise InputError(source, f"only {int(ok.sum())} registered camera(s) with GPS: at least 3 are needed "
-                                 "to align the model to GPS")
+        raise InputError(
+            source,
+            f"only {int(ok.sum())} registered camera(s) with GPS: at least 3 are needed to align the model to GPS",
+        )
     rot = np.asarray(rotations, float).reshape(-1, 3, 3)
     up = camera_up(rot[ok])
     P = plane_basis(up)
@@ -91,10 +100,18 @@ def fit_gps_alignment(centres: np.ndarray, rotations: np.ndarray, lonlat: np.nda
         comp = np.asarray(compass_deg, float).reshape(-1)[ok]
         dst_theta = compass_to_theta(comp)
     heading_fit = use_heading and dst_theta is not None and np.isfinite(dst_theta).all()
-    sim = principal_plane.ransac_similarity(src, dst, threshold=threshold_m, iterations=iterations, seed=seed,
-                                  allow_reflection=False, src_heading=src_theta if heading_fit else None,
-                                  dst_heading=dst_theta if heading_fit else None,
-                                  heading_threshold_deg=heading_threshold_deg, source=source)
+    sim = principal_plane.ransac_similarity(
+        src,
+        dst,
+        threshold=threshold_m,
+        iterations=iterations,
+        seed=seed,
+        allow_reflection=False,
+        src_heading=src_theta if heading_fit else None,
+        dst_heading=dst_theta if heading_fit else None,
+        heading_threshold_deg=heading_threshold_deg,
+        source=source,
+    )
     A = sim.scale * sim.rotation @ P
     b = np.asarray(sim.translation, float)
     res = np.full(len(centres), np.nan)
@@ -102,12 +119,21 @@ def fit_gps_alignment(centres: np.ndarray, rotations: np.ndarray, lonlat: np.nda
     inl = np.zeros(len(centres), bool)
     inl[np.flatnonzero(ok)[sim.inliers]] = True
     out = {
-        "A": A.tolist(), "b": b.tolist(), "up": up.tolist(), "frame_lon0": frame.lon0, "frame_lat0": frame.lat0,
-        "crs": frame.proj4, "metres_per_sfm_unit": float(sim.scale), "rotation_deg": sim.angle_deg(),
-        "cameras_with_gps": int(ok.sum()), "inliers": int(inl.sum()),
-        "median_residual_m": float(np.nanmedian(res)), "max_residual_m": float(np.nanmax(res)),
+        "A": A.tolist(),
+        "b": b.tolist(),
+        "up": up.tolist(),
+        "frame_lon0": frame.lon0,
+        "frame_lat0": frame.lat0,
+        "crs": frame.proj4,
+        "metres_per_sfm_unit": float(sim.scale),
+        "rotation_deg": sim.angle_deg(),
+        "cameras_with_gps": int(ok.sum()),
+        "inliers": int(inl.sum()),
+        "median_residual_m": float(np.nanmedian(res)),
+        "max_residual_m": float(np.nanmax(res)),
         "inlier_median_residual_m": float(np.median(res[inl])) if inl.any() else float("nan"),
-        "residuals_m": [None if not np.isfinite(r) else float(r) for r in res], "inlier_mask": inl.tolist(),
+        "residuals_m": [None if not np.isfinite(r) else float(r) for r in res],
+        "inlier_mask": inl.tolist(),
         "heading_used": bool(heading_fit),
     }
     if dst_theta is not None:
@@ -145,13 +171,32 @@ def majority_class(class_ids: np.ndarray) -> int:
     return int(vals[np.argmax(counts)])
 
 
-OBJECT_MAP_COLUMNS = ["scene", "object_id", "macro_class", "class_id", "class_label", "n_points", "cx", "cy", "cz",
-                      "lon", "lat", "x_m", "y_m"]
+OBJECT_MAP_COLUMNS = [
+    "scene",
+    "object_id",
+    "macro_class",
+    "class_id",
+    "class_label",
+    "n_points",
+    "cx",
+    "cy",
+    "cz",
+    "lon",
+    "lat",
+    "x_m",
+    "y_m",
+]
 
 
-def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: clustering.ClusterParams,
-                  class_labels: list[str], source: str = "points",
-                  instances: pd.DataFrame | None = None) -> tuple[pd.DataFrame, np.ndarray]:
+def scene_objects(
+    scene: str,
+    points: pd.DataFrame,
+    alignment: dict,
+    params: clustering.ClusterParams,
+    class_labels: list[str],
+    source: str = "points",
+    instances: pd.DataFrame | None = None,
+) -> tuple[pd.DataFrame, np.ndarray]:
     """Cluster the classified SfM points of an images scene into objects on the aligned map.
 
     Returns (objects with box columns, 42-class label and lon/lat/x/y; object id per point).
@@ -163,7 +208,9 @@ def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: clu
     xyz = points[["x", "y", "z"]].to_numpy(float)
     labels = point_labels(points)
     if not (labels != clustering.BACKGROUND).any():
-        empty = pd.DataFrame(columns=OBJECT_MAP_COLUMNS + [c for c in clustering.OBJECT_COLUMNS if c not in OBJECT_MAP_COLUMNS])
+        empty = pd.DataFrame(
+            columns=OBJECT_MAP_COLUMNS + [c for c in clustering.OBJECT_COLUMNS if c not in OBJECT_MAP_COLUMNS]
+        )
         return empty, np.full(len(points), -1, np.int64)
     split = None
     if instances is not None and len(instances):
@@ -175,11 +222,13 @@ def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: clu
         def split(members: np.ndarray) -> list[np.ndarray]:
             return clustering.instance_parts(members, xyz, obs_point, obs_key, params.min_cluster_points)
 
-    objs, member = clustering.cluster_objects(xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source,
-                                     split=split, with_members=True)
+    objs, member = clustering.cluster_objects(
+        xyz, labels, float(alignment["metres_per_sfm_unit"]), params, source=source, split=split, with_members=True
+    )
     cls = points["class_id"].to_numpy(int)
-    objs["class_id"] = [majority_class(cls[member == oid]) if (member == oid).any() else NOT_AN_OBJECT
-                        for oid in objs["object_id"]]
+    objs["class_id"] = [
+        majority_class(cls[member == oid]) if (member == oid).any() else NOT_AN_OBJECT for oid in objs["object_id"]
+    ]
     objs["class_label"] = [class_labels[c] if c < len(class_labels) else "" for c in objs["class_id"]]
     xy = map_points(alignment, objs[["cx", "cy", "cz"]].to_numpy())
     ll = frame_of(alignment).to_lonlat(xy)
@@ -189,8 +238,14 @@ def scene_objects(scene: str, points: pd.DataFrame, alignment: dict, params: clu
     return objs[OBJECT_MAP_COLUMNS + rest].reset_index(drop=True), member
 
 
-def gps_outliers(centres: np.ndarray, rotations: np.ndarray, lonlat: np.ndarray, max_residual_m: float,
-                 threshold_m: float = 15.0, seed: int = 0) -> np.ndarray:
+def gps_outliers(
+    centres: np.ndarray,
+    rotations: np.ndarray,
+    lonlat: np.ndarray,
+    max_residual_m: float,
+    threshold_m: float = 15.0,
+    seed: int = 0,
+) -> np.ndarray:
     """Cameras the SfM put far from their own GPS fix once the model is aligned to GPS.
 
     Cameras without GPS are never flagged; with fewer than 3 geotagged cameras no alignment

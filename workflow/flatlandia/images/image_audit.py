@@ -79,13 +79,16 @@ def read_exif_metadata(path: str | Path) -> dict:
     gps = {ExifTags.GPSTAGS.get(k, k): v for k, v in exif.get_ifd(GPS_IFD).items()}
     sub = {ExifTags.TAGS.get(k, k): v for k, v in exif.get_ifd(EXIF_IFD).items()}
     rec = {
-        "name": path.name, "width": width, "height": height,
+        "name": path.name,
+        "width": width,
+        "height": height,
         "camera": " ".join(str(tags.get(k, "")).strip() for k in ("Make", "Model")).strip() or None,
         "lat": _dms(gps.get("GPSLatitude"), gps.get("GPSLatitudeRef", "N")),
         "lon": _dms(gps.get("GPSLongitude"), gps.get("GPSLongitudeRef", "E")),
         "alt": _float(gps.get("GPSAltitude")),
         "heading": _float(gps.get("GPSImgDirection")),
-        "heading_accuracy": None, "gps_accuracy_m": _float(gps.get("GPSDOP")),
+        "heading_accuracy": None,
+        "gps_accuracy_m": _float(gps.get("GPSDOP")),
         "capture_time": _parse_time(sub.get("DateTimeOriginal") or tags.get("DateTime")),
         "focal_35mm": _float(sub.get("FocalLengthIn35mmFilm")),
     }
@@ -116,8 +119,20 @@ def read_folder_metadata(folder: str | Path, csv_name: str = "metadata.csv") -> 
         except InputError as e:  # one broken file in a crowd folder: drop it, say why
             recs.append({"name": p.name, "unreadable": e.problem})
     df = pd.DataFrame(recs)
-    for col in ("width", "height", "camera", "lat", "lon", "alt", "heading", "heading_accuracy",
-                "gps_accuracy_m", "capture_time", "focal_35mm", "unreadable"):
+    for col in (
+        "width",
+        "height",
+        "camera",
+        "lat",
+        "lon",
+        "alt",
+        "heading",
+        "heading_accuracy",
+        "gps_accuracy_m",
+        "capture_time",
+        "focal_35mm",
+        "unreadable",
+    ):
         if col not in df.columns:
             df[col] = None
     csv = folder / csv_name
@@ -187,8 +202,11 @@ def audit_table(folder: str | Path, dedup_threshold: float, missing_gps: str = "
     df.loc[broken, "drop_reason"] = "unreadable image: " + df.loc[broken, "unreadable"].astype(str)
     no_gps = ~df["has_gps"] & ~broken
     if no_gps.any() and missing_gps == "stop":
-        raise InputError(folder, f"images without a GPS position: {list(df.loc[no_gps, 'name'])[:10]} "
-                                 "(set images.missing_gps to keep or drop to go on without them)")
+        raise InputError(
+            folder,
+            f"images without a GPS position: {list(df.loc[no_gps, 'name'])[:10]} "
+            "(set images.missing_gps to keep or drop to go on without them)",
+        )
     if missing_gps == "drop":
         df.loc[no_gps, "drop_reason"] = "no GPS position"
     ok = df["drop_reason"] == ""

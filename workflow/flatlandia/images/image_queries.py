@@ -57,8 +57,18 @@ def views_from_colmap(rec) -> list[View]:
         pts = [(p.point3D_id, p.xy) for p in img.points2D if p.has_point3D()]
         ids = np.array([p[0] for p in pts], dtype=np.int64)
         xy = np.array([p[1] for p in pts], dtype=float).reshape(-1, 2)
-        out.append(View(img.name, np.asarray(cam.calibration_matrix()), mat[:, :3], mat[:, 3],
-                        int(cam.width), int(cam.height), ids, xy))
+        out.append(
+            View(
+                img.name,
+                np.asarray(cam.calibration_matrix()),
+                mat[:, :3],
+                mat[:, 3],
+                int(cam.width),
+                int(cam.height),
+                ids,
+                xy,
+            )
+        )
     return out
 
 
@@ -109,8 +119,9 @@ def detections(view: View, objects: pd.DataFrame, point_object: dict[int, int], 
 def sparse_depth_point(view: View, box: list[float], point_xyz: dict[int, np.ndarray]) -> np.ndarray | None:
     """The detection centre lifted to the median depth of SfM points observed inside the box."""
     x0, y0, x1, y1 = box
-    inside = ((view.obs_xy[:, 0] >= x0) & (view.obs_xy[:, 0] <= x1) &
-              (view.obs_xy[:, 1] >= y0) & (view.obs_xy[:, 1] <= y1))
+    inside = (
+        (view.obs_xy[:, 0] >= x0) & (view.obs_xy[:, 0] <= x1) & (view.obs_xy[:, 1] >= y0) & (view.obs_xy[:, 1] <= y1)
+    )
     ids = view.obs_point_ids[inside]
     if len(ids) == 0:
         return None
@@ -123,18 +134,30 @@ def sparse_depth_point(view: View, box: list[float], point_xyz: dict[int, np.nda
     return view.R.T @ (cam - view.t)  # world (SfM) coordinates
 
 
-def scene_queries(scene: str, views: list[View], objects: pd.DataFrame, point_object: dict[int, int],
-                  point_xyz: dict[int, np.ndarray], A: np.ndarray, b: np.ndarray, obj_xy: dict[int, np.ndarray],
-                  obj_class: dict[int, int], min_objects: int = 3, min_points: int = 2,
-                  lift=None) -> pd.DataFrame:
+def scene_queries(
+    scene: str,
+    views: list[View],
+    objects: pd.DataFrame,
+    point_object: dict[int, int],
+    point_xyz: dict[int, np.ndarray],
+    A: np.ndarray,
+    b: np.ndarray,
+    obj_xy: dict[int, np.ndarray],
+    obj_class: dict[int, int],
+    min_objects: int = 3,
+    min_points: int = 2,
+    lift=None,
+) -> pd.DataFrame:
     """The queries table of an images scene, in the published scenes' schema (see README).
 
     ``lift(view, box)`` gives a detection's world point for the depth local map (default: the
     sparse SfM depth; see :mod:`flatlandia.images.depth` for the monocular backend).
     """
     if lift is None:
+
         def lift(view, box):
             return sparse_depth_point(view, box, point_xyz)
+
     rows = []
     for v in views:
         det = detections(v, objects, point_object, min_points)
@@ -148,12 +171,32 @@ def scene_queries(scene: str, views: list[View], objects: pd.DataFrame, point_ob
             X = lift(v, box)
             depth.append([np.nan, np.nan] if X is None else geo.world_to_local((A @ X + b)[None], cam_xy, theta)[0])
         depth = np.asarray(depth, float)
-        rows.append({
-            "scene": scene, "token": v.name, "n_objects": len(ids), "ref_idx": ids,
-            "classes": [int(obj_class[i]) for i in ids], "x_m": float(cam_xy[0]), "y_m": float(cam_xy[1]),
-            "theta_deg": float(np.degrees(theta)), "gt_local_xy_m": gt.tolist(), "depth_local_xy_m": depth.tolist(),
-            "boxes": det["box"].tolist(),
-        })
-    cols = ["scene", "token", "n_objects", "ref_idx", "classes", "x_m", "y_m", "theta_deg", "gt_local_xy_m",
-            "depth_local_xy_m", "boxes"]
+        rows.append(
+            {
+                "scene": scene,
+                "token": v.name,
+                "n_objects": len(ids),
+                "ref_idx": ids,
+                "classes": [int(obj_class[i]) for i in ids],
+                "x_m": float(cam_xy[0]),
+                "y_m": float(cam_xy[1]),
+                "theta_deg": float(np.degrees(theta)),
+                "gt_local_xy_m": gt.tolist(),
+                "depth_local_xy_m": depth.tolist(),
+                "boxes": det["box"].tolist(),
+            }
+        )
+    cols = [
+        "scene",
+        "token",
+        "n_objects",
+        "ref_idx",
+        "classes",
+        "x_m",
+        "y_m",
+        "theta_deg",
+        "gt_local_xy_m",
+        "depth_local_xy_m",
+        "boxes",
+    ]
     return pd.DataFrame(rows, columns=cols)

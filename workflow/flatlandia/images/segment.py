@@ -47,8 +47,13 @@ VISTAS_ALIASES = {
     "banner": ["object--banner"],
 }
 VISTAS_V12_MISSING = [c for c in CLASSES if c.startswith("marking--discrete--")] + [
-    "give-way-row", "give-way-single", "stop-line", "object--sign--information",
-    "object--traffic-sign--information-parking", "object--traffic-sign--direction"]
+    "give-way-row",
+    "give-way-single",
+    "stop-line",
+    "object--sign--information",
+    "object--traffic-sign--information-parking",
+    "object--traffic-sign--direction",
+]
 
 NOT_AN_OBJECT = 255
 
@@ -72,7 +77,7 @@ def watermark_mask(shape: tuple[int, int], box: list[float] | None) -> np.ndarra
     m = np.zeros((h, w), dtype=bool)
     if box:
         x0, y0, x1, y1 = box
-        m[int(round(y0 * h)):int(round(y1 * h)), int(round(x0 * w)):int(round(x1 * w))] = True
+        m[int(round(y0 * h)) : int(round(y1 * h)), int(round(x0 * w)) : int(round(x1 * w))] = True
     return m
 
 
@@ -116,7 +121,7 @@ def offline_labels(rgb: np.ndarray) -> np.ndarray:
     out[sky] = 1
     out[veg] = 2
     for x, y, w, h in detect_people(rgb):
-        out[y:y + h, x:x + w] = 3
+        out[y : y + h, x : x + w] = 3
     return out
 
 
@@ -173,7 +178,9 @@ class TransformersBackend(Backend):
             raise InputError("config segment.weights", "the transformers backend needs a local checkpoint folder")
         self.weights = Path(weights)
         if not (self.weights / "config.json").exists():
-            raise InputError(self.weights, "not a transformers checkpoint folder (no config.json); nothing is downloaded")
+            raise InputError(
+                self.weights, "not a transformers checkpoint folder (no config.json); nothing is downloaded"
+            )
         try:
             import torch
             from transformers import AutoImageProcessor, AutoModelForUniversalSegmentation
@@ -208,7 +215,9 @@ def make_backend(name: str, weights: str | None = None, labels_dir: str | None =
     raise InputError("config segment.backend", f"unknown backend {name!r} (offline, precomputed, transformers)")
 
 
-def mask_and_classes(ids: np.ndarray, names: list[str], watermark_box: list[float] | None) -> tuple[np.ndarray, np.ndarray, dict]:
+def mask_and_classes(
+    ids: np.ndarray, names: list[str], watermark_box: list[float] | None
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """(pycolmap mask uint8 0/255, Flatlandia class map uint8, pixel shares per masked kind)."""
     dyn = dynamic_of(names)[ids]
     wm = watermark_mask(ids.shape, watermark_box)

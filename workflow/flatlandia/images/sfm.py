@@ -22,8 +22,10 @@ def check_version() -> None:
     import pycolmap
 
     if pycolmap.__version__ != TESTED_PYCOLMAP:
-        raise RuntimeError(f"pycolmap {pycolmap.__version__} is installed, but the SfM stage is tested with "
-                           f"{TESTED_PYCOLMAP} only (envs/requirements.txt pins it)")
+        raise RuntimeError(
+            f"pycolmap {pycolmap.__version__} is installed, but the SfM stage is tested with "
+            f"{TESTED_PYCOLMAP} only (envs/requirements.txt pins it)"
+        )
 
 
 @dataclass
@@ -38,8 +40,7 @@ class SfmOptions:
     height_mad_k: float = 6.0  # cameras this many MADs off the camera plane are removed
 
 
-def run_sfm(image_dir: Path, image_names: list[str], mask_dir: Path | None, work: Path,
-            opts: SfmOptions, log=print):
+def run_sfm(image_dir: Path, image_names: list[str], mask_dir: Path | None, work: Path, opts: SfmOptions, log=print):
     """Extract, match and map; returns the largest reconstruction (pycolmap.Reconstruction)."""
     import pycolmap
 
@@ -60,8 +61,15 @@ def run_sfm(image_dir: Path, image_names: list[str], mask_dir: Path | None, work
     extraction.num_threads = opts.num_threads
     extraction.sift.max_num_features = opts.max_num_features
     log(f"extracting SIFT features from {len(image_names)} images (masks: {mask_dir})")
-    pycolmap.extract_features(db, image_dir, image_names=image_names, camera_mode=pycolmap.CameraMode.AUTO,
-                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
+    pycolmap.extract_features(
+        db,
+        image_dir,
+        image_names=image_names,
+        camera_mode=pycolmap.CameraMode.AUTO,
+        reader_options=reader,
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
     log(f"matching ({opts.matcher})")
     verification = pycolmap.TwoViewGeometryOptions()
     verification.ransac.random_seed = opts.seed
@@ -92,8 +100,11 @@ def run_sfm(image_dir: Path, image_names: list[str], mask_dir: Path | None, work
 
 
 def camera_centres(rec) -> pd.DataFrame:
-    rows = [{"image_id": int(i), "name": img.name, **dict(zip("xyz", img.projection_center()))}
-            for i, img in rec.images.items() if img.has_pose]
+    rows = [
+        {"image_id": int(i), "name": img.name, **dict(zip("xyz", img.projection_center()))}
+        for i, img in rec.images.items()
+        if img.has_pose
+    ]
     return pd.DataFrame(rows)
 
 
@@ -127,8 +138,11 @@ def gps_priors(rec, gps: pd.DataFrame, sigma_m: float = 5.0, alt_sigma_m: float 
 
     from flatlandia import geo
 
-    rows = [(img, gps.loc[img.name]) for img in rec.images.values()
-            if img.has_pose and img.name in gps.index and np.isfinite(gps.loc[img.name, ["lon", "lat"]].astype(float)).all()]
+    rows = [
+        (img, gps.loc[img.name])
+        for img in rec.images.values()
+        if img.has_pose and img.name in gps.index and np.isfinite(gps.loc[img.name, ["lon", "lat"]].astype(float)).all()
+    ]
     if len(rows) < 3:
         return [], None
     frame = geo.frame_for(np.array([[float(r["lon"]), float(r["lat"])] for _, r in rows]))
@@ -139,10 +153,14 @@ def gps_priors(rec, gps: pd.DataFrame, sigma_m: float = 5.0, alt_sigma_m: float 
         xy = frame.to_xy(np.array([[float(r["lon"]), float(r["lat"])]]))[0]
         acc = float(r.get("gps_accuracy_m", np.nan)) if pd.notna(r.get("gps_accuracy_m", np.nan)) else sigma_m
         s_alt = alt_sigma_m if np.isfinite(alt) else 1e3  # no altitude: effectively unconstrained
-        priors.append(pycolmap.PosePrior(
-            position=np.array([xy[0], xy[1], alt if np.isfinite(alt) else alt0]),
-            position_covariance=np.diag([acc ** 2, acc ** 2, s_alt ** 2]),
-            coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN, corr_data_id=img.data_id))
+        priors.append(
+            pycolmap.PosePrior(
+                position=np.array([xy[0], xy[1], alt if np.isfinite(alt) else alt0]),
+                position_covariance=np.diag([acc**2, acc**2, s_alt**2]),
+                coordinate_system=pycolmap.PosePriorCoordinateSystem.CARTESIAN,
+                corr_data_id=img.data_id,
+            )
+        )
     return priors, frame
 
 
@@ -169,13 +187,19 @@ def final_bundle_adjustment(rec, priors=None, ransac_max_error_m: float = 15.0, 
 
 def stats_table(rec, n_input: int, removed: pd.DataFrame) -> pd.DataFrame:
     """One-row summary of the model, plus the removed cameras and why."""
-    return pd.DataFrame([{
-        "images_input": n_input, "registered": rec.num_reg_images(), "points3D": rec.num_points3D(),
-        "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
-        "mean_track_length": float(rec.compute_mean_track_length()),
-        "removed_cameras": int(len(removed)),
-        "removed": "; ".join(f"{r.name}: {r.reason}" for r in removed.itertuples()) if len(removed) else "",
-    }])
+    return pd.DataFrame(
+        [
+            {
+                "images_input": n_input,
+                "registered": rec.num_reg_images(),
+                "points3D": rec.num_points3D(),
+                "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()),
+                "mean_track_length": float(rec.compute_mean_track_length()),
+                "removed_cameras": int(len(removed)),
+                "removed": "; ".join(f"{r.name}: {r.reason}" for r in removed.itertuples()) if len(removed) else "",
+            }
+        ]
+    )
 
 
 def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, path: Path, title: str) -> None:
@@ -203,8 +227,11 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
         ax.set_xlim(-lim, lim)
         ax.set_ylim(-lim, lim)
     ax.set_aspect("equal")
-    ax.set_title(f"SfM (camera plane, SfM units): {stats['registered']}/{stats['images_input']} registered, "
-                 f"{stats['mean_reprojection_error_px']:.2f} px", fontsize=9)
+    ax.set_title(
+        f"SfM (camera plane, SfM units): {stats['registered']}/{stats['images_input']} registered, "
+        f"{stats['mean_reprojection_error_px']:.2f} px",
+        fontsize=9,
+    )
     ax.legend(fontsize=8)
     ax = axes[1]
     gps = cameras.dropna(subset=["lat", "lon"])
@@ -213,8 +240,18 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
         ax.plot(xy[:, 0], xy[:, 1], "-o", ms=3, c="tab:blue", label="GPS (EXIF)")
         if "heading" in gps and gps["heading"].notna().any():
             th = np.radians(90.0 - gps["heading"].to_numpy(float))  # compass -> CCW from east
-            ax.quiver(xy[:, 0], xy[:, 1], np.cos(th), np.sin(th), color="tab:blue", alpha=0.6, width=0.004,
-                      angles="xy", scale_units="xy", scale=0.15)
+            ax.quiver(
+                xy[:, 0],
+                xy[:, 1],
+                np.cos(th),
+                np.sin(th),
+                color="tab:blue",
+                alpha=0.6,
+                width=0.004,
+                angles="xy",
+                scale_units="xy",
+                scale=0.15,
+            )
         ax.legend(fontsize=8)
     ax.set_aspect("equal")
     ax.set_xlabel("x east (m)")

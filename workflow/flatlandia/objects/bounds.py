@@ -37,10 +37,10 @@ class MergeTree:
     Radii are in the units of the points given to :func:`single_linkage_tree`.
     """
 
-    mean: np.ndarray   # (n_nodes, d) mean of the node's values
-    size: np.ndarray   # (n_nodes,) number of points
-    born: np.ndarray   # radius at which the node forms (0 for a single point)
-    dies: np.ndarray   # radius at which it merges into a larger node (inf: not below max_radius)
+    mean: np.ndarray  # (n_nodes, d) mean of the node's values
+    size: np.ndarray  # (n_nodes,) number of points
+    born: np.ndarray  # radius at which the node forms (0 for a single point)
+    dies: np.ndarray  # radius at which it merges into a larger node (inf: not below max_radius)
 
 
 def single_linkage_tree(points: np.ndarray, values: np.ndarray, max_radius: float) -> MergeTree:
@@ -84,8 +84,9 @@ def single_linkage_tree(points: np.ndarray, values: np.ndarray, max_radius: floa
             dies.append(np.inf)
             parent[b] = a
             node[a] = len(size) - 1
-    return MergeTree(np.asarray(mean, float).reshape(len(size), vals.shape[1]), np.asarray(size),
-                     np.asarray(born), np.asarray(dies))
+    return MergeTree(
+        np.asarray(mean, float).reshape(len(size), vals.shape[1]), np.asarray(size), np.asarray(born), np.asarray(dies)
+    )
 
 
 def exact_objects(tree: MergeTree, ref_xy: np.ndarray, tol: float = 1e-3, min_size: int = 3) -> pd.DataFrame:
@@ -95,8 +96,9 @@ def exact_objects(tree: MergeTree, ref_xy: np.ndarray, tol: float = 1e-3, min_si
 
     ref_xy = np.asarray(ref_xy, float).reshape(-1, tree.mean.shape[1])
     keep = np.flatnonzero(tree.size >= min_size)
-    out = pd.DataFrame({"dist": np.full(len(ref_xy), np.inf), "exact": False,
-                        "radius_lo": np.nan, "radius_hi": np.nan, "size": 0})
+    out = pd.DataFrame(
+        {"dist": np.full(len(ref_xy), np.inf), "exact": False, "radius_lo": np.nan, "radius_hi": np.nan, "size": 0}
+    )
     if len(keep) == 0 or len(ref_xy) == 0:
         return out
     d, j = cKDTree(tree.mean[keep]).query(ref_xy)
@@ -108,8 +110,15 @@ def exact_objects(tree: MergeTree, ref_xy: np.ndarray, tol: float = 1e-3, min_si
     return out
 
 
-def published_colours(ref_xy: np.ndarray, fallback: np.ndarray, points: np.ndarray, labels: np.ndarray,
-                      xy: np.ndarray, max_radius: float, tol: float = 1e-3) -> np.ndarray:
+def published_colours(
+    ref_xy: np.ndarray,
+    fallback: np.ndarray,
+    points: np.ndarray,
+    labels: np.ndarray,
+    xy: np.ndarray,
+    max_radius: float,
+    tol: float = 1e-3,
+) -> np.ndarray:
     """Macro-class (cloud colour) of each published object for the audit's same-class matching.
 
     A published object that is the exact mean (``tol``, metres of ``xy``) of a single-linkage
@@ -129,8 +138,13 @@ def published_colours(ref_xy: np.ndarray, fallback: np.ndarray, points: np.ndarr
     return out
 
 
-def best_radius_reproduction(cluster_means, ref_xy: np.ndarray, radii: np.ndarray,
-                             thresholds: tuple[float, ...] = (0.05, 0.5), match_radius: float = 2.0) -> pd.DataFrame:
+def best_radius_reproduction(
+    cluster_means,
+    ref_xy: np.ndarray,
+    radii: np.ndarray,
+    thresholds: tuple[float, ...] = (0.05, 0.5),
+    match_radius: float = 2.0,
+) -> pd.DataFrame:
     """Reproduction of one class at each radius: ``cluster_means(r)`` -> (K, 2) metric means of
     the clusters at radius ``r``; matched one-to-one (Hungarian) to ``ref_xy`` within
     ``match_radius``. One row per radius: clusters, matched within each threshold."""
@@ -177,8 +191,9 @@ def read_colmap_tracks(path: str | Path) -> tuple[np.ndarray, list[np.ndarray]]:
     return xyz, images
 
 
-def cluster_features(members: list[np.ndarray], points: np.ndarray, metres_per_unit: float,
-                     images: list[np.ndarray] | None = None) -> pd.DataFrame:
+def cluster_features(
+    members: list[np.ndarray], points: np.ndarray, metres_per_unit: float, images: list[np.ndarray] | None = None
+) -> pd.DataFrame:
     """What the cloud (and its SfM tracks, when given per point) knows about each cluster."""
     rows = []
     for idx in members:

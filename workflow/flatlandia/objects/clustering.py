@@ -74,25 +74,70 @@ def _ids(*labels: str) -> tuple[int, ...]:
 MACRO_CLASSES: tuple[MacroClass, ...] = (
     MacroClass("light", (255, 255, 0), _ids("object--street-light")),
     MacroClass("manhole", (255, 255, 255), _ids("object--manhole")),
-    MacroClass("sign", (255, 0, 0), _ids(
-        "banner", "object--sign--advertisement", "object--sign--information", "object--sign--store",
-        "object--traffic-sign", "object--traffic-sign--direction", "object--bench")),
-    MacroClass("traffic_light", (0, 0, 255), _ids(
-        "object--traffic-sign--information-parking", "object--traffic-light--general-upright",
-        "object--traffic-light--general-horizontal", "object--traffic-light--general-single",
-        "object--traffic-light--general-other", "object--traffic-light--pedestrians",
-        "object--traffic-light--cyclists")),
-    MacroClass("pole", (255, 0, 255), _ids(
-        "object--support--traffic-sign-frame", "object--support--pole", "object--junction-box",
-        "object--water-valve", "object--bike-rack", "object--catch-basin", "object--cctv-camera",
-        "object--fire-hydrant", "object--mailbox", "object--parking-meter", "object--phone-booth")),
-    MacroClass("marking_trash", (0, 255, 0), _ids(
-        "driveway", "marking--discrete--arrow--left", "marking--discrete--arrow--right",
-        "marking--discrete--arrow--split-left-or-straight",
-        "marking--discrete--arrow--split-right-or-straight", "marking--discrete--arrow--straight",
-        "crosswalk-plain", "crosswalk-zebra", "give-way-row", "give-way-single", "stop-line",
-        "marking--discrete--symbol--bicycle", "marking--discrete--text", "other-marking",
-        "object--trash-can")),
+    MacroClass(
+        "sign",
+        (255, 0, 0),
+        _ids(
+            "banner",
+            "object--sign--advertisement",
+            "object--sign--information",
+            "object--sign--store",
+            "object--traffic-sign",
+            "object--traffic-sign--direction",
+            "object--bench",
+        ),
+    ),
+    MacroClass(
+        "traffic_light",
+        (0, 0, 255),
+        _ids(
+            "object--traffic-sign--information-parking",
+            "object--traffic-light--general-upright",
+            "object--traffic-light--general-horizontal",
+            "object--traffic-light--general-single",
+            "object--traffic-light--general-other",
+            "object--traffic-light--pedestrians",
+            "object--traffic-light--cyclists",
+        ),
+    ),
+    MacroClass(
+        "pole",
+        (255, 0, 255),
+        _ids(
+            "object--support--traffic-sign-frame",
+            "object--support--pole",
+            "object--junction-box",
+            "object--water-valve",
+            "object--bike-rack",
+            "object--catch-basin",
+            "object--cctv-camera",
+            "object--fire-hydrant",
+            "object--mailbox",
+            "object--parking-meter",
+            "object--phone-booth",
+        ),
+    ),
+    MacroClass(
+        "marking_trash",
+        (0, 255, 0),
+        _ids(
+            "driveway",
+            "marking--discrete--arrow--left",
+            "marking--discrete--arrow--right",
+            "marking--discrete--arrow--split-left-or-straight",
+            "marking--discrete--arrow--split-right-or-straight",
+            "marking--discrete--arrow--straight",
+            "crosswalk-plain",
+            "crosswalk-zebra",
+            "give-way-row",
+            "give-way-single",
+            "stop-line",
+            "marking--discrete--symbol--bicycle",
+            "marking--discrete--text",
+            "other-marking",
+            "object--trash-can",
+        ),
+    ),
 )
 MACRO_BY_RGB = {m.rgb: m for m in MACRO_CLASSES}
 MACRO_BY_NAME = {m.name: m for m in MACRO_CLASSES}
@@ -102,8 +147,7 @@ MACRO_OF_CLASS = {c: m.name for m in MACRO_CLASSES for c in m.classes}
 
 def macro_of_class(class_ids: np.ndarray) -> np.ndarray:
     """Macro-class name of each 42-class id (background label for 255 / unknown ids)."""
-    return np.array([MACRO_OF_CLASS.get(int(c), BACKGROUND) for c in np.asarray(class_ids).reshape(-1)],
-                    dtype=object)
+    return np.array([MACRO_OF_CLASS.get(int(c), BACKGROUND) for c in np.asarray(class_ids).reshape(-1)], dtype=object)
 
 
 def metres_per_unit(transformations: dict) -> float:
@@ -113,9 +157,24 @@ def metres_per_unit(transformations: dict) -> float:
 
 # --------------------------------------------------------------------------- PLY reading
 
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
-              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+_PLY_TYPES = {
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "i2",
+    "int16": "i2",
+    "ushort": "u2",
+    "uint16": "u2",
+    "int": "i4",
+    "int32": "i4",
+    "uint": "u4",
+    "uint32": "u4",
+    "float": "f4",
+    "float32": "f4",
+    "double": "f8",
+    "float64": "f8",
+}
 
 
 def _read_ply_vertices(path: Path) -> pd.DataFrame:
@@ -128,7 +187,7 @@ def _read_ply_vertices(path: Path) -> pd.DataFrame:
         raise InputError(path, "not a PLY file (no 'ply' magic or no end_header)")
     nl = raw.find(b"\n", end)
     header = raw[:end].decode("ascii", errors="replace").splitlines()
-    body = raw[nl + 1:]
+    body = raw[nl + 1 :]
     fmt, elements, current = None, [], None
     for line in header:
         tok = line.split()
@@ -159,7 +218,7 @@ def _read_ply_vertices(path: Path) -> pd.DataFrame:
     if fmt == "ascii":
         lines = body.decode("ascii", errors="replace").split("\n")[:n]
         try:
-            arr = np.array([[float(v) for v in ln.split()[:len(names)]] for ln in lines], dtype=float)
+            arr = np.array([[float(v) for v in ln.split()[: len(names)]] for ln in lines], dtype=float)
         except ValueError as e:
             raise InputError(path, f"malformed ASCII vertex line ({e})") from e
         if arr.shape != (n, len(names)):
@@ -200,8 +259,11 @@ def read_classified_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             elif k in MACRO_BY_RGB:
                 names.append(MACRO_BY_RGB[k].name)
             else:
-                raise InputError(path, f"colour {k} is neither background {BACKGROUND_RGB} nor a macro-class "
-                                       f"colour {sorted(MACRO_BY_RGB)}")
+                raise InputError(
+                    path,
+                    f"colour {k} is neither background {BACKGROUND_RGB} nor a macro-class "
+                    f"colour {sorted(MACRO_BY_RGB)}",
+                )
         labels = np.array(names, dtype=object)[inv.reshape(-1)]
     return pts, labels
 
@@ -223,9 +285,9 @@ class ClusterParams:
     plain single-radius clusters, and re-clustering long ones lowered the reproduction.
     """
 
-    eps_m: float = 1.24          # DBSCAN neighbourhood radius (signs, lights, markings)
+    eps_m: float = 1.24  # DBSCAN neighbourhood radius (signs, lights, markings)
     eps_m_by_class: dict = field(default_factory=lambda: dict(DEFAULT_EPS_BY_CLASS))
-    min_points: int = 3          # DBSCAN core-point neighbourhood size (the point included)
+    min_points: int = 3  # DBSCAN core-point neighbourhood size (the point included)
     min_cluster_points: int = 3  # clusters with fewer points are dropped (not objects)
     split_extent_m: float = float("inf")  # clusters longer than this are re-clustered ...
     split_eps_factor: float = 0.5  # ... with eps * this factor (merged same-class neighbours)
@@ -247,7 +309,7 @@ def oriented_box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
         return mean, np.zeros(3), np.eye(3)
     _, _, vt = np.linalg.svd(pts - mean, full_matrices=False)
     rot = np.eye(3)
-    rot[:, :vt.shape[0]] = vt.T
+    rot[:, : vt.shape[0]] = vt.T
     if vt.shape[0] == 2:  # two points: complete the frame
         rot[:, 2] = np.cross(rot[:, 0], rot[:, 1])
     if np.linalg.det(rot) < 0:
@@ -290,13 +352,27 @@ def _clusters_of_class(pts: np.ndarray, mpu: float, p: ClusterParams, eps_m: flo
     return out
 
 
-OBJECT_COLUMNS = ["object_id", "macro_class", "n_points", "cx", "cy", "cz",
-                  "box_cx", "box_cy", "box_cz", "box_ex", "box_ey", "box_ez",
-                  *[f"box_r{i}{j}" for i in range(3) for j in range(3)], "extent_max_m"]
+OBJECT_COLUMNS = [
+    "object_id",
+    "macro_class",
+    "n_points",
+    "cx",
+    "cy",
+    "cz",
+    "box_cx",
+    "box_cy",
+    "box_cz",
+    "box_ex",
+    "box_ey",
+    "box_ez",
+    *[f"box_r{i}{j}" for i in range(3) for j in range(3)],
+    "extent_max_m",
+]
 
 
-def instance_parts(members: np.ndarray, points: np.ndarray, obs_point: np.ndarray, obs_key: np.ndarray,
-                   min_points: int) -> list[np.ndarray]:
+def instance_parts(
+    members: np.ndarray, points: np.ndarray, obs_point: np.ndarray, obs_key: np.ndarray, min_points: int
+) -> list[np.ndarray]:
     """Split one cluster by the image instances its points were seen on (the paper checks its
     clusters against instance masks to separate neighbouring same-class objects).
 
@@ -337,9 +413,15 @@ def instance_parts(members: np.ndarray, points: np.ndarray, obs_point: np.ndarra
     return [members[owner == b] for b in big]
 
 
-def cluster_objects(points: np.ndarray, labels: np.ndarray, metres_per_unit: float,
-                    params: ClusterParams | None = None, source: str = "cloud", split=None,
-                    with_members: bool = False) -> pd.DataFrame | tuple[pd.DataFrame, np.ndarray]:
+def cluster_objects(
+    points: np.ndarray,
+    labels: np.ndarray,
+    metres_per_unit: float,
+    params: ClusterParams | None = None,
+    source: str = "cloud",
+    split=None,
+    with_members: bool = False,
+) -> pd.DataFrame | tuple[pd.DataFrame, np.ndarray]:
     """Cluster each macro-class separately into objects; one row per object (SfM coordinates).
 
     ``split`` (optional): indices of one cluster's points -> list of index arrays, its objects
@@ -361,8 +443,11 @@ def cluster_objects(points: np.ndarray, labels: np.ndarray, metres_per_unit: flo
         raise InputError(source, f"{bad} point(s) with NaN/inf coordinates")
     if not (np.isfinite(metres_per_unit) and metres_per_unit > 0):
         raise InputError(source, f"metres per SfM unit must be positive, got {metres_per_unit}")
-    if p.min_points < 1 or p.min_cluster_points < 1 or not all(
-            np.isfinite(e) and e > 0 for e in [p.eps_m, *(p.eps_m_by_class or {}).values()]):
+    if (
+        p.min_points < 1
+        or p.min_cluster_points < 1
+        or not all(np.isfinite(e) and e > 0 for e in [p.eps_m, *(p.eps_m_by_class or {}).values()])
+    ):
         raise ValueError(f"bad clustering parameters {p}")
     fg = labels != BACKGROUND
     if not fg.any():
@@ -396,8 +481,22 @@ def box_corners(row) -> np.ndarray:
 
 
 #: 12 triangles of a box over the corner order of :func:`box_corners` (index = 4*sx + 2*sy + sz).
-_BOX_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
-                       [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+_BOX_FACES = np.array(
+    [
+        [0, 1, 3],
+        [0, 3, 2],
+        [4, 6, 7],
+        [4, 7, 5],
+        [0, 4, 5],
+        [0, 5, 1],
+        [2, 3, 7],
+        [2, 7, 6],
+        [0, 2, 6],
+        [0, 6, 4],
+        [1, 5, 7],
+        [1, 7, 3],
+    ]
+)
 
 
 def write_boxes_ply(objects: pd.DataFrame, path: str | Path) -> None:
@@ -413,12 +512,14 @@ def write_boxes_ply(objects: pd.DataFrame, path: str | Path) -> None:
         sl = slice(8 * k, 8 * k + 8)
         verts["x"][sl], verts["y"][sl], verts["z"][sl] = corners.T
         verts["red"][sl], verts["green"][sl], verts["blue"][sl] = rgb
-        faces["n"][12 * k:12 * k + 12] = 3
-        faces["v"][12 * k:12 * k + 12] = _BOX_FACES + 8 * k
-    header = ("ply\nformat binary_little_endian 1.0\ncomment Flatlandia objects: 8 vertices + 12 triangles per box\n"
-              f"element vertex {8 * n}\nproperty double x\nproperty double y\nproperty double z\n"
-              "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-              f"element face {12 * n}\nproperty list uchar uint vertex_indices\nend_header\n")
+        faces["n"][12 * k : 12 * k + 12] = 3
+        faces["v"][12 * k : 12 * k + 12] = _BOX_FACES + 8 * k
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment Flatlandia objects: 8 vertices + 12 triangles per box\n"
+        f"element vertex {8 * n}\nproperty double x\nproperty double y\nproperty double z\n"
+        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+        f"element face {12 * n}\nproperty list uchar uint vertex_indices\nend_header\n"
+    )
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             f.write(header.encode("ascii"))
@@ -429,8 +530,13 @@ def write_boxes_ply(objects: pd.DataFrame, path: str | Path) -> None:
 # --------------------------------------------------------------------------- labels and maps
 
 
-def colour_class_counts(cloud_lonlat: np.ndarray, cloud_labels: np.ndarray, ref_lonlat: np.ndarray,
-                        ref_classes: np.ndarray, frame: geo.MetricFrame) -> pd.DataFrame:
+def colour_class_counts(
+    cloud_lonlat: np.ndarray,
+    cloud_labels: np.ndarray,
+    ref_lonlat: np.ndarray,
+    ref_classes: np.ndarray,
+    frame: geo.MetricFrame,
+) -> pd.DataFrame:
     """Measure the colour <-> class relation: macro-class of the nearest classified point per object.
 
     Returns one row per (class_id, macro_class) with a count and the median distance (m).
@@ -442,10 +548,16 @@ def colour_class_counts(cloud_lonlat: np.ndarray, cloud_labels: np.ndarray, ref_
         raise ValueError("no classified points to measure colours on")
     tree = cKDTree(frame.to_xy(np.asarray(cloud_lonlat)[fg]))
     d, j = tree.query(frame.to_xy(ref_lonlat))
-    df = pd.DataFrame({"class_id": np.asarray(ref_classes, int),
-                       "macro_class": np.asarray(cloud_labels, dtype=object)[fg][j], "dist_m": d})
-    return df.groupby(["class_id", "macro_class"], as_index=False).agg(count=("dist_m", "size"),
-                                                                       median_dist_m=("dist_m", "median"))
+    df = pd.DataFrame(
+        {
+            "class_id": np.asarray(ref_classes, int),
+            "macro_class": np.asarray(cloud_labels, dtype=object)[fg][j],
+            "dist_m": d,
+        }
+    )
+    return df.groupby(["class_id", "macro_class"], as_index=False).agg(
+        count=("dist_m", "size"), median_dist_m=("dist_m", "median")
+    )
 
 
 def class_prior(other_scene_classes: list[np.ndarray]) -> dict[str, int]:
@@ -465,8 +577,9 @@ def class_prior(other_scene_classes: list[np.ndarray]) -> dict[str, int]:
     return prior
 
 
-def objects_reference_map(objects: pd.DataFrame, transformations: dict, frame: geo.MetricFrame,
-                          prior: dict[str, int] | None = None) -> pd.DataFrame:
+def objects_reference_map(
+    objects: pd.DataFrame, transformations: dict, frame: geo.MetricFrame, prior: dict[str, int] | None = None
+) -> pd.DataFrame:
     """Our objects as a reference map: lon/lat (published chain) + metric x/y + a 42-class label.
 
     Positions come only from our clustered centroids pushed through the chain; ``prior`` (from
@@ -477,14 +590,19 @@ def objects_reference_map(objects: pd.DataFrame, transformations: dict, frame: g
     xy = frame.to_xy(lonlat) if len(cen) else np.zeros((0, 2))
     prior = prior or {}
     cid = np.array([prior.get(m, -1) for m in objects["macro_class"]], dtype=np.int64)
-    return pd.DataFrame({
-        "object_id": objects["object_id"].to_numpy(np.int64),
-        "macro_class": objects["macro_class"].astype(str).to_numpy(),
-        "class_id": cid,
-        "class_label": [CLASSES[c] if c >= 0 else "" for c in cid],
-        "n_points": objects["n_points"].to_numpy(np.int64),
-        "lon": lonlat[:, 0], "lat": lonlat[:, 1], "x_m": xy[:, 0], "y_m": xy[:, 1],
-    })
+    return pd.DataFrame(
+        {
+            "object_id": objects["object_id"].to_numpy(np.int64),
+            "macro_class": objects["macro_class"].astype(str).to_numpy(),
+            "class_id": cid,
+            "class_label": [CLASSES[c] if c >= 0 else "" for c in cid],
+            "n_points": objects["n_points"].to_numpy(np.int64),
+            "lon": lonlat[:, 0],
+            "lat": lonlat[:, 1],
+            "x_m": xy[:, 0],
+            "y_m": xy[:, 1],
+        }
+    )
 
 
 # --------------------------------------------------------------------------- reproduction audit
@@ -492,9 +610,15 @@ def objects_reference_map(objects: pd.DataFrame, transformations: dict, frame: g
 AUDIT_THRESHOLDS_M = (0.05, 0.5, 2.0)
 
 
-def published_macro_classes(ref_xy: np.ndarray, ref_classes: np.ndarray, cloud_xy: np.ndarray | None = None,
-                            cloud_labels: np.ndarray | None = None, max_dist_m: float = 2.0,
-                            cloud_points: np.ndarray | None = None, exact_radius: float | None = None) -> np.ndarray:
+def published_macro_classes(
+    ref_xy: np.ndarray,
+    ref_classes: np.ndarray,
+    cloud_xy: np.ndarray | None = None,
+    cloud_labels: np.ndarray | None = None,
+    max_dist_m: float = 2.0,
+    cloud_points: np.ndarray | None = None,
+    exact_radius: float | None = None,
+) -> np.ndarray:
     """Macro-class of each published object: the label of the nearest classified cloud point
     (the objects were made from those points) when one lies within ``max_dist_m``, else the
     macro-class of its 42-class label. With ``cloud_points`` (the same points in SfM
@@ -513,8 +637,9 @@ def published_macro_classes(ref_xy: np.ndarray, ref_classes: np.ndarray, cloud_x
         if cloud_points is not None and exact_radius is not None:
             from flatlandia.objects.bounds import published_colours
 
-            out = published_colours(ref_xy, out, np.asarray(cloud_points, float), cloud_labels,
-                                    np.asarray(cloud_xy, float), exact_radius)
+            out = published_colours(
+                ref_xy, out, np.asarray(cloud_points, float), cloud_labels, np.asarray(cloud_xy, float), exact_radius
+            )
     return out
 
 
@@ -522,9 +647,15 @@ def published_macro_classes(ref_xy: np.ndarray, ref_classes: np.ndarray, cloud_x
 EXACT_SEARCH_RADIUS_M = 2.5
 
 
-def audit_scene(scene: str, ours_xy: np.ndarray, ours_macro: np.ndarray, ref_xy: np.ndarray,
-                ref_macro: np.ndarray, radius_m: float = 2.0,
-                thresholds: tuple[float, ...] = AUDIT_THRESHOLDS_M) -> dict:
+def audit_scene(
+    scene: str,
+    ours_xy: np.ndarray,
+    ours_macro: np.ndarray,
+    ref_xy: np.ndarray,
+    ref_macro: np.ndarray,
+    radius_m: float = 2.0,
+    thresholds: tuple[float, ...] = AUDIT_THRESHOLDS_M,
+) -> dict:
     """Match our objects to the published ones (same macro-class, Hungarian on metric distance,
     pairs farther than ``radius_m`` never match) and count the matches within each threshold."""
     from scipy.optimize import linear_sum_assignment
@@ -542,8 +673,7 @@ def audit_scene(scene: str, ours_xy: np.ndarray, ours_macro: np.ndarray, ref_xy:
         ok = d[r, c] <= radius_m
         dists.extend(d[r[ok], c[ok]])
     dists = np.array(dists)
-    row = {"scene": str(scene), "published": int(len(ref_xy)), "ours": int(len(ours_xy)),
-           "matched": int(len(dists))}
+    row = {"scene": str(scene), "published": int(len(ref_xy)), "ours": int(len(ours_xy)), "matched": int(len(dists))}
     for t in thresholds:
         row[f"within_{t:g}m"] = int((dists <= t).sum())
     row["median_dist_m"] = float(np.median(dists)) if len(dists) else float("nan")
@@ -574,7 +704,9 @@ def plot_audit(ours_xy: np.ndarray, ref_xy: np.ndarray, path: str | Path, title:
     plt.close(fig)
 
 
-def audit_published_scene(root: str | Path, scene: str, params: ClusterParams | None = None) -> tuple[dict, pd.DataFrame]:
+def audit_published_scene(
+    root: str | Path, scene: str, params: ClusterParams | None = None
+) -> tuple[dict, pd.DataFrame]:
     """Run the whole chain on one published scene and audit it (used by tests and the audit rule)."""
     from flatlandia import io
 
@@ -588,8 +720,14 @@ def audit_published_scene(root: str | Path, scene: str, params: ClusterParams | 
     fg = labels != BACKGROUND
     cloud_xy = frame.to_xy(geo.sfm_to_lonlat(pts[fg], t))
     ref_xy = frame.to_xy(ref_ll)
-    ref_macro = published_macro_classes(ref_xy, ref_cl, cloud_xy, labels[fg], cloud_points=pts[fg],
-                                        exact_radius=EXACT_SEARCH_RADIUS_M / metres_per_unit(t))
+    ref_macro = published_macro_classes(
+        ref_xy,
+        ref_cl,
+        cloud_xy,
+        labels[fg],
+        cloud_points=pts[fg],
+        exact_radius=EXACT_SEARCH_RADIUS_M / metres_per_unit(t),
+    )
     row = audit_scene(scene, ours[["x_m", "y_m"]].to_numpy(), ours["macro_class"].to_numpy(), ref_xy, ref_macro)
     return row, ours
 
@@ -609,7 +747,9 @@ def plot_audit_grid(panels: list[tuple[str, np.ndarray, np.ndarray]], path: str 
         ax.set_visible(False)
     for ax, (title, ours_xy, ref_xy) in zip(axes.ravel(), panels):
         ax.set_visible(True)
-        ax.scatter(ref_xy[:, 0], ref_xy[:, 1], s=30, facecolor="none", edgecolor="k", label=f"published ({len(ref_xy)})")
+        ax.scatter(
+            ref_xy[:, 0], ref_xy[:, 1], s=30, facecolor="none", edgecolor="k", label=f"published ({len(ref_xy)})"
+        )
         ax.scatter(ours_xy[:, 0], ours_xy[:, 1], s=5, color="tab:red", label=f"ours ({len(ours_xy)})")
         ax.set_aspect("equal")
         ax.set_title(title, fontsize=9)

@@ -54,14 +54,20 @@ def _collinearity(p: np.ndarray) -> float:
 
 @dataclass
 class Plane:
-    normal: np.ndarray     # unit (3,)
-    point: np.ndarray      # a point on the plane (3,)
-    inliers: np.ndarray    # bool (N,)
-    rms: float             # RMS distance of the inliers (input units)
+    normal: np.ndarray  # unit (3,)
+    point: np.ndarray  # a point on the plane (3,)
+    inliers: np.ndarray  # bool (N,)
+    rms: float  # RMS distance of the inliers (input units)
 
 
-def fit_plane(points: np.ndarray, threshold: float | None = None, iterations: int = 500, seed: int = 0,
-              source: str = "points", min_spread: float = 1e-3) -> Plane:
+def fit_plane(
+    points: np.ndarray,
+    threshold: float | None = None,
+    iterations: int = 500,
+    seed: int = 0,
+    source: str = "points",
+    min_spread: float = 1e-3,
+) -> Plane:
     """Robust plane: RANSAC on 3-point samples, then least squares (SVD) on the inliers.
 
     ``threshold`` defaults to 2x the median absolute distance to a first least-squares plane
@@ -69,8 +75,10 @@ def fit_plane(points: np.ndarray, threshold: float | None = None, iterations: in
     """
     p = _check_points(points, 3, 3, source, "points")
     if _collinearity(p) < min_spread:
-        raise InputError(source, f"degenerate plane: the {len(p)} points lie on a line "
-                                 f"(spread ratio {_collinearity(p):.2e} < {min_spread})")
+        raise InputError(
+            source,
+            f"degenerate plane: the {len(p)} points lie on a line (spread ratio {_collinearity(p):.2e} < {min_spread})",
+        )
     c = p.mean(0)
     n0 = np.linalg.svd(p - c, full_matrices=False)[2][2]
     if threshold is None:
@@ -115,8 +123,9 @@ def irls_plane(points: np.ndarray, scale: float, iterations: int = 20, source: s
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"scale must be positive, got {scale}")
     if _collinearity(p) < 1e-3:
-        raise InputError(source, f"degenerate plane: the {len(p)} points lie on a line "
-                                 f"(spread ratio {_collinearity(p):.2e})")
+        raise InputError(
+            source, f"degenerate plane: the {len(p)} points lie on a line (spread ratio {_collinearity(p):.2e})"
+        )
     w = np.ones(len(p))
     for _ in range(iterations):
         c = (w[:, None] * p).sum(0) / w.sum()
@@ -128,10 +137,16 @@ def irls_plane(points: np.ndarray, scale: float, iterations: int = 20, source: s
     return Plane(normal=n / np.linalg.norm(n), point=c, inliers=inl, rms=rms)
 
 
-def fit_ground_plane(points: np.ndarray, labels: np.ndarray, metres_per_unit: float,
-                     ground_classes: tuple[str, ...] = GROUND_CLASSES, min_ground_points: int = 25,
-                     ground_scale_m: float = 8.0, fallback_scale_m: float = 1.0,
-                     source: str = "cloud") -> tuple[Plane, str]:
+def fit_ground_plane(
+    points: np.ndarray,
+    labels: np.ndarray,
+    metres_per_unit: float,
+    ground_classes: tuple[str, ...] = GROUND_CLASSES,
+    min_ground_points: int = 25,
+    ground_scale_m: float = 8.0,
+    fallback_scale_m: float = 1.0,
+    source: str = "cloud",
+) -> tuple[Plane, str]:
     """Principal plane of a classified cloud -> (plane, which points were used).
 
     The published ``to_principal_plane`` is the street plane: on the 12 class clouds a Cauchy
@@ -210,8 +225,7 @@ class Similarity:
         return float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
 
 
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True,
-            allow_reflection: bool = False) -> Similarity:
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True, allow_reflection: bool = False) -> Similarity:
     """Closed-form least-squares similarity (Umeyama 1991) taking src onto dst (N, d)."""
     src, dst = np.asarray(src, float), np.asarray(dst, float)
     d = src.shape[1]
@@ -223,7 +237,7 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True,
     if not allow_reflection and np.linalg.det(u) * np.linalg.det(vt) < 0:
         sgn[-1] = -1
     r = u @ np.diag(sgn) @ vt
-    var = (a ** 2).sum() / len(src)
+    var = (a**2).sum() / len(src)
     s = float((sv * sgn).sum() / var) if with_scale and var > 0 else 1.0
     t = md - s * ms @ r.T
     return Similarity(scale=s, rotation=r, translation=t)
@@ -236,10 +250,18 @@ def _heading_residual(sim: Similarity, src_heading: np.ndarray, dst_heading: np.
     return np.abs(geo.wrap_angle(pred - dst_heading))
 
 
-def ransac_similarity(src: np.ndarray, dst: np.ndarray, threshold: float = 10.0, iterations: int = 1000,
-                      seed: int = 0, allow_reflection: bool = True, src_heading: np.ndarray | None = None,
-                      dst_heading: np.ndarray | None = None, heading_threshold_deg: float = 30.0,
-                      source: str = "cameras") -> Similarity:
+def ransac_similarity(
+    src: np.ndarray,
+    dst: np.ndarray,
+    threshold: float = 10.0,
+    iterations: int = 1000,
+    seed: int = 0,
+    allow_reflection: bool = True,
+    src_heading: np.ndarray | None = None,
+    dst_heading: np.ndarray | None = None,
+    heading_threshold_deg: float = 30.0,
+    source: str = "cameras",
+) -> Similarity:
     """Robust similarity src -> dst: minimal-sample Umeyama hypotheses scored by inlier count
     (ties: lower residual sum), refit on the inliers. ``threshold`` is in dst units (metres).
 
@@ -282,8 +304,11 @@ def ransac_similarity(src: np.ndarray, dst: np.ndarray, threshold: float = 10.0,
             continue
         for refl in refl_options:
             if dim == 2:
-                sim = umeyama(src[idx], dst[idx], allow_reflection=False) if not refl else \
-                    _reflected(umeyama(src[idx] * [1, -1], dst[idx]))
+                sim = (
+                    umeyama(src[idx], dst[idx], allow_reflection=False)
+                    if not refl
+                    else _reflected(umeyama(src[idx] * [1, -1], dst[idx]))
+                )
             else:
                 sim = umeyama(src[idx], dst[idx], allow_reflection=refl)
             if not np.isfinite(sim.scale) or sim.scale <= 0:
@@ -339,7 +364,11 @@ def similarity_error(est: Similarity, src: np.ndarray, true_dst: np.ndarray) -> 
     """Errors of an estimated transform against the truth on given points (metres)."""
     e = np.linalg.norm(est.apply(src) - true_dst, axis=1)
     ref = umeyama(src, true_dst, allow_reflection=True)
-    return {"median_m": float(np.median(e)), "max_m": float(e.max()), "rms_m": float(np.sqrt(np.mean(e ** 2))),
-            "scale_ratio": float(est.scale / ref.scale),
-            "rotation_deg": float(abs(geo.wrap_angle(np.radians(est.angle_deg() - ref.angle_deg()))) * 180 / np.pi),
-            "reflection_correct": bool(est.reflection == ref.reflection)}
+    return {
+        "median_m": float(np.median(e)),
+        "max_m": float(e.max()),
+        "rms_m": float(np.sqrt(np.mean(e**2))),
+        "scale_ratio": float(est.scale / ref.scale),
+        "rotation_deg": float(abs(geo.wrap_angle(np.radians(est.angle_deg() - ref.angle_deg()))) * 180 / np.pi),
+        "reflection_correct": bool(est.reflection == ref.reflection),
+    }
