@@ -55,4 +55,4 @@ report: install
 	$(BIN)/snakemake --report results/report.html
 
 clean:
-	rm -rf results logs .snakemake benchmarks/*/
+	rm -rf results logs .snakemake

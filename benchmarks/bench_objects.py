@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from flatlandia import io
-from flatlandia.objects import clustering, principal_plane
+from flatlandia.objects import audit, cloud, principal_plane
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -31,10 +31,10 @@ def main() -> None:
     t_all = time.perf_counter()
     for scene in SCENES:
         t0 = time.perf_counter()
-        row, _ = clustering.audit_published_scene(root, scene)
-        pts, labels = clustering.read_classified_cloud(root / "maps" / scene / "class_segmented_point_cloud.ply")
+        row, _ = audit.audit_published_scene(root, scene)
+        pts, labels = cloud.read_classified_cloud(root / "maps" / scene / "class_segmented_point_cloud.ply")
         t = io.read_transformations(root / "maps" / scene / "transformations.json")
-        plane, _ = principal_plane.fit_ground_plane(pts, labels, clustering.metres_per_unit(t))
+        plane, _ = principal_plane.fit_ground_plane(pts, labels, cloud.metres_per_unit(t))
         row["plane_deg"] = principal_plane.normal_angle_deg(
             plane.normal, principal_plane.published_normal(t["to_principal_plane"])
         )

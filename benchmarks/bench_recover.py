@@ -15,7 +15,7 @@ import numpy as np
 
 from flatlandia import io
 from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps
+from flatlandia.data import recover
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -38,7 +38,7 @@ def main() -> None:
                 for t, m in data[scene].items()
             }
             t1 = time.perf_counter()
-            rec = localmaps.recover_scene(scene, lonlat, classes, local)
+            rec = recover.recover_scene(scene, lonlat, classes, local)
             dt = time.perf_counter() - t1
             assert rec["recovered"].all()
             per_scene[scene] = (len(rec), dt)

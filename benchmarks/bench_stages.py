@@ -1,8 +1,8 @@
-"""Stage timings from Snakemake's benchmark records (benchmarks/{rule}/{wildcards}.tsv) of the last run.
+"""Stage timings from Snakemake's benchmark records (logs/benchmarks/{rule}/{wildcards}.tsv) of the last run.
 
 Prints, per stage, the summed wall time of its jobs (what the stage costs run one job after
-another; `--cores 2` overlaps them), the slowest job and the peak memory, next to the issue
-targets. Run after `snakemake --cores 2 all`:  python benchmarks/bench_stages.py [--dir benchmarks]
+another; `--cores 2` overlaps them), the slowest job and the peak memory, next to the
+targets. Run after `snakemake --cores 2 all`:  python benchmarks/bench_stages.py [--dir logs/benchmarks]
 """
 
 from __future__ import annotations
@@ -13,20 +13,22 @@ from pathlib import Path
 import pandas as pd
 
 STAGES = {
-    "objects from class clouds (12 scenes; target < 120 s)": ["objects", "align", "reproduction_audit"],
+    "objects from class clouds (12 scenes) and Lund's SfM points (target < 120 s)": [
+        "objects",
+        "principal_plane",
+        "reproduction_audit",
+    ],
     "images branch, Lund (target < 300 s)": [
         "images_audit",
         "segment",
         "sfm",
         "classify_points",
-        "images_align",
-        "images_objects",
-        "images_queries",
+        "gps_alignment",
     ],
-    "coarse: similarity target (all scenes)": ["coarse_similarity"],
+    "coarse: similarity target (all scenes)": ["coarse_target"],
     "coarse: training (per loss) and evaluation": ["coarse_train", "coarse_eval"],
     "fine: training and evaluation": ["fine_train", "fine_eval"],
-    "queries: recovery and local maps": ["recover", "queries"],
+    "queries: recovery and local maps (published scenes and Lund)": ["recover", "queries"],
 }
 
 
@@ -48,7 +50,7 @@ def records(root: Path, rule: str) -> pd.DataFrame:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--dir", default="benchmarks", type=Path)
+    ap.add_argument("--dir", default="logs/benchmarks", type=Path)
     args = ap.parse_args()
     for stage, rules in STAGES.items():
         df = pd.concat([records(args.dir, r) for r in rules], ignore_index=True)

@@ -1,4 +1,4 @@
-"""Upper bounds of the reference-map reproduction (issue 3): what any radius could reach.
+"""Upper bounds of the reference-map reproduction: what any radius could reach.
 
 Usage: python benchmarks/reproduction_bounds.py [--root ../shared/flatlandia] [--scenes 12 14] [--out bounds.parquet]
 
@@ -29,7 +29,7 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from flatlandia import geo, io
-from flatlandia.objects import bounds, clustering
+from flatlandia.objects import audit, bounds, cloud, clustering
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -38,15 +38,15 @@ RADII_M = np.round(np.arange(0.20, 2.501, 0.02), 2)
 
 def scene_bounds(root: Path, scene: str, params: clustering.ClusterParams) -> dict:
     maps = root / "maps" / scene
-    pts, labels = clustering.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
+    pts, labels = cloud.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
     t = io.read_transformations(maps / "transformations.json")
     ref_ll, ref_cl = io.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
-    mpu = clustering.metres_per_unit(t)
+    mpu = cloud.metres_per_unit(t)
     frame = geo.frame_for(ref_ll)
     xy, ref_xy = frame.to_xy(geo.sfm_to_lonlat(pts, t)), frame.to_xy(ref_ll)
-    fg = labels != clustering.BACKGROUND
-    ref_macro = clustering.published_macro_classes(
-        ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg], exact_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu
+    fg = labels != cloud.BACKGROUND
+    ref_macro = audit.published_macro_classes(
+        ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg], exact_radius=audit.EXACT_SEARCH_RADIUS_M / mpu
     )
     row = {"scene": scene, "published": len(ref_xy)}
     for k in (

@@ -10,7 +10,7 @@ from flatlandia import geo
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 from flatlandia.images import gps_alignment
-from flatlandia.objects import clustering
+from flatlandia.objects import clustering, labels
 
 FRAME = geo.MetricFrame(lon0=13.195, lat0=55.698)
 
@@ -120,7 +120,7 @@ def test_scene_objects_cluster_label_and_place(walk):
         "frame_lon0": FRAME.lon0,
         "frame_lat0": FRAME.lat0,
     }
-    objs, member = gps_alignment.scene_objects("t", pts, alignment, clustering.ClusterParams(eps_m=1.0), CLASSES)
+    objs, member = labels.images_scene_objects("t", pts, alignment, clustering.ClusterParams(eps_m=1.0), CLASSES)
     assert len(objs) == 3
     got = sorted(zip(np.round(objs["x_m"]).astype(int), np.round(objs["y_m"]).astype(int), objs["class_id"]))
     assert got == sorted([(5, 5, pole), (12, -3, pole), (-8, 4, sign)])
@@ -140,7 +140,7 @@ def test_scene_without_object_points_is_an_empty_result():
         "frame_lon0": FRAME.lon0,
         "frame_lat0": FRAME.lat0,
     }
-    objs, member = gps_alignment.scene_objects("t", pts, alignment, clustering.ClusterParams(), CLASSES)
+    objs, member = labels.images_scene_objects("t", pts, alignment, clustering.ClusterParams(), CLASSES)
     assert objs.empty and (member == -1).all() and {"x_m", "class_id", "box_cx"} <= set(objs.columns)
 
 

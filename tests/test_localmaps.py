@@ -4,18 +4,18 @@ import pytest
 
 from flatlandia import geo, io
 from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps, map_files
+from flatlandia.data import localmaps, queries, recover, reference_map
 
 
 @pytest.fixture(scope="module")
 def scene9(flat_root):
     lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
     frame = geo.frame_for(lonlat)
-    ref = map_files.reference_table("9", lonlat, classes, CLASSES, frame)
+    ref = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
     local = io.read_local_maps(flat_root / "local_maps.json", "9")
-    rec = localmaps.recover_scene("9", lonlat, classes, local)
-    split = localmaps.split_queries(list(rec["token"]), 0, salt="9")
-    return ref, frame, local, localmaps.build_queries("9", rec, ref, local, frame, split)
+    rec = recover.recover_scene("9", lonlat, classes, local)
+    split = queries.split_queries(list(rec["token"]), 0, salt="9")
+    return ref, frame, local, queries.build_queries("9", rec, ref, local, frame, split)
 
 
 def test_metric_local_maps_are_rigid_copies_of_the_reference(scene9):
@@ -37,7 +37,7 @@ def test_metric_local_maps_are_rigid_copies_of_the_reference(scene9):
 def test_published_maps_carried_into_the_metric_frame(scene9, flat_root):
     """The degree-unit published GT map, carried into metres, is our metric GT map (< 1 cm)."""
     ref, frame, local, q = scene9
-    rec = localmaps.recover_scene("9", ref[["lon", "lat"]].to_numpy(), ref["class_id"].to_numpy(), local)
+    rec = recover.recover_scene("9", ref[["lon", "lat"]].to_numpy(), ref["class_id"].to_numpy(), local)
     mpd = frame.metres_per_degree()
     for r, qr in zip(rec.itertuples(), q.itertuples()):
         carried = localmaps.published_to_metric_frame(
@@ -55,7 +55,7 @@ def test_depth_maps_normalised_with_metric_bearings(scene9):
         gt = localmaps.xy(r.gt_local_xy_m)
         errs.append(np.abs(geo.wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - np.arctan2(gt[:, 1], gt[:, 0]))))
         assert r.depth_oracle_scale_m > 0
-    # bearings of depth objects agree with the GT bearings (DATA.md: 0.2-2.2 deg median per scene)
+    # bearings of depth objects agree with the GT bearings (docs/conventions.md; 0.2-2.2 deg median per scene)
     assert np.degrees(np.median(np.concatenate(errs))) < 3.0
 
 
@@ -84,12 +84,12 @@ def test_query_table_schema(scene9):
 
 def test_split_is_seeded_stable_and_proportional():
     toks = [str(1000 + i) for i in range(200)]
-    a = localmaps.split_queries(toks, seed=3, salt="7")
-    b = localmaps.split_queries(list(reversed(toks)), seed=3, salt="7")
+    a = queries.split_queries(toks, seed=3, salt="7")
+    b = queries.split_queries(list(reversed(toks)), seed=3, salt="7")
     assert a == b  # order of input does not matter
     counts = pd.Series(a).value_counts()
     assert (counts["train"], counts["val"], counts["test"]) == (160, 20, 20)
-    assert localmaps.split_queries(toks, seed=4, salt="7") != a
-    assert localmaps.split_queries(toks, seed=3, salt="8") != a
+    assert queries.split_queries(toks, seed=4, salt="7") != a
+    assert queries.split_queries(toks, seed=3, salt="8") != a
     with pytest.raises(ValueError):
-        localmaps.split_queries(toks, 0, (0.5, 0.2, 0.2))
+        queries.split_queries(toks, 0, (0.5, 0.2, 0.2))

@@ -8,8 +8,9 @@ import pytest
 from conftest import data_root
 
 from flatlandia import geo, io
+from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
-from flatlandia.objects import clustering
+from flatlandia.objects import audit, cloud, clustering, labels
 
 ROOT = data_root()
 CLASS_CLOUD_SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -26,7 +27,7 @@ def test_clusters_two_classes_known_answer():
     lone = np.array([[40.0, 40, 0]])
     bg = rng.uniform(-50, 50, size=(50, 3))
     pts = np.vstack([a, b, c, lone, bg])
-    labels = np.array(["sign"] * 35 + ["pole"] * 9 + [clustering.BACKGROUND] * 50, dtype=object)
+    labels = np.array(["sign"] * 35 + ["pole"] * 9 + [cloud.BACKGROUND] * 50, dtype=object)
     df = clustering.cluster_objects(pts, labels, metres_per_unit=0.5)
     assert list(df.columns) == clustering.OBJECT_COLUMNS
     assert sorted(df["n_points"]) == [8, 15, 20]
@@ -150,14 +151,14 @@ def test_ascii_ply_with_class_id(tmp_path):
         "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
         "property uchar class_id\nend_header\n0 0 0 24\n1 1 1 255\n"
     )
-    pts, labels = clustering.read_classified_cloud(p)
-    assert pts.shape == (2, 3) and list(labels) == ["light", clustering.BACKGROUND]
+    pts, labels = cloud.read_classified_cloud(p)
+    assert pts.shape == (2, 3) and list(labels) == ["light", cloud.BACKGROUND]
 
 
 def test_bad_input(tmp_path):
     with pytest.raises(InputError, match="no classified points"):
         clustering.cluster_objects(
-            np.zeros((5, 3)), np.array([clustering.BACKGROUND] * 5, dtype=object), 1.0, source="x.ply"
+            np.zeros((5, 3)), np.array([cloud.BACKGROUND] * 5, dtype=object), 1.0, source="x.ply"
         )
     with pytest.raises(InputError, match="NaN"):
         clustering.cluster_objects(np.array([[np.nan, 0, 0], [0, 0, 0]]), np.array(["sign"] * 2, dtype=object), 1.0)
@@ -167,40 +168,40 @@ def test_bad_input(tmp_path):
     bad = tmp_path / "bad.ply"
     bad.write_text("not a ply")
     with pytest.raises(InputError, match="not a PLY"):
-        clustering.read_classified_cloud(bad)
+        cloud.read_classified_cloud(bad)
     weird = tmp_path / "weird.ply"
     weird.write_text(
         "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n"
         "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n0 0 0 1 2 3\n"
     )
     with pytest.raises(InputError, match="colour"):
-        clustering.read_classified_cloud(weird)
+        cloud.read_classified_cloud(weird)
     with pytest.raises(InputError, match="missing"):
-        clustering.read_classified_cloud(tmp_path / "absent.ply")
+        cloud.read_classified_cloud(tmp_path / "absent.ply")
 
 
 def test_class_prior_uses_other_scenes_only():
-    light = clustering.MACRO_BY_NAME["light"].classes[0]
+    light = cloud.MACRO_BY_NAME["light"].classes[0]
     store, adv = (
-        clustering.CLASSES.index("object--sign--store"),
-        clustering.CLASSES.index("object--sign--advertisement"),
+        CLASSES.index("object--sign--store"),
+        CLASSES.index("object--sign--advertisement"),
     )
-    prior = clustering.class_prior([np.array([store, store, adv]), np.array([adv])])
+    prior = labels.class_prior([np.array([store, store, adv]), np.array([adv])])
     assert prior["sign"] == adv  # 2 vs 2: a tie goes to the lower id (advertisement 15 < store 17)
-    prior = clustering.class_prior([np.array([store, store, adv])])
+    prior = labels.class_prior([np.array([store, store, adv])])
     assert prior["sign"] == store and prior["light"] == light
 
 
 def test_audit_known_answer():
     ref = np.array([[0, 0], [10, 0], [20, 0.0]])
     ours = np.array([[0.01, 0], [10.3, 0], [23, 0], [50, 50.0]])
-    row = clustering.audit_scene(
+    row = audit.audit_scene(
         "t", ours, np.array(["a", "a", "a", "a"], dtype=object), ref, np.array(["a", "a", "a"], dtype=object)
     )
     assert (row["within_0.05m"], row["within_0.5m"], row["within_2m"], row["matched"]) == (1, 2, 2, 2)
     assert row["extra"] == 2 and row["published"] == 3 and row["ours"] == 4
     # a different macro-class never matches
-    row = clustering.audit_scene("t", ours[:1], np.array(["b"], dtype=object), ref[:1], np.array(["a"], dtype=object))
+    row = audit.audit_scene("t", ours[:1], np.array(["b"], dtype=object), ref[:1], np.array(["a"], dtype=object))
     assert row["matched"] == 0
 
 
@@ -210,17 +211,17 @@ def test_audit_known_answer():
 def test_macro_table_matches_measurement():
     """The MACRO_CLASSES table agrees with the colours measured on scene 12 and 13."""
     for scene in ("12", "13"):
-        pts, labels = clustering.read_classified_cloud(ROOT / f"maps/{scene}/class_segmented_point_cloud.ply")
+        pts, labels = cloud.read_classified_cloud(ROOT / f"maps/{scene}/class_segmented_point_cloud.ply")
         t = io.read_transformations(ROOT / f"maps/{scene}/transformations.json")
         ll, cl = io.read_reference_map(ROOT / f"individual_reference_maps/map_{scene}.json")
-        counts = clustering.colour_class_counts(geo.sfm_to_lonlat(pts, t), labels, ll, cl, geo.frame_for(ll))
-        agree = sum(r.count for r in counts.itertuples() if clustering.MACRO_OF_CLASS[r.class_id] == r.macro_class)
+        counts = cloud.colour_class_counts(geo.sfm_to_lonlat(pts, t), labels, ll, cl, geo.frame_for(ll))
+        agree = sum(r.count for r in counts.itertuples() if cloud.MACRO_OF_CLASS[r.class_id] == r.macro_class)
         assert agree / counts["count"].sum() >= 0.9
 
 
 @pytest.fixture(scope="module")
 def audit_rows():
-    rows = [clustering.audit_published_scene(ROOT, s)[0] for s in CLASS_CLOUD_SCENES]
+    rows = [audit.audit_published_scene(ROOT, s)[0] for s in CLASS_CLOUD_SCENES]
     return pd.DataFrame(rows)
 
 
@@ -230,7 +231,7 @@ def test_reproduction_real(audit_rows):
     pub = df["published"].sum()
     # Measured with the default ClusterParams (DBSCAN 1.24 m, poles 0.40 m, manholes and traffic
     # lights 0.88 m, >= 3 points, no split): 619 exact (72.5%), 707 within 0.5 m (82.8%),
-    # 739 within 2 m. The issue's target (90%, <= 10% extra) is not reached (module notes).
+    # 739 within 2 m. The target (90%, <= 10% extra) is not reached (module notes).
     assert df["within_0.05m"].sum() / pub >= 0.72
     assert df["within_0.5m"].sum() / pub >= 0.82
     # without scene 2 (its cloud is 99.7% coloured): 85.6% within 0.5 m, 19.6% extra
@@ -244,7 +245,7 @@ def test_reproduction_real(audit_rows):
 
 
 @pytest.mark.xfail(
-    reason="issue 3 target out of reach from the clouds: best radius per scene and class with the "
+    reason="reproduction target out of reach from the clouds: best radius per scene and class with the "
     "answer gives 87.5%; per-object splits and the kept clusters of scenes 2 and 4 come from the "
     "images (benchmarks/reproduction_bounds.py)",
     strict=True,

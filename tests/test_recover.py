@@ -3,7 +3,7 @@ import pytest
 
 from flatlandia import geo, io
 from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps, registration
+from flatlandia.data import recover, registration
 
 MPD = (73_000.0, 111_200.0)  # metres per degree (lon, lat) near 49 N
 
@@ -52,7 +52,7 @@ def test_symmetric_map_is_flagged_ambiguous_and_classes_resolve_it():
 
 def test_near_tie_resolved_by_exact_residual():
     tri = np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.2]])
-    nudge = 0.03 / (registration.UNIT_DEG * MPD[1])  # 3 cm in unit space
+    nudge = 0.03 / (geo.UNIT_DEG * MPD[1])  # 3 cm in unit space
     ref = np.vstack([tri, tri[2] + [0.0, nudge]])  # a second object 3 cm from the third
     local = tri @ geo.rot2(0.0)
     rec = registration.register(local, registration.PairIndex(ref), MPD)
@@ -67,7 +67,7 @@ def test_all_published_queries_recovered_and_consistent(flat_root, all_local_map
     for scene in sorted(all_local_maps, key=int):
         lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
         local = io.read_local_maps(flat_root / "local_maps.json", scene)
-        rec = localmaps.recover_scene(scene, lonlat, classes, local)
+        rec = recover.recover_scene(scene, lonlat, classes, local)
         assert rec["recovered"].all(), scene
         n += len(rec)
         worst_res = max(worst_res, rec["residual_m"].max())
@@ -98,7 +98,7 @@ def test_recovered_scene12_cameras_match_sfm_poses(flat_root, tmp_path):
     t = io.read_transformations(flat_root / "maps/12/transformations.json")
     centres = {img.name.rsplit(".", 1)[0]: img.projection_center() for img in model.images.values()}
     lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_12.json")
-    rec = localmaps.recover_scene("12", lonlat, classes, io.read_local_maps(flat_root / "local_maps.json", "12"))
+    rec = recover.recover_scene("12", lonlat, classes, io.read_local_maps(flat_root / "local_maps.json", "12"))
     frame = geo.frame_for(lonlat)
     checked = 0
     for r in rec.itertuples():

@@ -10,7 +10,7 @@ from conftest import data_root
 
 from flatlandia import geo, io
 from flatlandia.errors import InputError
-from flatlandia.objects import bounds, clustering
+from flatlandia.objects import audit, bounds, cloud, clustering
 
 ROOT = data_root()
 
@@ -66,7 +66,7 @@ def test_feature_auc_known_answer():
 
 def test_read_colmap_tracks_real_and_bad(tmp_path):
     xyz, images = bounds.read_colmap_tracks(ROOT / "maps/12/SfM/points3D.bin")
-    pts, _ = clustering.read_classified_cloud(ROOT / "maps/12/class_segmented_point_cloud.ply")
+    pts, _ = cloud.read_classified_cloud(ROOT / "maps/12/class_segmented_point_cloud.ply")
     assert len(xyz) == 9329 and len(images) == 9329
     from scipy.spatial import cKDTree
 
@@ -83,14 +83,14 @@ def test_read_colmap_tracks_real_and_bad(tmp_path):
 
 def _scene(scene):
     maps = ROOT / "maps" / scene
-    pts, labels = clustering.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
+    pts, labels = cloud.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
     t = io.read_transformations(maps / "transformations.json")
     ref_ll, ref_cl = io.read_reference_map(ROOT / "individual_reference_maps" / f"map_{scene}.json")
     frame = geo.frame_for(ref_ll)
     return (
         pts,
         labels,
-        clustering.metres_per_unit(t),
+        cloud.metres_per_unit(t),
         frame.to_xy(geo.sfm_to_lonlat(pts, t)),
         frame.to_xy(ref_ll),
         ref_cl,
@@ -102,7 +102,7 @@ def test_dbscan_objects_are_tree_nodes_real():
     tree, alive at the radius used (the tree enumerates what any radius can give)."""
     pts, labels, mpu, xy, _, _ = _scene("12")
     p = clustering.ClusterParams()
-    for name in sorted(set(labels) - {clustering.BACKGROUND}):
+    for name in sorted(set(labels) - {cloud.BACKGROUND}):
         ci = np.flatnonzero(labels == name)
         tree = bounds.single_linkage_tree(pts[ci], xy[ci], max_radius=2.5 / mpu)
         eps = p.eps_for(name) / mpu
@@ -116,20 +116,20 @@ def test_published_colours_scene2_real():
     """Scene 2: 59 published objects are the exact mean of a cluster of one colour; 16 of them
     have a nearest coloured point of another colour (the audit used to match them wrongly)."""
     pts, labels, mpu, xy, ref_xy, ref_cl = _scene("2")
-    fg = labels != clustering.BACKGROUND
-    nearest = clustering.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg])
+    fg = labels != cloud.BACKGROUND
+    nearest = audit.published_macro_classes(ref_xy, ref_cl, xy[fg], labels[fg])
     exact = bounds.published_colours(
         ref_xy,
         np.full(len(ref_xy), "?", dtype=object),
         pts[fg],
         labels[fg],
         xy[fg],
-        max_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu,
+        max_radius=audit.EXACT_SEARCH_RADIUS_M / mpu,
     )
     made = exact != "?"
     assert made.sum() == 59
     assert (exact[made] != nearest[made]).sum() == 16
-    both = clustering.published_macro_classes(
-        ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg], exact_radius=clustering.EXACT_SEARCH_RADIUS_M / mpu
+    both = audit.published_macro_classes(
+        ref_xy, ref_cl, xy[fg], labels[fg], cloud_points=pts[fg], exact_radius=audit.EXACT_SEARCH_RADIUS_M / mpu
     )
     assert (both[made] == exact[made]).all() and (both[~made] == nearest[~made]).all()

@@ -42,7 +42,7 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
         png = wd / f"results/{scene}/maps/reference_map.png"
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert (wd / f"logs/recover/{scene}.log").read_text().count("queries recovered") == 1
-        assert (wd / f"benchmarks/recover/{scene}.tsv").exists()
+        assert (wd / f"logs/benchmarks/recover/{scene}.tsv").exists()
     for t, flat in (
         ("dataset_stats", "dataset_stats"),
         ("recovery", "recovery"),  # one line per Parquet row
@@ -122,14 +122,13 @@ def test_dry_run_lists_the_full_dag(repo, flat_root, tmp_path):
     counts = {
         "ingest": 20,
         "recover": 20,
-        "reference_map": 20,
-        "queries": 20,
+        "reference_map": 21,
+        "queries": 21,
         "plot_reference_map": 21,
-        "objects": 12,
-        "align": 12,
-        "images_align": 1,
-        "images_queries": 1,
-        "coarse_similarity": 20,
+        "objects": 13,
+        "principal_plane": 12,
+        "gps_alignment": 1,
+        "coarse_target": 20,
         "coarse_train": 3,
         "fine_table": 1,
         "figures_fine_errors": 1,
@@ -159,7 +158,7 @@ def test_paper_config_merges_over_the_default(repo, flat_root, tmp_path):
         "fine_train": 16,
         "fine_eval": 44,
         "coarse_train": 3,
-        "coarse_similarity": 20,
+        "coarse_target": 20,
     }  # 4 models x 2 maps x 2 trainings
     for rule, n in counts.items():
         assert any(line.split()[:2] == [rule, str(n)] for line in out.splitlines()), rule

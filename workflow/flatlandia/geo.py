@@ -1,6 +1,6 @@
 """Coordinates: the published SfM -> lon/lat chain, local metric frames, 2D rigid motions.
 
-Conventions (measured on the data, see ../shared/DATA.md):
+Conventions (measured on the data, see docs/conventions.md):
 - lon/lat are degrees (EPSG:4326). The published chain maps SfM points to lon/lat with an
   isotropic scale *in degrees*; we treat the resulting lon/lat as the geographic truth.
 - A scene's metric frame is a transverse Mercator projection centred on the scene
@@ -15,8 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 from pyproj import CRS, Transformer
 
+from flatlandia.errors import InputError
+
 #: Published Flatlandia constant: one local-map unit is TO_FLATLANDIA / 2 degrees.
 TO_FLATLANDIA = 0.0033780547666424354
+#: Degrees per local-map unit (docs/conventions.md, "Local maps").
+UNIT_DEG = TO_FLATLANDIA / 2.0
 #: The upstream code turns local-map units into its "metres" with this factor.
 PAPER_METRES_PER_UNIT = 215.0
 
@@ -137,3 +141,30 @@ def rigid_fit_2d(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray]:
     theta = float(np.arctan2(num, den))
     t = cd - cs @ rot2(theta).T
     return theta, t
+
+
+# --------------------------------------------------------------------------- point checks
+
+
+def check_points(points: np.ndarray, dim: int, min_n: int, source: str, what: str) -> np.ndarray:
+    """``points`` as a finite (N, dim) float array of at least ``min_n`` rows, else :class:`InputError`."""
+    p = np.asarray(points, float)
+    if p.ndim != 2 or p.shape[1] != dim:
+        raise InputError(source, f"{what} must be an (N, {dim}) array, got shape {p.shape}")
+    if not np.isfinite(p).all():
+        raise InputError(source, f"{int((~np.isfinite(p).all(1)).sum())} {what} with NaN/inf coordinates")
+    if len(p) < min_n:
+        raise InputError(source, f"need at least {min_n} {what}, got {len(p)}")
+    return p
+
+
+def collinearity(p: np.ndarray) -> float:
+    """Second singular value over the first of the centred points (0 = all on a line).
+
+    Measured on the 90% of points nearest the median, so a few far outliers cannot make a
+    real cloud look like a line.
+    """
+    d = np.linalg.norm(p - np.median(p, axis=0), axis=1)
+    q = p[d <= np.quantile(d, 0.9)] if len(p) >= 10 else p
+    sv = np.linalg.svd(q - q.mean(0), compute_uv=False)
+    return float(sv[1] / sv[0]) if sv[0] > 0 else 0.0

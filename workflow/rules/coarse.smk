@@ -1,19 +1,22 @@
-# Coarse map localization (issue 4): neighbourhood similarity per scene -> one GAT per loss
+# Coarse map localization: the neighbourhood similarity target per scene -> one GAT per loss
 # (Sim | Trip | Sim+Trip) over every scene's train split -> proposals (N_LM | 2N_LM | R_30 | GT-BB)
 # and Table 3 on the test split. Settings: the `coarse:` section of config/config.yaml (a short
 # default run); config/paper.yaml has the paper's 800 epochs. No lambdas in rules.
 
 
-rule coarse_similarity:
+include: "inputs/coarse.smk"
+
+
+rule coarse_target:
     input:
         reference_map="results/{scene}/maps/reference_map.parquet",
         queries="results/{scene}/queries/queries.parquet",
     output:
-        similarity="results/{scene}/coarse/similarity.parquet",
+        similarity="results/{scene}/coarse/target.parquet",
     log:
-        "logs/coarse_similarity/{scene}.log",
+        "logs/coarse_target/{scene}.log",
     benchmark:
-        "benchmarks/coarse_similarity/{scene}.tsv"
+        "logs/benchmarks/coarse_target/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     threads: 1
@@ -23,21 +26,21 @@ rule coarse_similarity:
     params:
         similarity=COARSE.get("similarity", {}),
     script:
-        "../scripts/coarse_similarity.py"
+        "../scripts/coarse_target.py"
 
 
 rule coarse_train:
     input:
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
         queries=per_scene("results/{scene}/queries/queries.parquet"),
-        similarity=per_scene("results/{scene}/coarse/similarity.parquet"),
+        similarity=per_scene("results/{scene}/coarse/target.parquet"),
     output:
         model="results/coarse/{loss}/model.pt",
         history="results/coarse/{loss}/training.parquet",
     log:
         "logs/coarse_train/{loss}.log",
     benchmark:
-        "benchmarks/coarse_train/{loss}.tsv"
+        "logs/benchmarks/coarse_train/{loss}.tsv"
     wildcard_constraints:
         loss="|".join(COARSE_LOSSES),
     conda:
@@ -57,7 +60,7 @@ rule coarse_eval:
         models=expand("results/coarse/{loss}/model.pt", loss=coarse_losses()),
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
         queries=per_scene("results/{scene}/queries/queries.parquet"),
-        similarity=per_scene("results/{scene}/coarse/similarity.parquet"),
+        similarity=per_scene("results/{scene}/coarse/target.parquet"),
     output:
         proposals=expand("results/coarse/{loss}/proposals.parquet", loss=coarse_losses()),
         table="results/tables/coarse_localization.parquet",
@@ -67,7 +70,7 @@ rule coarse_eval:
     log:
         "logs/coarse_eval/all.log",
     benchmark:
-        "benchmarks/coarse_eval/all.tsv"
+        "logs/benchmarks/coarse_eval/all.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     threads: 1

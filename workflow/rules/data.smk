@@ -1,4 +1,7 @@
-# Data source: the published Flatlandia data, checked per scene.
+# Data source: the published Flatlandia data, checked per scene; every scene's reference map.
+
+
+include: "inputs/data.smk"
 
 
 if FLAT_FETCH:
@@ -37,18 +40,16 @@ rule ingest:
 
 rule reference_map:
     input:
-        unpack(scene_data_inputs),
-        ingest="results/{scene}/ingest/ingest.json",
+        unpack(reference_map_inputs),
     output:
         parquet="results/{scene}/maps/reference_map.parquet",
         geojson="results/{scene}/maps/reference_map.geojson",
     log:
         "logs/reference_map/{scene}.log",
-    wildcard_constraints:
-        scene=PUBLISHED_SCENE,
     conda:
         "../../envs/flatlandia.yaml"
     params:
         root=str(FLAT_ROOT),
+        source=scene_source,
     script:
         "../scripts/reference_map.py"

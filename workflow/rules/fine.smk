@@ -1,8 +1,11 @@
-# Fine 3DoF localization (issue 6): the geometric solver (`geo`) and the paper's learned baselines
+# Fine 3DoF localization: the geometric solver (`geo`) and the paper's learned baselines
 # (mlp, mlp_att, gat, gat_att) on GT/depth local maps x proposals (GT-BB, whole map, coarse), test split.
 # A learned model trains per (model x map type x training proposals): gtbb (the paper's), or coarse
 # (simulated coarse proposals, for the runs evaluated on real coarse proposals; fine.coarse_training).
-# Runs come from config fine.runs; their input functions are in common.smk (no lambdas in rules).
+# Runs come from config fine.runs (no lambdas in rules).
+
+
+include: "inputs/fine.smk"
 
 
 rule fine_train:
@@ -15,7 +18,7 @@ rule fine_train:
     log:
         "logs/fine_train/{model}_{map_type}_{train}.log",
     benchmark:
-        "benchmarks/fine_train/{model}_{map_type}_{train}.tsv"
+        "logs/benchmarks/fine_train/{model}_{map_type}_{train}.tsv"
     wildcard_constraints:
         model="|".join(FINE_MODELS),
         map_type="gt|depth",
@@ -43,7 +46,7 @@ rule fine_eval:
     log:
         "logs/fine_eval/{method}_{map_type}_{proposal}.log",
     benchmark:
-        "benchmarks/fine_eval/{method}_{map_type}_{proposal}.tsv"
+        "logs/benchmarks/fine_eval/{method}_{map_type}_{proposal}.tsv"
     wildcard_constraints:
         method="geo|" + "|".join(FINE_MODELS),
         map_type="gt|depth",
@@ -72,7 +75,7 @@ rule fine_table:
     log:
         "logs/fine_table/all.log",
     benchmark:
-        "benchmarks/fine_table/all.tsv"
+        "logs/benchmarks/fine_table/all.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     script:

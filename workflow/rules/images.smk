@@ -1,4 +1,9 @@
-# Images branch: a folder of geotagged crowd images -> audit -> masks -> SfM -> classified points.
+# Images branch: a folder of geotagged crowd images -> audit -> masks -> SfM -> classified points
+# -> GPS alignment. Its objects, reference map and queries come from the rules objects, reference_map
+# and queries, which pick the images inputs for an images scene.
+
+
+include: "inputs/images.smk"
 
 
 rule fetch_images:
@@ -42,7 +47,7 @@ rule segment:
     log:
         "logs/segment/{scene}.log",
     benchmark:
-        "benchmarks/segment/{scene}.tsv"
+        "logs/benchmarks/segment/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     resources:
@@ -69,7 +74,7 @@ rule sfm:
     log:
         "logs/sfm/{scene}.log",
     benchmark:
-        "benchmarks/sfm/{scene}.tsv"
+        "logs/benchmarks/sfm/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     threads: 2
@@ -94,7 +99,7 @@ rule classify_points:
     log:
         "logs/classify_points/{scene}.log",
     benchmark:
-        "benchmarks/classify_points/{scene}.tsv"
+        "logs/benchmarks/classify_points/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     params:
@@ -123,90 +128,20 @@ rule plot_sfm:
         "../scripts/plot_sfm.py"
 
 
-# ---- back half: GPS alignment -> objects -> reference map -> queries (shares flatlandia.objects)
-rule images_align:
+rule gps_alignment:
     input:
         model="results/{scene}/sfm/model",
         cameras="results/{scene}/sfm/cameras.parquet",
     output:
-        json="results/{scene}/align/alignment.json",
+        json="results/{scene}/sfm/gps_alignment.json",
     log:
-        "logs/images_align/{scene}.log",
+        "logs/gps_alignment/{scene}.log",
     benchmark:
-        "benchmarks/images_align/{scene}.tsv"
-    wildcard_constraints:
-        scene=IMAGES_SCENE,
+        "logs/benchmarks/gps_alignment/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     params:
         align=config["images"]["align"],
         seed=config["seed"],
     script:
-        "../scripts/images_align.py"
-
-
-rule images_objects:
-    input:
-        points="results/{scene}/sfm/classified_points.parquet",
-        instances="results/{scene}/sfm/point_instances.parquet",
-        alignment="results/{scene}/align/alignment.json",
-    output:
-        parquet="results/{scene}/objects/objects.parquet",
-        ply="results/{scene}/objects/objects.ply",
-        members="results/{scene}/objects/point_objects.parquet",
-    log:
-        "logs/images_objects/{scene}.log",
-    benchmark:
-        "benchmarks/images_objects/{scene}.tsv"
-    wildcard_constraints:
-        scene=IMAGES_SCENE,
-    conda:
-        "../../envs/flatlandia.yaml"
-    params:
-        cluster=config["objects"]["cluster"],
-    script:
-        "../scripts/images_objects.py"
-
-
-rule images_reference_map:
-    input:
-        objects="results/{scene}/objects/objects.parquet",
-    output:
-        parquet="results/{scene}/maps/reference_map.parquet",
-        geojson="results/{scene}/maps/reference_map.geojson",
-    log:
-        "logs/images_reference_map/{scene}.log",
-    wildcard_constraints:
-        scene=IMAGES_SCENE,
-    conda:
-        "../../envs/flatlandia.yaml"
-    script:
-        "../scripts/images_reference_map.py"
-
-
-rule images_queries:
-    input:
-        model="results/{scene}/sfm/model",
-        alignment="results/{scene}/align/alignment.json",
-        objects="results/{scene}/objects/objects.parquet",
-        members="results/{scene}/objects/point_objects.parquet",
-        reference_map="results/{scene}/maps/reference_map.parquet",
-    output:
-        queries="results/{scene}/queries/queries.parquet",
-    log:
-        "logs/images_queries/{scene}.log",
-    benchmark:
-        "benchmarks/images_queries/{scene}.tsv"
-    wildcard_constraints:
-        scene=IMAGES_SCENE,
-    conda:
-        "../../envs/flatlandia.yaml"
-    params:
-        min_objects=config["images"]["min_objects"],
-        min_points=config["images"]["min_points"],
-        depth=config["images"]["depth"],
-        images_dir=images_dir,
-        seed=config["seed"],
-        split=config["split"],
-    script:
-        "../scripts/images_queries.py"
+        "../scripts/gps_alignment.py"

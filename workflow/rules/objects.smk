@@ -1,5 +1,8 @@
-# Objects from classified point clouds (published class clouds), principal plane, and the audit against
-# the published maps. Input functions live in common.smk.
+# Objects from classified points (a published scene's class cloud, an images scene's classified SfM
+# points), the principal plane of the published class clouds, and the audit against the published maps.
+
+
+include: "inputs/objects.smk"
 
 
 rule objects:
@@ -8,31 +11,29 @@ rule objects:
     output:
         parquet="results/{scene}/objects/objects.parquet",
         ply="results/{scene}/objects/objects.ply",
+        members="results/{scene}/objects/point_objects.parquet",
     log:
         "logs/objects/{scene}.log",
     benchmark:
-        "benchmarks/objects/{scene}.tsv"
-    wildcard_constraints:
-        scene=PUBLISHED_SCENE,
+        "logs/benchmarks/objects/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     params:
+        source=scene_source,
         cluster=objects_cluster_params,
     script:
         "../scripts/objects.py"
 
 
-rule align:
+rule principal_plane:
     input:
-        unpack(align_inputs),
+        unpack(principal_plane_inputs),
     output:
-        json="results/{scene}/align/alignment.json",
+        json="results/{scene}/objects/principal_plane.json",
     log:
-        "logs/align/{scene}.log",
+        "logs/principal_plane/{scene}.log",
     benchmark:
-        "benchmarks/align/{scene}.tsv"
-    wildcard_constraints:
-        scene=PUBLISHED_SCENE,
+        "logs/benchmarks/principal_plane/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     params:
@@ -41,7 +42,7 @@ rule align:
         fallback_scale_m=config["align"]["fallback_scale_m"],
         min_ground_points=config["align"]["min_ground_points"],
     script:
-        "../scripts/align.py"
+        "../scripts/principal_plane.py"
 
 
 rule reproduction_audit:
@@ -63,7 +64,7 @@ rule reproduction_audit:
     log:
         "logs/reproduction_audit/all.log",
     benchmark:
-        "benchmarks/reproduction_audit/all.tsv"
+        "logs/benchmarks/reproduction_audit/all.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     params:

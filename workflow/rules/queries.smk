@@ -1,4 +1,7 @@
-# Queries: recover ground truth by registration, then metric local maps and the split.
+# Queries: recover ground truth by registration (published scenes), then metric local maps and the split.
+
+
+include: "inputs/queries.smk"
 
 
 rule recover:
@@ -10,9 +13,7 @@ rule recover:
     log:
         "logs/recover/{scene}.log",
     benchmark:
-        "benchmarks/recover/{scene}.tsv"
-    wildcard_constraints:
-        scene=PUBLISHED_SCENE,
+        "logs/benchmarks/recover/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     params:
@@ -24,23 +25,21 @@ rule recover:
 
 rule queries:
     input:
-        unpack(scene_data_inputs),
-        recovered="results/{scene}/queries/recovered.parquet",
-        reference_map="results/{scene}/maps/reference_map.parquet",
+        unpack(queries_inputs),
     output:
         queries="results/{scene}/queries/queries.parquet",
     log:
         "logs/queries/{scene}.log",
     benchmark:
-        "benchmarks/queries/{scene}.tsv"
-    wildcard_constraints:
-        scene=PUBLISHED_SCENE,
+        "logs/benchmarks/queries/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
     params:
+        source=scene_source,
         root=str(FLAT_ROOT),
         seed=config["seed"],
         split=config["split"],
+        images=queries_images_params,
     script:
         "../scripts/queries.py"
 

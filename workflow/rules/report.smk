@@ -1,5 +1,8 @@
-# Report figures (issue 7): training curves, fine error CDFs and Fig. 8, a coarse-score heat map.
+# Report figures: training curves, fine error CDFs and Fig. 8, a coarse-score heat map.
 # Captions in workflow/report/; `snakemake --report results/report.html` collects them.
+
+
+include: "inputs/report.smk"
 
 
 rule figures_training:
@@ -49,7 +52,7 @@ rule figures_coarse_heatmap:
         models=expand("results/coarse/{loss}/model.pt", loss=coarse_losses()),
         reference_map="results/{scene}/maps/reference_map.parquet",
         queries="results/{scene}/queries/queries.parquet",
-        similarity="results/{scene}/coarse/similarity.parquet",
+        similarity="results/{scene}/coarse/target.parquet",
     output:
         png=report(
             "results/figures/coarse_scores_{scene}.png",

@@ -1,6 +1,9 @@
 # Tables over all selected scenes.
 
 
+include: "inputs/tables.smk"
+
+
 rule dataset_stats:
     input:
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),

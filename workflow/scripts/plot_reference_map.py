@@ -3,14 +3,14 @@
 import pandas as pd
 
 from flatlandia import runlog
-from flatlandia.data import map_files
+from flatlandia.data import reference_map
 
 
 def main(smk, log):
     ref = pd.read_parquet(smk.input.reference_map)
     q = pd.read_parquet(smk.input.queries)
     scene = smk.wildcards.scene
-    map_files.plot_reference_map(
+    reference_map.plot_reference_map(
         ref, q, smk.output.png, f"scene {scene} ({smk.params.city}): {len(ref)} objects, {len(q)} queries"
     )
     log.info("wrote %s", smk.output.png)

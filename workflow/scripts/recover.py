@@ -5,7 +5,7 @@ from pathlib import Path
 
 from flatlandia import io, runlog
 from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps
+from flatlandia.data import recover
 
 
 def main(smk, log):
@@ -14,7 +14,7 @@ def main(smk, log):
     lonlat, classes = io.read_reference_map(root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
     local = io.read_local_maps(root / "local_maps.json", scene)
     t0 = time.perf_counter()
-    rec = localmaps.recover_scene(
+    rec = recover.recover_scene(
         scene, lonlat, classes, local, tol_m=smk.params.tol_m, progress=runlog.progress(log, f"recover scene {scene}")
     )
     dt = time.perf_counter() - t0

@@ -1,23 +1,52 @@
-"""Rule reference_map: the published map of a scene as GeoParquet + GeoJSON in a metric frame."""
+"""Rule reference_map: a scene's reference map as GeoParquet + GeoJSON in its metric frame.
+
+A published scene's map is the published one; an images scene's map is its objects (those
+with a 42-class label), in the metric frame of its GPS alignment.
+"""
 
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
+
 from flatlandia import geo, io, runlog
 from flatlandia.classes import CLASSES
-from flatlandia.data import map_files
+from flatlandia.data import reference_map
 
 
-def main(smk, log):
+def published_scene(smk, log):
     scene = smk.wildcards.scene
     lonlat, classes = io.read_reference_map(
         Path(smk.params.root) / f"individual_reference_maps/map_{scene}.json", n_classes=len(CLASSES)
     )
     frame = geo.frame_for(lonlat)
-    ref = map_files.reference_table(scene, lonlat, classes, CLASSES, frame)
-    meta = map_files.frame_metadata(scene, frame)
-    map_files.write_geoparquet(ref, meta, smk.output.parquet)
-    map_files.write_geojson(ref, meta, smk.output.geojson)
+    ref = reference_map.reference_table(scene, lonlat, classes, CLASSES, frame)
+    meta = reference_map.frame_metadata(scene, frame)
+    reference_map.write_geoparquet(ref, meta, smk.output.parquet)
+    reference_map.write_geojson(ref, meta, smk.output.geojson)
     log.info("scene %s: %d objects, %d classes, frame %s", scene, len(ref), ref["class_id"].nunique(), frame.proj4)
+
+
+def images_scene(smk, log):
+    scene = smk.wildcards.scene
+    objs = pd.read_parquet(smk.input.objects)
+    meta_in = io.read_parquet_metadata(smk.input.objects)
+    frame = geo.MetricFrame(lon0=meta_in["lon0"], lat0=meta_in["lat0"])
+    objs = objs[objs["class_id"].astype(int) < len(CLASSES)].reset_index(drop=True)
+    lonlat = objs[["lon", "lat"]].to_numpy(float).reshape(-1, 2)
+    ref = reference_map.reference_table(scene, lonlat, objs["class_id"].to_numpy(np.int64), CLASSES, frame)
+    ref["object_id"] = objs["object_id"].to_numpy(np.int64)
+    meta = {**reference_map.frame_metadata(scene, frame), "source": "images: objects from the classified SfM model"}
+    reference_map.write_geoparquet(ref, meta, smk.output.parquet)
+    reference_map.write_geojson(ref, meta, smk.output.geojson)
+    log.info("scene %s: %d objects on the reference map", scene, len(ref))
+
+
+def main(smk, log):
+    if smk.params.source == "images":
+        images_scene(smk, log)
+    else:
+        published_scene(smk, log)
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -2,35 +2,26 @@
 
 import pandas as pd
 
-from flatlandia import geo, io, runlog, tables
-from flatlandia.objects import clustering
+from flatlandia import io, runlog, tables
+from flatlandia.objects import audit, cloud
 
 
 def main(smk, log):
     rows, panels = [], []
-    for scene, obj_path, cloud, tr, ref_path in zip(
+    for scene, obj_path, cloud_path, tr, ref_path in zip(
         smk.params.scenes, smk.input.objects, smk.input.clouds, smk.input.transformations, smk.input.reference_maps
     ):
         ours = pd.read_parquet(obj_path)
-        ref_ll, ref_cl = io.read_reference_map(ref_path)
-        frame = geo.frame_for(ref_ll)
-        pts, labels = clustering.read_classified_cloud(cloud)
-        t = io.read_transformations(tr)
-        fg = labels != clustering.BACKGROUND
-        ref_xy = frame.to_xy(ref_ll)
-        ref_macro = clustering.published_macro_classes(
-            ref_xy,
-            ref_cl,
-            frame.to_xy(geo.sfm_to_lonlat(pts[fg], t)),
-            labels[fg],
-            cloud_points=pts[fg],
-            exact_radius=clustering.EXACT_SEARCH_RADIUS_M / clustering.metres_per_unit(t),
-        )
-        ours_xy = ours[["x_m", "y_m"]].to_numpy()
-        row = clustering.audit_scene(
-            str(scene), ours_xy, ours["macro_class"].to_numpy(), ref_xy, ref_macro, radius_m=float(smk.params.radius_m)
+        row, ref_xy = audit.audit_objects(
+            str(scene),
+            ours,
+            cloud.read_classified_cloud(cloud_path),
+            io.read_transformations(tr),
+            io.read_reference_map(ref_path),
+            radius_m=float(smk.params.radius_m),
         )
         rows.append(row)
+        ours_xy = ours[["x_m", "y_m"]].to_numpy()
         panels.append((f"scene {scene}: {row['within_0.5m']}/{row['published']} within 0.5 m", ours_xy, ref_xy))
         log.info("%s", row)
     df = pd.DataFrame(rows)
@@ -58,7 +49,7 @@ def main(smk, log):
         title="Reference-map reproduction from the class point clouds",
         note=note,
     )
-    clustering.plot_audit_grid(panels, smk.output.png)
+    audit.plot_audit_grid(panels, smk.output.png)
     log.info(
         "total: %s (%.1f%% within 0.5 m, %.1f%% extra)",
         total,

@@ -1,6 +1,5 @@
 """Rule segment: label maps -> pycolmap masks (<image>.png, 0 = ignore) and object-class maps."""
 
-import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -15,21 +14,14 @@ def main(smk, log):
     names = list(table.loc[table["kept"], "name"])
     backend = segment.make_backend(smk.params.backend, smk.params.weights, smk.params.labels_dir)
     log.info("backend %s on %d images", backend.name, len(names))
-    outs = {k: Path(getattr(smk.output, k)) for k in ("masks", "classes")}
-    tmps = {k: p.with_name(p.name + ".tmp") for k, p in outs.items()}
-    for t in tmps.values():
-        shutil.rmtree(t, ignore_errors=True)
-        t.mkdir(parents=True)
     rows = []
-    for name in runlog.progress(log, "segment")(names):
-        ids, labels = backend.labels(Path(smk.input.images) / name)
-        mask, cls, shares = segment.mask_and_classes(ids, labels, smk.params.watermark_box)
-        Image.fromarray(mask).save(tmps["masks"] / f"{name}.png")
-        Image.fromarray(cls).save(tmps["classes"] / f"{name}.png")
-        rows.append({"name": name, "backend": backend.name, **shares})
-    for k in outs:
-        shutil.rmtree(outs[k], ignore_errors=True)
-        tmps[k].rename(outs[k])
+    with io.atomic_dir(smk.output.masks) as masks, io.atomic_dir(smk.output.classes) as classes:
+        for name in runlog.progress(log, "segment")(names):
+            ids, labels = backend.labels(Path(smk.input.images) / name)
+            mask, cls, shares = segment.mask_and_classes(ids, labels, smk.params.watermark_box)
+            Image.fromarray(mask).save(masks / f"{name}.png")
+            Image.fromarray(cls).save(classes / f"{name}.png")
+            rows.append({"name": name, "backend": backend.name, **shares})
     df = pd.DataFrame(rows)
     io.write_parquet(df, smk.output.stats)
     log.info("mean masked share %.3f, object pixels %.4f", df["masked"].mean(), df["objects"].mean())

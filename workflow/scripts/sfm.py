@@ -66,12 +66,8 @@ def main(smk, log):
             else ([], None)
         )
         used = sfm.final_bundle_adjustment(rec, priors, seed=int(smk.params.seed))
-    tmp = out.with_name(out.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    rec.write_binary(str(tmp))
-    shutil.rmtree(out, ignore_errors=True)
-    tmp.rename(out)
+    with io.atomic_dir(out) as tmp:
+        rec.write_binary(str(tmp))
     stats = sfm.stats_table(rec, len(names), removed)
     stats["gps_prior_images"] = len(priors) if used else 0
     stats["model_frame"] = (

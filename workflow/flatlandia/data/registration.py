@@ -20,9 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from flatlandia.geo import TO_FLATLANDIA, rigid_fit_2d, rot2, wrap_angle
-
-UNIT_DEG = TO_FLATLANDIA / 2.0  # degrees per local-map unit
+from flatlandia.geo import UNIT_DEG, rigid_fit_2d, rot2, wrap_angle
 
 
 @dataclass

@@ -1,6 +1,6 @@
 """How close can any clustering of a published class cloud get to the published reference map?
 
-The reproduction audit (:func:`flatlandia.objects.clustering.audit_scene`) says how far our objects are from
+The reproduction audit (:func:`flatlandia.objects.audit.audit_scene`) says how far our objects are from
 the published ones; this module says how far *any* radius choice could get, so that a gap can be
 told apart from a bad parameter. Every function here reads the published positions: they are
 diagnostics for the audit and never place an object.

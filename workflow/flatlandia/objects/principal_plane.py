@@ -1,16 +1,15 @@
-"""Alignment of a reconstruction: principal plane, and a robust similarity to GPS.
+"""Principal plane of a reconstruction (rule principal_plane).
 
 - :func:`fit_plane` — RANSAC plane + least-squares refit on the inliers (camera centres);
   :func:`fit_ground_plane` — Cauchy IRLS plane through the ground classes of a classified
   cloud (within 1.3 degrees of the published plane on all 12 class clouds, see its doc);
   :func:`plane_rotation` turns a normal into a 3x3 rotation onto the plane.
 - :func:`normal_angle_deg` compares our normal with the published ``to_principal_plane``:
-  published plane coordinates are ``X @ Rpp`` (DATA.md), so the published normal is the third
-  *column* of Rpp. Rpp is a reflection in 18 of 20 scenes and "up" is not known, so normals are
-  compared up to sign.
-- :func:`ransac_similarity` — Umeyama (closed-form similarity) inside RANSAC with a seeded rng,
-  2D or 3D, optional reflection (the plane's sign is arbitrary, so a mirrored map is possible)
-  and an optional heading term (camera headings must agree with the rotation).
+  published plane coordinates are ``X @ Rpp`` (docs/conventions.md), so the published normal is
+  the third *column* of Rpp. Rpp is a reflection in 18 of 20 scenes and "up" is not known, so
+  normals are compared up to sign.
+- :func:`published_chain_transform` expresses the published SfM -> lon/lat chain as a metric
+  2D scaled rigid transform (:class:`flatlandia.images.gps_alignment.ScaledRigid`).
 
 Degenerate input (fewer than 3 points, NaN, points on a line) raises :class:`InputError`
 naming the source.
@@ -18,36 +17,13 @@ naming the source.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from flatlandia import geo
 from flatlandia.errors import InputError
-
-
-def _check_points(points: np.ndarray, dim: int, min_n: int, source: str, what: str) -> np.ndarray:
-    p = np.asarray(points, float)
-    if p.ndim != 2 or p.shape[1] != dim:
-        raise InputError(source, f"{what} must be an (N, {dim}) array, got shape {p.shape}")
-    if not np.isfinite(p).all():
-        raise InputError(source, f"{int((~np.isfinite(p).all(1)).sum())} {what} with NaN/inf coordinates")
-    if len(p) < min_n:
-        raise InputError(source, f"need at least {min_n} {what}, got {len(p)}")
-    return p
-
-
-def _collinearity(p: np.ndarray) -> float:
-    """Second singular value over the first of the centred points (0 = all on a line).
-
-    Measured on the 90% of points nearest the median, so a few far outliers cannot make a
-    real cloud look like a line.
-    """
-    d = np.linalg.norm(p - np.median(p, axis=0), axis=1)
-    q = p[d <= np.quantile(d, 0.9)] if len(p) >= 10 else p
-    sv = np.linalg.svd(q - q.mean(0), compute_uv=False)
-    return float(sv[1] / sv[0]) if sv[0] > 0 else 0.0
-
+from flatlandia.images.gps_alignment import ScaledRigid, umeyama
 
 # --------------------------------------------------------------------------- plane
 
@@ -73,11 +49,11 @@ def fit_plane(
     ``threshold`` defaults to 2x the median absolute distance to a first least-squares plane
     (scale-free, so it works in SfM units).
     """
-    p = _check_points(points, 3, 3, source, "points")
-    if _collinearity(p) < min_spread:
+    p = geo.check_points(points, 3, 3, source, "points")
+    if geo.collinearity(p) < min_spread:
         raise InputError(
             source,
-            f"degenerate plane: the {len(p)} points lie on a line (spread ratio {_collinearity(p):.2e} < {min_spread})",
+            f"degenerate plane: the {len(p)} points lie on a line (spread ratio {geo.collinearity(p):.2e} < {min_spread})",
         )
     c = p.mean(0)
     n0 = np.linalg.svd(p - c, full_matrices=False)[2][2]
@@ -119,12 +95,12 @@ def irls_plane(points: np.ndarray, scale: float, iterations: int = 20, source: s
     cans. Soft Cauchy weights with a scale of a few metres keep the whole street surface and
     fade the far outliers. ``scale`` is in the points' units; inliers are points within it.
     """
-    p = _check_points(points, 3, 3, source, "points")
+    p = geo.check_points(points, 3, 3, source, "points")
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"scale must be positive, got {scale}")
-    if _collinearity(p) < 1e-3:
+    if geo.collinearity(p) < 1e-3:
         raise InputError(
-            source, f"degenerate plane: the {len(p)} points lie on a line (spread ratio {_collinearity(p):.2e})"
+            source, f"degenerate plane: the {len(p)} points lie on a line (spread ratio {geo.collinearity(p):.2e})"
         )
     w = np.ones(len(p))
     for _ in range(iterations):
@@ -197,151 +173,7 @@ def normal_angle_deg(n1: np.ndarray, n2: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, 0.0, 1.0))))
 
 
-# --------------------------------------------------------------------------- similarity
-
-
-@dataclass
-class Similarity:
-    """dst ~= scale * src @ rotation.T + translation (rotation may be a reflection if allowed)."""
-
-    scale: float
-    rotation: np.ndarray
-    translation: np.ndarray
-    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    def apply(self, src: np.ndarray) -> np.ndarray:
-        return self.scale * np.asarray(src, float) @ self.rotation.T + self.translation
-
-    @property
-    def reflection(self) -> bool:
-        return bool(np.linalg.det(self.rotation) < 0)
-
-    def angle_deg(self) -> float:
-        """Rotation angle of a 2D transform (of its proper part for a reflection)."""
-        r = self.rotation.copy()
-        if self.reflection:
-            r[:, 1] *= -1
-        return float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True, allow_reflection: bool = False) -> Similarity:
-    """Closed-form least-squares similarity (Umeyama 1991) taking src onto dst (N, d)."""
-    src, dst = np.asarray(src, float), np.asarray(dst, float)
-    d = src.shape[1]
-    ms, md = src.mean(0), dst.mean(0)
-    a, b = src - ms, dst - md
-    cov = b.T @ a / len(src)
-    u, sv, vt = np.linalg.svd(cov)
-    sgn = np.ones(d)
-    if not allow_reflection and np.linalg.det(u) * np.linalg.det(vt) < 0:
-        sgn[-1] = -1
-    r = u @ np.diag(sgn) @ vt
-    var = (a**2).sum() / len(src)
-    s = float((sv * sgn).sum() / var) if with_scale and var > 0 else 1.0
-    t = md - s * ms @ r.T
-    return Similarity(scale=s, rotation=r, translation=t)
-
-
-def _heading_residual(sim: Similarity, src_heading: np.ndarray, dst_heading: np.ndarray) -> np.ndarray:
-    """|angle| (rad) between mapped source headings and target headings (2D only)."""
-    v = np.column_stack([np.cos(src_heading), np.sin(src_heading)]) @ sim.rotation.T
-    pred = np.arctan2(v[:, 1], v[:, 0])
-    return np.abs(geo.wrap_angle(pred - dst_heading))
-
-
-def ransac_similarity(
-    src: np.ndarray,
-    dst: np.ndarray,
-    threshold: float = 10.0,
-    iterations: int = 1000,
-    seed: int = 0,
-    allow_reflection: bool = True,
-    src_heading: np.ndarray | None = None,
-    dst_heading: np.ndarray | None = None,
-    heading_threshold_deg: float = 30.0,
-    source: str = "cameras",
-) -> Similarity:
-    """Robust similarity src -> dst: minimal-sample Umeyama hypotheses scored by inlier count
-    (ties: lower residual sum), refit on the inliers. ``threshold`` is in dst units (metres).
-
-    With headings (radians, CCW, same frames as the points), an inlier must also agree in
-    heading within ``heading_threshold_deg``; a reflection flips headings too.
-    """
-    src_d = np.asarray(src, float)
-    dim = src_d.shape[1] if src_d.ndim == 2 else 0
-    if dim not in (2, 3):
-        raise InputError(source, f"source points must be (N, 2) or (N, 3), got shape {src_d.shape}")
-    src = _check_points(src, dim, 3, source, "cameras with GPS")
-    dst = _check_points(dst, dim, 3, source, "GPS positions")
-    if len(src) != len(dst):
-        raise InputError(source, f"{len(src)} camera positions but {len(dst)} GPS positions")
-    if _collinearity(src) < 1e-9 or np.ptp(src, axis=0).max() == 0:
-        raise InputError(source, "degenerate: all camera positions coincide or lie on one point")
-    use_heading = src_heading is not None and dst_heading is not None
-    if use_heading:
-        if dim != 2:
-            raise ValueError("the heading term is defined for 2D alignments only")
-        src_heading, dst_heading = np.asarray(src_heading, float), np.asarray(dst_heading, float)
-        if src_heading.shape != (len(src),) or dst_heading.shape != (len(src),):
-            raise InputError(source, "one heading per camera is needed on both sides")
-    h_thr = np.radians(heading_threshold_deg)
-    rng = np.random.default_rng(seed)
-    k = 2 if dim == 2 else 3
-
-    def score(sim: Similarity) -> tuple[np.ndarray, np.ndarray]:
-        res = np.linalg.norm(sim.apply(src) - dst, axis=1)
-        inl = res <= threshold
-        if use_heading:
-            inl &= _heading_residual(sim, src_heading, dst_heading) <= h_thr
-        return inl, res
-
-    best, best_key = None, (-1, np.inf)
-    refl_options = (False, True) if allow_reflection else (False,)
-    for _ in range(iterations):
-        idx = rng.choice(len(src), k, replace=False)
-        if np.linalg.norm(src[idx[1]] - src[idx[0]]) == 0:
-            continue
-        for refl in refl_options:
-            if dim == 2:
-                sim = (
-                    umeyama(src[idx], dst[idx], allow_reflection=False)
-                    if not refl
-                    else _reflected(umeyama(src[idx] * [1, -1], dst[idx]))
-                )
-            else:
-                sim = umeyama(src[idx], dst[idx], allow_reflection=refl)
-            if not np.isfinite(sim.scale) or sim.scale <= 0:
-                continue
-            inl, res = score(sim)
-            key = (int(inl.sum()), -float(np.minimum(res, threshold).sum()))
-            if key > (best_key[0], -best_key[1]):
-                best, best_key = sim, (key[0], -key[1])
-    if best is None or best_key[0] < k:
-        raise InputError(source, f"no similarity explains at least {k} cameras within {threshold} m")
-    inl, _ = score(best)
-    refl = best.reflection
-    for _ in range(3):  # refit on inliers until stable
-        if dim == 2 and refl:
-            sim = _reflected(umeyama(src[inl] * [1, -1], dst[inl]))
-        else:
-            sim = umeyama(src[inl], dst[inl], allow_reflection=False)
-        new_inl, res = score(sim)
-        if new_inl.sum() < k:
-            break
-        best = sim
-        if np.array_equal(new_inl, inl):
-            break
-        inl = new_inl
-    inl, res = score(best)
-    best.inliers, best.residuals = inl, res
-    return best
-
-
-def _reflected(sim: Similarity) -> Similarity:
-    """Fold a mirror of the source's y axis into a similarity fitted on mirrored source points."""
-    r = sim.rotation @ np.diag([1.0, -1.0])
-    return Similarity(scale=sim.scale, rotation=r, translation=sim.translation)
+# --------------------------------------------------------------------------- the published chain
 
 
 def project_to_plane(points: np.ndarray, rotation: np.ndarray) -> np.ndarray:
@@ -349,8 +181,8 @@ def project_to_plane(points: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     return (np.asarray(points, float) @ np.asarray(rotation, float))[:, :2]
 
 
-def published_chain_similarity(transformations: dict, frame: geo.MetricFrame, samples: np.ndarray) -> Similarity:
-    """The published SfM->lon/lat chain expressed as a metric 2D similarity from published plane
+def published_chain_transform(transformations: dict, frame: geo.MetricFrame, samples: np.ndarray) -> ScaledRigid:
+    """The published SfM->lon/lat chain expressed as a metric 2D scaled rigid transform from published plane
     coordinates to ``frame`` (fitted on ``samples``, exact up to the projection's curvature)."""
     rpp = np.asarray(transformations["to_principal_plane"], float)
     xy = frame.to_xy(geo.sfm_to_lonlat(samples, transformations))
@@ -358,17 +190,3 @@ def published_chain_similarity(transformations: dict, frame: geo.MetricFrame, sa
     if ok.sum() < 3:
         raise ValueError("fewer than 3 sample points project into the metric frame")
     return umeyama(project_to_plane(samples[ok], rpp), xy[ok], allow_reflection=True)
-
-
-def similarity_error(est: Similarity, src: np.ndarray, true_dst: np.ndarray) -> dict:
-    """Errors of an estimated transform against the truth on given points (metres)."""
-    e = np.linalg.norm(est.apply(src) - true_dst, axis=1)
-    ref = umeyama(src, true_dst, allow_reflection=True)
-    return {
-        "median_m": float(np.median(e)),
-        "max_m": float(e.max()),
-        "rms_m": float(np.sqrt(np.mean(e**2))),
-        "scale_ratio": float(est.scale / ref.scale),
-        "rotation_deg": float(abs(geo.wrap_angle(np.radians(est.angle_deg() - ref.angle_deg()))) * 180 / np.pi),
-        "reflection_correct": bool(est.reflection == ref.reflection),
-    }

@@ -1,0 +1,9 @@
+# Input functions and settings of the rules in rules/data.smk (kept apart: Snakemake's linter
+# wants rules and functions in separate files). No lambdas in rules.
+
+
+def reference_map_inputs(wildcards):
+    """A published scene's map is built from the published files; an images scene's from its objects."""
+    if scene_source(wildcards) == "images":
+        return {"objects": f"results/{wildcards.scene}/objects/objects.parquet"}
+    return {**scene_data_inputs(wildcards), "ingest": f"results/{wildcards.scene}/ingest/ingest.json"}

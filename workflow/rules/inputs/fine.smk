@@ -1,0 +1,68 @@
+# Input functions and settings of the rules in rules/fine.smk (kept apart: Snakemake's linter
+# wants rules and functions in separate files). No lambdas in rules.
+
+
+FINE_MODELS = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+FINE_COARSE = {"coarse-sim": "Sim", "coarse-trip": "Trip", "coarse-simtrip": "Sim+Trip"}
+
+
+def fine_cfg():
+    return config.get("fine", {})
+
+
+def fine_runs():
+    """Run names {method}_{map_type}_{proposal} from config fine.runs (methods x map types x proposals)."""
+    runs = fine_cfg().get("runs", {})
+    grid = [
+        f"{m}_{t}_{p}"
+        for m in runs.get("methods", ["geo"])
+        for t in runs.get("map_types", ["gt", "depth"])
+        for p in runs.get("proposals", ["gtbb"])
+    ]
+    return grid + [r for r in runs.get("extra", []) if r not in grid]
+
+
+def fine_eval_inputs(wildcards):
+    inp = {
+        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet"),
+        "queries": per_scene("results/{scene}/queries/queries.parquet"),
+    }
+    if wildcards.method != "geo":
+        regime = fine_train_regime(wildcards.proposal)
+        inp["checkpoint"] = f"results/fine/models/{wildcards.method}_{wildcards.map_type}_{regime}/checkpoint.pt"
+    if wildcards.proposal in FINE_COARSE:
+        loss = wildcards.proposal.split("-", 1)[1]
+        inp["coarse"] = f"results/coarse/{loss}/proposals.parquet"
+    return inp
+
+
+def fine_train_regime(proposal):
+    """Training proposals of the learned model a run evaluates: ``coarse`` (simulated coarse
+    proposals) for runs on coarse proposals when fine.coarse_training.enabled, else ``gtbb``."""
+    on = fine_cfg().get("coarse_training", {}).get("enabled", True)
+    return "coarse" if proposal in FINE_COARSE and on else "gtbb"
+
+
+def fine_eval_params(wildcards):
+    p = wildcards.proposal
+    strategy = fine_cfg().get("coarse_strategy", "2N_LM")
+    label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
+    regime = fine_train_regime(p) if wildcards.method != "geo" else ""  # "": the solver, not trained
+    crop = float(fine_cfg().get("coarse_training", {}).get("crop_m", 0.0)) if regime == "coarse" else 0.0
+    return {
+        "method": wildcards.method,
+        "proposal": p,
+        "strategy": strategy,
+        "strategy_label": label,
+        "train_regime": regime,
+        "crop_m": crop,
+    }
+
+
+def fine_model_name(wildcards):
+    return FINE_MODELS[wildcards.model]
+
+
+def fine_train_params(wildcards):
+    """fine.train, updated by fine.train_overrides[{model}] (e.g. fewer epochs for the slower GATs)."""
+    return {**fine_cfg().get("train", {}), **fine_cfg().get("train_overrides", {}).get(wildcards.model, {})}

@@ -1,0 +1,22 @@
+# Input functions and settings of the rules in rules/images.smk (kept apart: Snakemake's linter
+# wants rules and functions in separate files). No lambdas in rules.
+
+
+def images_dir(wildcards):
+    """The image folder of an images scene (from the sheet's path column)."""
+    row = SCENES_SHEET.loc[wildcards.scene]
+    if row["source"] != "images":
+        raise WorkflowError(f"{config['scenes']}: scene {wildcards.scene} is not an images scene")
+    if row["path"] and config_path(row["path"]).exists():
+        return str(config_path(row["path"]))
+    if row.get("url", ""):
+        return f"resources/images/{wildcards.scene}"  # fetched by rule fetch_images
+    raise WorkflowError(
+        f"{config['scenes']}: images folder {row['path']!r} of scene {wildcards.scene} does not exist "
+        "and the sheet gives no url to fetch it from"
+    )
+
+
+def images_fetch_params(wildcards):
+    row = SCENES_SHEET.loc[wildcards.scene]
+    return {"url": row.get("url", ""), "subfolder": row.get("subfolder", "")}

@@ -1,0 +1,31 @@
+# Input functions and settings of the rules in rules/report.smk (kept apart: Snakemake's linter
+# wants rules and functions in separate files). No lambdas in rules.
+
+
+def fine_trained_models():
+    """(model, map_type, training proposals) of every learned fine run of the config (geo needs no training)."""
+    out = []
+    for run in fine_runs():
+        method, map_type, proposal = run.rsplit("_", 2)
+        key = (method, map_type, fine_train_regime(proposal))
+        if method != "geo" and key not in out:
+            out.append(key)
+    return out
+
+
+def heatmap_scene():
+    """The scene of the coarse heat map: config report.heatmap_scene, else the first published scene."""
+    wanted = str(config.get("report", {}).get("heatmap_scene", ""))
+    scenes = published_scenes()
+    return wanted if wanted in scenes else (scenes[0] if scenes else None)
+
+
+def report_figures():
+    if not published_scenes():
+        return []
+    out = [
+        "results/figures/training_curves.png",
+        "results/figures/fine_error_cdf.png",
+        "results/figures/fine_error_vs_objects.png",
+    ]
+    return out + [f"results/figures/coarse_scores_{heatmap_scene()}.png"]
