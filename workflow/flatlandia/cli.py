@@ -1,4 +1,5 @@
-"""Command line: ``flatlandia audit`` prints the audit trail of a run (one scene or all)."""
+"""Command line: ``flatlandia audit`` prints the audit trail of a run (one scene or all);
+``flatlandia config`` checks or rewrites the files generated from the config schema."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import provenance
+from flatlandia import config, provenance
 
 
 def audit(args) -> int:
@@ -25,6 +26,23 @@ def audit(args) -> int:
     return 0
 
 
+def config_files(args) -> int:
+    """Rewrite (``--write``) or check config/config.yaml and config/README.md against the schema."""
+    stale = []
+    for path, text in config.generated_files(Path(args.repo)).items():
+        if path.exists() and path.read_text() == text:
+            continue
+        if args.write:
+            path.write_text(text)
+            print(f"wrote {path}")
+        else:
+            stale.append(str(path))
+    if stale:
+        print(f"ERROR: {', '.join(stale)} out of date with {config.SCHEMA_PATH}: run `flatlandia config --write`")
+        return 1
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="flatlandia", description=__doc__)
     sub = ap.add_subparsers(dest="command", required=True)
@@ -33,6 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--manifest", default="results/manifest.parquet")
     a.add_argument("--provenance", default=str(provenance.PROVENANCE_DIR))
     a.set_defaults(func=audit)
+    c = sub.add_parser("config", help="check (or --write) the config files generated from the schema")
+    c.add_argument("--write", action="store_true", help="rewrite them instead of checking")
+    c.add_argument("--repo", default=str(config.SCHEMA_PATH.parents[2]), help="repository root")
+    c.set_defaults(func=config_files)
     args = ap.parse_args(argv)
     return args.func(args)
 

@@ -24,7 +24,7 @@ rule coarse_target:
         mem_mb=2000,
         runtime=10,
     params:
-        similarity=COARSE.get("similarity", {}),
+        similarity=config["coarse"]["similarity"],
     script:
         "../scripts/coarse_target.py"
 

@@ -1,12 +1,22 @@
 # Shared helpers: config validation, the scene sheet, the data root, the targets of `all`.
 # Input functions of one stage sit in rules/inputs/{stage}.smk, included by its rule file. No lambdas in rules.
 import os
+import sys
 from pathlib import Path
 
 import pandas as pd
 from snakemake.utils import validate
 
-validate(config, schema="../schemas/config.schema.yaml")
+from flatlandia import config as config_schema
+
+# Every key checked against workflow/schemas/config.schema.yaml (the one source of defaults)
+# before any job: a typo or a wrong type stops the run with one line naming the key.
+try:
+    RESOLVED_CONFIG = config_schema.resolve(config)
+except config_schema.ConfigError as err:
+    sys.exit(f"ERROR: config: {err}")
+config.clear()
+config.update(RESOLVED_CONFIG)
 
 
 def config_path(path):
@@ -30,7 +40,7 @@ SCENES_SHEET = SCENES_SHEET.set_index("scene", drop=False)
 
 def selected_scenes():
     """Scene ids to build: all of the sheet, or those whose id or city is in config['select']."""
-    wanted = [str(s) for s in config.get("select", [])]
+    wanted = [str(s) for s in config["select"]]
     if not wanted:
         return list(SCENES_SHEET["scene"])
     known = set(SCENES_SHEET["scene"]) | set(SCENES_SHEET["city"])

@@ -16,7 +16,7 @@ if FLAT_FETCH:
         params:
             dest=config["fetch"]["dest"],
             url=config["fetch"]["url"],
-            timeout_s=config["fetch"].get("timeout_s", 30),
+            timeout_s=config["fetch"]["timeout_s"],
             scenes=str(config_path(config["scenes"])),
         script:
             "../scripts/fetch_flatlandia.py"
@@ -33,7 +33,7 @@ rule ingest:
         "../../envs/flatlandia.yaml"
     params:
         root=str(FLAT_ROOT),
-        verify_sha256=config.get("ingest", {}).get("verify_sha256", True),
+        verify_sha256=config["ingest"]["verify_sha256"],
     script:
         "../scripts/ingest.py"
 

@@ -32,7 +32,7 @@ rule fine_train:
     params:
         model=fine_model_name,
         train=fine_train_params,
-        coarse_training=fine_cfg().get("coarse_training", {}),
+        coarse_training=config["fine"]["coarse_training"],
     script:
         "../scripts/fine_train.py"
 
@@ -59,7 +59,7 @@ rule fine_eval:
         runtime=60,
     params:
         p=fine_eval_params,
-        geo=fine_cfg().get("geo", {}),
+        geo=config["fine"]["geo"],
     script:
         "../scripts/fine_eval.py"
 

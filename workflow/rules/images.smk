@@ -15,7 +15,7 @@ rule fetch_images:
         "../../envs/flatlandia.yaml"
     params:
         source=images_fetch_params,
-        timeout_s=config["fetch"].get("timeout_s", 30),
+        timeout_s=config["fetch"]["timeout_s"],
     script:
         "../scripts/fetch_images.py"
 
@@ -31,7 +31,7 @@ rule images_audit:
         "../../envs/flatlandia.yaml"
     params:
         dedup_threshold=config["images"]["dedup_threshold"],
-        missing_gps=config["images"].get("missing_gps", "keep"),
+        missing_gps=config["images"]["missing_gps"],
     script:
         "../scripts/images_audit.py"
 
@@ -55,9 +55,9 @@ rule segment:
         runtime=30,
     params:
         backend=config["segment"]["backend"],
-        weights=config["segment"].get("weights"),
-        labels_dir=config["segment"].get("labels_dir"),
-        watermark_box=config["segment"].get("watermark_box"),
+        weights=config["segment"]["weights"],
+        labels_dir=config["segment"]["labels_dir"],
+        watermark_box=config["segment"]["watermark_box"],
     script:
         "../scripts/segment.py"
 
@@ -103,7 +103,7 @@ rule classify_points:
     conda:
         "../../envs/flatlandia.yaml"
     params:
-        instances_dir=config["segment"].get("instances_dir"),
+        instances_dir=config["segment"]["instances_dir"],
     script:
         "../scripts/classify_points.py"
 
@@ -141,7 +141,7 @@ rule gps_alignment:
     conda:
         "../../envs/flatlandia.yaml"
     params:
-        align=config["images"]["align"],
+        align=config["images"]["gps_alignment"],
         seed=config["seed"],
     script:
         "../scripts/gps_alignment.py"

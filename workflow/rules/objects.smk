@@ -38,9 +38,9 @@ rule principal_plane:
         "../../envs/flatlandia.yaml"
     params:
         max_points=20000,  # subsample for the frame origin (median point)
-        ground_scale_m=config["align"]["ground_scale_m"],
-        fallback_scale_m=config["align"]["fallback_scale_m"],
-        min_ground_points=config["align"]["min_ground_points"],
+        ground_scale_m=config["objects"]["principal_plane"]["ground_scale_m"],
+        fallback_scale_m=config["objects"]["principal_plane"]["fallback_scale_m"],
+        min_ground_points=config["objects"]["principal_plane"]["min_ground_points"],
     script:
         "../scripts/principal_plane.py"
 
@@ -69,6 +69,6 @@ rule reproduction_audit:
         "../../envs/flatlandia.yaml"
     params:
         scenes=class_cloud_scenes(),
-        radius_m=config.get("objects", {}).get("audit_radius_m", 2.0),
+        radius_m=config["objects"]["audit_radius_m"],
     script:
         "../scripts/reproduction_audit.py"

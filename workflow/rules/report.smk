@@ -66,6 +66,6 @@ rule figures_coarse_heatmap:
         "../../envs/flatlandia.yaml"
     params:
         losses=coarse_losses(),
-        map_type=config.get("report", {}).get("heatmap_map_type", "depth"),
+        map_type=config["report"]["heatmap_map_type"],
     script:
         "../scripts/figures_coarse_heatmap.py"

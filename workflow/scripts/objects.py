@@ -18,7 +18,7 @@ def published_scene(smk, log):
     scene = smk.wildcards.scene
     pts, point_labels = cloud.read_classified_cloud(smk.input.cloud)
     t = io.read_transformations(smk.input.transformations)
-    params = clustering.ClusterParams(**dict(smk.params.cluster))
+    params = clustering.ClusterParams.from_dict(smk.params.cluster)
     mpu = cloud.metres_per_unit(t)
     objs, member = clustering.cluster_objects(
         pts, point_labels, mpu, params, source=str(smk.input.cloud), with_members=True
@@ -65,7 +65,7 @@ def images_scene(smk, log):
     scene = smk.wildcards.scene
     points = pd.read_parquet(smk.input.points)
     alignment = io.read_json(smk.input.alignment)
-    params = clustering.ClusterParams(**dict(smk.params.cluster))
+    params = clustering.ClusterParams.from_dict(smk.params.cluster)
     instances = pd.read_parquet(smk.input.instances)
     objs, member = labels.images_scene_objects(
         scene, points, alignment, params, CLASSES, source=str(smk.input.points), instances=instances

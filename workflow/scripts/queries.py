@@ -61,8 +61,8 @@ def images_scene(smk, log):
         dcfg["backend"],
         point_xyz,
         images_dir=images["images_dir"],
-        weights=dcfg.get("weights"),
-        inverse=bool(dcfg.get("inverse", True)),
+        weights=dcfg["weights"],
+        inverse=bool(dcfg["inverse"]),
     )
     q = image_queries.scene_queries(
         scene,

@@ -17,13 +17,13 @@ def main(smk, log):
     names = list(table.loc[table["kept"], "name"])
     o = dict(smk.params.options)
     opts = sfm.SfmOptions(
-        matcher=o.get("matcher", "exhaustive"),
-        mapper=o.get("mapper", "global"),
-        camera_model=o.get("camera_model", "SIMPLE_RADIAL"),
-        max_image_size=o.get("max_image_size", 1600),
+        matcher=o["matcher"],
+        mapper=o["mapper"],
+        camera_model=o["camera_model"],
+        max_image_size=o["max_image_size"],
         seed=smk.params.seed,
-        num_threads=1 if o.get("deterministic", True) else smk.threads,
-        height_mad_k=o.get("height_mad_k", 6.0),
+        num_threads=1 if o["deterministic"] else smk.threads,
+        height_mad_k=o["height_mad_k"],
     )
     out = Path(smk.output.model)
     work = out.parent / "work"
@@ -41,14 +41,14 @@ def main(smk, log):
         kept[["x", "y", "z"]].to_numpy(),
         np.array([views[n].R for n in kept["name"]]),
         gps,
-        float(o.get("gps_max_residual_m", 50.0)),
+        float(o["gps_max_residual_m"]),
         seed=int(smk.params.seed),
     )
     removed = pd.concat(
         [
             removed,
             kept.loc[far, ["image_id", "name"]].assign(
-                reason=f"over {o.get('gps_max_residual_m', 50.0)} m from its GPS fix after aligning the model to GPS"
+                reason=f"over {o['gps_max_residual_m']} m from its GPS fix after aligning the model to GPS"
             ),
         ]
     )
@@ -59,10 +59,10 @@ def main(smk, log):
             sfm.gps_priors(
                 rec,
                 table.set_index("name"),
-                float(o.get("gps_prior_sigma_m", 5.0)),
-                float(o.get("gps_prior_alt_sigma_m", 10.0)),
+                float(o["gps_prior_sigma_m"]),
+                float(o["gps_prior_alt_sigma_m"]),
             )
-            if o.get("gps_prior", True)
+            if o["gps_prior"]
             else ([], None)
         )
         used = sfm.final_bundle_adjustment(rec, priors, seed=int(smk.params.seed))

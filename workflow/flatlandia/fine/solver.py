@@ -37,44 +37,47 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from flatlandia import geo
+from flatlandia import config, geo
 from flatlandia.fine import solver_kernels
+
+#: Defaults of the solver: the `fine.geo` section of workflow/schemas/config.schema.yaml.
+_GEO = config.section_defaults("fine.geo")
 
 
 @dataclass
 class SolverConfig:
-    bearing_sigma_deg: float = 1.0  # depth maps: bearing noise
-    log_range_sigma: float = 0.5  # depth maps: noise of log(range) after the scale (scoring)
-    refine_log_range_sigma: float = 1.0  # depth maps: weaker range weight in the least squares
-    position_sigma_m: float = 0.25  # GT maps: position noise (metres)
-    tau: float = 3.0  # residuals (in sigmas) beyond this are outliers
-    max_pairs: int = 24  # query pairs used to hypothesise (best conditioned first)
-    max_triples: int = 30  # depth maps: query triples for 3-bearing resections
-    max_triple_hyp: int = 20_000  # candidate triples per query triple at most (else skipped)
-    max_hyp: int = 300_000  # hypotheses scored per query at most
-    top_k: int = 12  # hypotheses refined
-    refine_rounds: int = 3  # re-association rounds in the refinement
-    min_scale: float = 2.0  # depth maps: metres per local unit (median object range)
-    max_scale: float = 150.0
-    prior_radius_m: float = 15.0  # keep hypotheses within this of a prior camera (hard gate)
-    prior_sigma_m: float = 3.0  # soft camera prior: cost (distance to nearest prior camera / sigma)^2
-    prior_weight: float = 1.0  # 0 disables the soft camera prior (the hard gate stays)
-    prior_heading_sigma_deg: float = 0.0  # >0 and prior headings given: joint (position, heading) prior
-    prior_knn: int = 8  # prior cameras considered per hypothesis for the joint prior
-    scale_prior_weight: float = 1.0  # depth maps: weight of the log-scale prior (when one is given)
-    covis_weight: float = 0.0  # >0 and prior_seen given: cost per matched object that no prior camera
-    #   near the pose saw (co-visibility from the training split)
-    covis_radius_m: float = 10.0  # prior cameras within this of the pose count for co-visibility
-    covis_metric: bool = False  # apply co-visibility to metric (GT) maps too
-    pair_len_tol_m: float = 0.5  # GT maps: same-class pairs must agree in length to this
-    chunk: int = 8192
-    early_stop: bool = True  # stop hypothesising once a hypothesis explains every object
+    """The solver's settings; each is described in config/README.md (`fine.geo.*`)."""
+
+    bearing_sigma_deg: float = _GEO["bearing_sigma_deg"]
+    log_range_sigma: float = _GEO["log_range_sigma"]
+    refine_log_range_sigma: float = _GEO["refine_log_range_sigma"]
+    position_sigma_m: float = _GEO["position_sigma_m"]
+    tau: float = _GEO["tau"]
+    max_pairs: int = _GEO["max_pairs"]
+    max_triples: int = _GEO["max_triples"]
+    max_triple_hyp: int = _GEO["max_triple_hyp"]
+    max_hyp: int = _GEO["max_hyp"]
+    top_k: int = _GEO["top_k"]
+    refine_rounds: int = _GEO["refine_rounds"]
+    min_scale: float = _GEO["min_scale"]
+    max_scale: float = _GEO["max_scale"]
+    prior_radius_m: float = _GEO["prior_radius_m"]
+    prior_sigma_m: float = _GEO["prior_sigma_m"]
+    prior_weight: float = _GEO["prior_weight"]
+    prior_heading_sigma_deg: float = _GEO["prior_heading_sigma_deg"]
+    prior_knn: int = _GEO["prior_knn"]
+    scale_prior_weight: float = _GEO["scale_prior_weight"]
+    covis_weight: float = _GEO["covis_weight"]
+    covis_radius_m: float = _GEO["covis_radius_m"]
+    covis_metric: bool = _GEO["covis_metric"]
+    pair_len_tol_m: float = _GEO["pair_len_tol_m"]
+    chunk: int = _GEO["chunk"]
+    early_stop: bool = _GEO["early_stop"]
 
     @classmethod
     def from_dict(cls, d: dict | None) -> SolverConfig:
-        d = dict(d or {})
-        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        return cls(**known)
+        """Strict: a key that is not a solver setting raises, naming the closest one."""
+        return config.from_section(cls, "fine.geo", d)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -36,13 +36,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from flatlandia import config
 from flatlandia.errors import InputError
 from flatlandia.io import atomic_path
 from flatlandia.objects.cloud import BACKGROUND, MACRO_BY_NAME
 
 #: Per-class DBSCAN radius (m) measured on the 12 published class clouds (see module doc):
 #: thin poles are clustered much tighter than signs, lights and markings.
-DEFAULT_EPS_BY_CLASS = {"pole": 0.40, "manhole": 0.88, "traffic_light": 0.88}
+#: Defaults: the `objects.cluster` section of workflow/schemas/config.schema.yaml (measured, docs/measurements.md).
+_CLUSTER = config.section_defaults("objects.cluster")
 
 
 @dataclass(frozen=True)
@@ -54,12 +56,17 @@ class ClusterParams:
     plain single-radius clusters, and re-clustering long ones lowered the reproduction.
     """
 
-    eps_m: float = 1.24  # DBSCAN neighbourhood radius (signs, lights, markings)
-    eps_m_by_class: dict = field(default_factory=lambda: dict(DEFAULT_EPS_BY_CLASS))
-    min_points: int = 3  # DBSCAN core-point neighbourhood size (the point included)
-    min_cluster_points: int = 3  # clusters with fewer points are dropped (not objects)
-    split_extent_m: float = float("inf")  # clusters longer than this are re-clustered ...
-    split_eps_factor: float = 0.5  # ... with eps * this factor (merged same-class neighbours)
+    eps_m: float = _CLUSTER["eps_m"]  # DBSCAN neighbourhood radius (signs, lights, markings)
+    eps_m_by_class: dict = field(default_factory=lambda: dict(_CLUSTER["eps_m_by_class"]))
+    min_points: int = _CLUSTER["min_points"]  # DBSCAN core-point neighbourhood size (the point included)
+    min_cluster_points: int = _CLUSTER["min_cluster_points"]  # clusters with fewer points are dropped
+    split_extent_m: float = _CLUSTER["split_extent_m"]  # clusters longer than this are re-clustered ...
+    split_eps_factor: float = _CLUSTER["split_eps_factor"]  # ... with eps * this factor
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> ClusterParams:
+        """Strict: a key that is not a clustering setting raises, naming the closest one."""
+        return config.from_section(cls, "objects.cluster", d)
 
     def eps_for(self, macro_class: str) -> float:
         """DBSCAN radius (m) of one macro-class."""

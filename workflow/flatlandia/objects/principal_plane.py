@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from flatlandia import geo
+from flatlandia import config, geo
 from flatlandia.errors import InputError
 from flatlandia.images.gps_alignment import ScaledRigid, umeyama
 
@@ -113,14 +113,18 @@ def irls_plane(points: np.ndarray, scale: float, iterations: int = 20, source: s
     return Plane(normal=n / np.linalg.norm(n), point=c, inliers=inl, rms=rms)
 
 
+#: Defaults: the `objects.principal_plane` section of workflow/schemas/config.schema.yaml.
+_PLANE = config.section_defaults("objects.principal_plane")
+
+
 def fit_ground_plane(
     points: np.ndarray,
     labels: np.ndarray,
     metres_per_unit: float,
     ground_classes: tuple[str, ...] = GROUND_CLASSES,
-    min_ground_points: int = 25,
-    ground_scale_m: float = 8.0,
-    fallback_scale_m: float = 1.0,
+    min_ground_points: int = _PLANE["min_ground_points"],
+    ground_scale_m: float = _PLANE["ground_scale_m"],
+    fallback_scale_m: float = _PLANE["fallback_scale_m"],
     source: str = "cloud",
 ) -> tuple[Plane, str]:
     """Principal plane of a classified cloud -> (plane, which points were used).

@@ -3,12 +3,12 @@
 
 
 COARSE_LOSSES = ["sim", "trip", "simtrip"]
-COARSE = config.get("coarse", {})
+COARSE = config["coarse"]
 # training / baseline seed: the master seed + coarse.seed_offset
-COARSE_SEED = int(config.get("seed", 0)) + int(COARSE.get("seed_offset", 0))
-COARSE_TRAIN = {**COARSE.get("train", {}), "seed": COARSE_SEED}
+COARSE_SEED = int(config["seed"]) + int(COARSE["seed_offset"])
+COARSE_TRAIN = {**COARSE["train"], "seed": COARSE_SEED}
 
 
 def coarse_losses():
     """The losses of this run (config coarse.losses), each one trained model."""
-    return list(COARSE.get("losses", COARSE_LOSSES))
+    return list(COARSE["losses"])

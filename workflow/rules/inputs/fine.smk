@@ -6,20 +6,11 @@ FINE_MODELS = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT
 FINE_COARSE = {"coarse-sim": "Sim", "coarse-trip": "Trip", "coarse-simtrip": "Sim+Trip"}
 
 
-def fine_cfg():
-    return config.get("fine", {})
-
-
 def fine_runs():
     """Run names {method}_{map_type}_{proposal} from config fine.runs (methods x map types x proposals)."""
-    runs = fine_cfg().get("runs", {})
-    grid = [
-        f"{m}_{t}_{p}"
-        for m in runs.get("methods", ["geo"])
-        for t in runs.get("map_types", ["gt", "depth"])
-        for p in runs.get("proposals", ["gtbb"])
-    ]
-    return grid + [r for r in runs.get("extra", []) if r not in grid]
+    runs = config["fine"]["runs"]
+    grid = [f"{m}_{t}_{p}" for m in runs["methods"] for t in runs["map_types"] for p in runs["proposals"]]
+    return grid + [r for r in runs["extra"] if r not in grid]
 
 
 def fine_eval_inputs(wildcards):
@@ -39,16 +30,16 @@ def fine_eval_inputs(wildcards):
 def fine_train_regime(proposal):
     """Training proposals of the learned model a run evaluates: ``coarse`` (simulated coarse
     proposals) for runs on coarse proposals when fine.coarse_training.enabled, else ``gtbb``."""
-    on = fine_cfg().get("coarse_training", {}).get("enabled", True)
+    on = config["fine"]["coarse_training"]["enabled"]
     return "coarse" if proposal in FINE_COARSE and on else "gtbb"
 
 
 def fine_eval_params(wildcards):
     p = wildcards.proposal
-    strategy = fine_cfg().get("coarse_strategy", "2N_LM")
+    strategy = config["fine"]["coarse_strategy"]
     label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
     regime = fine_train_regime(p) if wildcards.method != "geo" else ""  # "": the solver, not trained
-    crop = float(fine_cfg().get("coarse_training", {}).get("crop_m", 0.0)) if regime == "coarse" else 0.0
+    crop = float(config["fine"]["coarse_training"]["crop_m"]) if regime == "coarse" else 0.0
     return {
         "method": wildcards.method,
         "proposal": p,
@@ -65,4 +56,4 @@ def fine_model_name(wildcards):
 
 def fine_train_params(wildcards):
     """fine.train, updated by fine.train_overrides[{model}] (e.g. fewer epochs for the slower GATs)."""
-    return {**fine_cfg().get("train", {}), **fine_cfg().get("train_overrides", {}).get(wildcards.model, {})}
+    return {**config["fine"]["train"], **config["fine"]["train_overrides"][wildcards.model]}

@@ -32,7 +32,7 @@ def principal_plane_inputs(wildcards):
 
 
 def objects_cluster_params(wildcards):
-    return dict(config.get("objects", {}).get("cluster", {}))
+    return dict(config["objects"]["cluster"])
 
 
 def audit_inputs(wildcards):

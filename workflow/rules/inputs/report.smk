@@ -15,7 +15,7 @@ def fine_trained_models():
 
 def heatmap_scene():
     """The scene of the coarse heat map: config report.heatmap_scene, else the first published scene."""
-    wanted = str(config.get("report", {}).get("heatmap_scene", ""))
+    wanted = str(config["report"]["heatmap_scene"])
     scenes = published_scenes()
     return wanted if wanted in scenes else (scenes[0] if scenes else None)
 

@@ -1,0 +1,210 @@
+"""The workflow's settings: one schema holds every key's type, default and description.
+
+Why one place: defaults that live in a YAML file, in ``.get`` fallbacks and in dataclass fields
+drift apart, and a typo in a key is silently ignored. Here :func:`resolve` refuses unknown keys
+(naming the closest valid one) and fills in the defaults, :func:`section_defaults` gives the
+dataclasses their defaults, and :func:`from_section` builds them strictly. config/config.yaml and
+config/README.md are generated views of the schema (:func:`render_config_yaml`,
+:func:`render_readme`; ``flatlandia config --write``).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import difflib
+import functools
+import textwrap
+from pathlib import Path
+
+import yaml
+
+SCHEMA_PATH = Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
+
+
+class ConfigError(ValueError):
+    """A config key that does not exist or a value of the wrong kind; the message names the key."""
+
+
+@functools.cache
+def schema() -> dict:
+    return yaml.safe_load(SCHEMA_PATH.read_text())
+
+
+def _node(dotted: str) -> dict:
+    """Schema node of a dotted section name ('' is the root)."""
+    node = schema()
+    for part in filter(None, dotted.split(".")):
+        node = node["properties"][part]
+    return node
+
+
+def _defaults_of(node: dict):
+    if "properties" in node and "default" not in node:
+        return {k: _defaults_of(v) for k, v in node["properties"].items() if "default" in v or "properties" in v}
+    return copy.deepcopy(node.get("default"))
+
+
+def section_defaults(dotted: str = "") -> dict:
+    """Every default under a section, nested as the config is: ``section_defaults('fine.geo')``."""
+    return _defaults_of(_node(dotted))
+
+
+def _closest(key: str, known, prefix: str = "") -> str:
+    """' (did you mean 'prefix.near'?)' for the closest known key, else the list of valid keys."""
+    near = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
+    if near:
+        return f" (did you mean '{_join(prefix, near[0])}'?)"
+    return f"; valid keys under '{prefix or '(top level)'}': {', '.join(map(str, known))}"
+
+
+def _join(prefix: str, key) -> str:
+    return f"{prefix}.{key}" if prefix else str(key)
+
+
+def unknown_keys(cfg, node: dict | None = None, prefix: str = "") -> list[str]:
+    """Every key of ``cfg`` the schema does not know, as ``'a.b.c' (did you mean 'a.b.d'?)``."""
+    node = schema() if node is None else node
+    if not isinstance(cfg, dict) or "properties" not in node:
+        return []
+    props = node["properties"]
+    out = []
+    for key, value in cfg.items():
+        if key in props:
+            out += unknown_keys(value, props[key], _join(prefix, key))
+        elif node.get("additionalProperties", True) is False:
+            out.append(f"'{_join(prefix, key)}'{_closest(str(key), props, prefix)}")
+    return out
+
+
+def _merge(base, over):
+    """``over`` on top of ``base``, recursively for dicts (lists and scalars replace)."""
+    if isinstance(base, dict) and isinstance(over, dict):
+        out = dict(base)
+        for key, value in over.items():
+            out[key] = _merge(base.get(key), value) if key in base else copy.deepcopy(value)
+        return out
+    return copy.deepcopy(over)
+
+
+def _type_errors(cfg: dict) -> list[str]:
+    import jsonschema
+
+    validator = jsonschema.Draft202012Validator(schema())
+    errors = sorted(validator.iter_errors(cfg), key=lambda e: list(e.absolute_path))
+    return [f"'{'.'.join(map(str, e.absolute_path)) or '(top level)'}': {e.message}" for e in errors]
+
+
+def resolve(cfg: dict | None) -> dict:
+    """The complete config: ``cfg`` over the schema's defaults, after refusing unknown keys and
+    values of the wrong type. Raises :class:`ConfigError` listing every problem."""
+    cfg = dict(cfg or {})
+    unknown = unknown_keys(cfg)
+    if unknown:
+        raise ConfigError("unknown key " + "; unknown key ".join(unknown))
+    full = _merge(section_defaults(), cfg)
+    problems = _type_errors(full)
+    if problems:
+        raise ConfigError("; ".join(problems))
+    return full
+
+
+def from_section(cls, dotted: str, values: dict | None, **fixed):
+    """A dataclass from a config section: the section's defaults, ``values`` over them, then
+    ``fixed`` (settings a rule decides, e.g. the model). A key that is neither a field of ``cls``
+    nor of the section raises :class:`ConfigError` naming ``dotted.key`` and the closest field."""
+    fields = {f.name for f in dataclasses.fields(cls)}
+    values = dict(values or {})
+    bad = [k for k in values if k not in fields and k not in _node(dotted).get("properties", {})]
+    if bad:
+        raise ConfigError(
+            "unknown key " + "; unknown key ".join(f"'{_join(dotted, k)}'{_closest(k, fields, dotted)}" for k in bad)
+        )
+    merged = {**section_defaults(dotted), **values, **fixed}
+    return cls(**{k: copy.deepcopy(v) for k, v in merged.items() if k in fields})
+
+
+# ----------------------------------------------------------------------------- generated views
+
+
+def _leaves(node: dict, prefix: str = ""):
+    """(dotted key, schema node) of every key that has a default, in schema order."""
+    for key, child in node.get("properties", {}).items():
+        name = _join(prefix, key)
+        if "default" in child or "properties" not in child:
+            yield name, child
+        else:
+            yield from _leaves(child, name)
+
+
+def _yaml_value(value) -> str:
+    """One value as YAML on one line (strings quoted only where YAML needs it)."""
+    text = yaml.safe_dump(value, default_flow_style=True, width=10_000).strip()
+    return text.removesuffix("...").strip()
+
+
+def _yaml_lines(node: dict, indent: int = 0) -> list[str]:
+    pad = " " * indent
+    lines = []
+    for key, child in node.get("properties", {}).items():
+        desc = " ".join(str(child.get("description", "")).split())
+        wrapped = textwrap.wrap(desc, width=100 - indent - 2) if desc else []
+        lines += [f"{pad}# {w}" for w in wrapped]
+        if "properties" in child and "default" not in child:
+            lines = (
+                lines[: len(lines) - len(wrapped)] + ([""] if indent == 0 else []) + lines[len(lines) - len(wrapped) :]
+            )
+            lines.append(f"{pad}{key}:")
+            lines += _yaml_lines(child, indent + 2)
+        else:
+            lines.append(f"{pad}{key}: {_yaml_value(child.get('default'))}")
+    return lines
+
+
+CONFIG_YAML_HEADER = """\
+# The default run: every published scene of the scene sheet, with every setting at its default.
+# GENERATED from workflow/schemas/config.schema.yaml by `flatlandia config --write`: do not edit.
+# To change a setting, put only that key in a file of your own and pass it with
+#   snakemake --cores 2 all --configfile my.yaml
+# (config/paper.yaml is such a file); config/README.md lists every key.
+"""
+
+
+def render_config_yaml() -> str:
+    return CONFIG_YAML_HEADER + "\n" + "\n".join(_yaml_lines(schema())) + "\n"
+
+
+README_HEADER = """\
+# Configuration
+
+<!-- GENERATED from workflow/schemas/config.schema.yaml by `flatlandia config --write`: do not edit. -->
+
+Every setting has its default and meaning in one place, `workflow/schemas/config.schema.yaml`;
+`config/config.yaml` (the default run) and this page are generated from it. Change settings with
+a file of your own holding only the keys you change, passed after the default:
+
+    snakemake --cores 2 all --configfile my.yaml
+
+Files given with `--configfile` are merged key by key over `config/config.yaml` (see
+`config/paper.yaml`, the paper's training lengths). A key the schema does not know, or a value of
+the wrong type, stops the run before any job with one line naming it, e.g.
+`ERROR: config: unknown key 'fine.geo.topk' (did you mean 'fine.geo.top_k'?)`.
+Relative paths are taken from the working directory, else from the repository. The scene sheet
+(`scenes`) is checked against `workflow/schemas/scenes.schema.yaml`.
+
+| key | default | meaning |
+|---|---|---|
+"""
+
+
+def render_readme() -> str:
+    rows = []
+    for name, node in _leaves(schema()):
+        desc = " ".join(str(node.get("description", "")).split()).replace("|", "\\|")
+        rows.append(f"| `{name}` | `{_yaml_value(node.get('default'))}` | {desc} |")
+    return README_HEADER + "\n".join(rows) + "\n"
+
+
+def generated_files(repo: Path) -> dict[Path, str]:
+    """The files generated from the schema, with the text they must hold."""
+    return {repo / "config" / "config.yaml": render_config_yaml(), repo / "config" / "README.md": render_readme()}
