@@ -1,7 +1,7 @@
-"""Coarse map localization benchmark (issue 4): similarity precompute, training speed, query scoring, Table 3.
+"""Coarse map localization benchmark: similarity precompute, training speed, query scoring, Table 3.
 
 Prints
-1. the similarity target S: seconds per scene (and per query) of ``similarity.scene_similarity``;
+1. the similarity target S: seconds per scene (and per query) of ``target.scene_similarity``;
 2. training: seconds per epoch of one Sim+Trip model under the paper's settings (config/paper.yaml
    over config/config.yaml: 800 epochs, batch 20), measured over ``--epochs`` epochs, plus the cost
    of one validation pass, extrapolated to the full run (``--full`` trains all of it and measures);
@@ -23,8 +23,8 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import io
-from flatlandia.coarse import retrieval, target
+from flatlandia import checkpoints, io
+from flatlandia.coarse import evaluation, retrieval, target, training
 
 TARGET_800_S = 15 * 60
 TARGET_QUERY_S = 0.005
@@ -35,7 +35,7 @@ def load_scenes(results: Path, scenes: list[str], with_similarity: bool = True) 
     for s in scenes:
         ref = pd.read_parquet(results / s / "maps/reference_map.parquet")
         q = pd.read_parquet(results / s / "queries/queries.parquet")
-        sim = pd.read_parquet(results / s / "coarse/similarity.parquet") if with_similarity else None
+        sim = pd.read_parquet(results / s / "coarse/target.parquet") if with_similarity else None
         out.append((ref, q, sim))
     return out
 
@@ -70,13 +70,13 @@ def bench_training(
         f"queries, batch {ccfg.batch_size}, validation every {ccfg.eval_every} epochs)"
     )
     w0, c0 = time.perf_counter(), time.process_time()
-    res = retrieval.train(ds, ccfg)
+    res = training.train(ds, ccfg)
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     hist = pd.DataFrame(res["history"])
     per_epoch = float(hist["epoch_seconds"].median())
     model = res["model"]
     v0 = time.perf_counter()
-    retrieval.validation_metric(model, ds, ds.split("val"), ccfg)
+    training.validation_metric(model, ds, ds.split("val"), ccfg)
     val_s = time.perf_counter() - v0
     n_val = len(range(0, paper_epochs, ccfg.eval_every)) + (0 if (paper_epochs - 1) % ccfg.eval_every == 0 else 1)
     extrap = paper_epochs * per_epoch + n_val * val_s
@@ -99,7 +99,7 @@ def bench_training(
         f"best validation {res['best_val']:.4f} at epoch {res['best_epoch']}"
     )
     if save is not None:
-        retrieval.save_checkpoint(res, save)
+        checkpoints.save_checkpoint(res, save)
         print(f"checkpoint: {save}")
 
 
@@ -109,7 +109,7 @@ def bench_query(scenes: list[str], results: Path, n_queries: int) -> None:
     if not path.exists():
         print("no trained model: run the pipeline first")
         return
-    model, ccfg = retrieval.load_checkpoint(path)
+    model, ccfg = checkpoints.load_checkpoint(path, retrieval.CoarseConfig, retrieval.build_model)
     ds = retrieval.build_dataset(load_scenes(results, scenes, with_similarity=False), ccfg, splits=("test",))
     rng = np.random.default_rng(0)
     samples = [ds.samples[i] for i in rng.permutation(len(ds.samples))[:n_queries]]
@@ -117,7 +117,7 @@ def bench_query(scenes: list[str], results: Path, n_queries: int) -> None:
     for mt in retrieval.MAP_TYPES:
         for s in samples:
             rows.append(
-                {"map_type": mt, "objects": len(ds.refs[s.scene]), **retrieval.time_one_query(model, ds, s, mt, 20)}
+                {"map_type": mt, "objects": len(ds.refs[s.scene]), **evaluation.time_one_query(model, ds, s, mt, 20)}
             )
     t = pd.DataFrame(rows)
     for col, label in (
@@ -184,7 +184,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     scenes = args.scenes or sorted(
-        (p.parent.parent.name for p in args.results.glob("*/coarse/similarity.parquet")), key=lambda s: (len(s), s)
+        (p.parent.parent.name for p in args.results.glob("*/coarse/target.parquet")), key=lambda s: (len(s), s)
     )
     cfg = io.config_section(args.config, "coarse")
     print(

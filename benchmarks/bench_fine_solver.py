@@ -18,11 +18,9 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
-from flatlandia.data import localmaps
-from flatlandia.fine import (
-    evaluation,  # noqa: E402
-    solver,  # noqa: E402
-)
+from flatlandia import proposals  # noqa: E402
+from flatlandia.data import localmaps  # noqa: E402
+from flatlandia.fine import evaluation, solver  # noqa: E402
 
 
 def load(root: Path):
@@ -69,9 +67,9 @@ def main(argv=None):
         if not len(test):
             continue
         if a.proposal == "gtbb":
-            props = evaluation.gtbb_proposals(ref, test)
+            props = proposals.gtbb_proposals(ref, test)
         elif a.proposal == "whole":
-            props = evaluation.whole_map_proposals(ref, test)
+            props = proposals.whole_map_proposals(ref, test)
         else:
             p = coarse[(coarse["scene"].astype(str) == s) & (coarse["strategy"] == geo_cfg.get("strategy", "2N_LM"))]
             props = p[p["token"].astype(str).isin(test["token"].astype(str))]
@@ -85,7 +83,7 @@ def main(argv=None):
     print(
         f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}: n={s['queries']} median {s['median_m']:.2f} m / "
         f"{s['median_deg']:.2f} deg; % "
-        + " / ".join(f"{s[c]:.1f}" for c in evaluation._TH_COLS)
+        + " / ".join(f"{s[c]:.1f}" for c in evaluation.THRESHOLD_COLUMNS)
         + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; QT median "
         f"{1000 * s['median_query_s']:.1f} ms (CPU {1000 * s['median_query_cpu_s']:.1f} ms) mean {1000 * s['mean_query_s']:.1f} ms p90 "
         f"{1000 * e['seconds'].quantile(0.9):.0f} ms; wall {time.perf_counter() - t0:.0f} s"

@@ -1,18 +1,18 @@
-"""Fine learned baselines benchmark (issue 6): training speed and, with ``--full``, accuracy.
+"""Fine learned baselines benchmark: training speed and, with ``--full``, accuracy.
 
 Prints, for each ``--models`` x ``--map-types`` under the merged config (config/config.yaml, then
-``--configfile`` files, then learned.train_overrides[model]):
+``--configfile`` files, then fine.train_overrides[model]):
 1. seconds per training epoch on the train split of every scene (GT-BB proposals), measured over
    ``--epochs`` epochs including the per-epoch validation pass, and the extrapolation to 1000;
-2. with ``--full``: the whole run of ``learned.train.epochs`` epochs, then the best-on-validation
+2. with ``--full``: the whole run of ``fine.train.epochs`` epochs, then the best-on-validation
    model's test-split median error (m, deg) and share within (10 m, 20 deg), with GT-BB proposals
    and, where results/coarse/simtrip/proposals.parquet exists, with its 2N_LM proposals.
 
 ``--simulated-proposals K`` adds K copies of every training (and validation) query with a
-simulated coarse proposal (``fine_eval.simulated_coarse_proposals``); ``--no-gtbb`` trains on
+simulated coarse proposal (``proposals.simulated_coarse_proposals``); ``--no-gtbb`` trains on
 those alone: the experiment behind the README's note on coarse proposals.
 
-Targets (issue 6): 1000 MLP epochs under 10 minutes on 2 CPU cores; MLP on depth maps with GT-BB
+Targets: 1000 MLP epochs under 10 minutes on 2 CPU cores; MLP on depth maps with GT-BB
 median <= 5 m. Wall and CPU (process) seconds are both given, as the machine may be shared.
 Run from the repository root after the pipeline has made results/{scene}/queries and maps:
     python benchmarks/bench_fine_train.py [--models mlp] [--map-types depth] [--threads 1] [--full]
@@ -28,8 +28,8 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import io
-from flatlandia.fine import evaluation, learned
+from flatlandia import checkpoints, io, proposals
+from flatlandia.fine import learned, training
 
 MODEL_NAMES = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 TARGET_1000_S = 10 * 60
@@ -60,16 +60,16 @@ def load_samples(
         for split in ("train", "val", "test"):
             qs = q[q["split"] == split]
             if split == "test":
-                out[split] += learned.samples_from_queries(ref, qs, evaluation.gtbb_proposals(ref, qs), cfg)[0]
+                out[split] += learned.samples_from_queries(ref, qs, proposals.gtbb_proposals(ref, qs), cfg)[0]
                 continue
             regime = "coarse" if simulated else "gtbb"
             copies = simulated if split == "train" else min(simulated, 1)
             keep = gtbb and not (split == "val" and val_coarse_only)
-            for props in evaluation.training_proposals(ref, qs, regime, rng, copies, keep, crop_m):
+            for props in proposals.training_proposals(ref, qs, regime, rng, copies, keep, crop_m):
                 out[split] += learned.samples_from_queries(ref, qs, props, cfg)[0]
         if coarse is not None:
             qs = q[q["split"] == "test"]
-            props = evaluation.crop_to_densest(ref, coarse[coarse["scene"].astype(str) == qp.parts[-3]], crop_m)
+            props = proposals.crop_to_densest(ref, coarse[coarse["scene"].astype(str) == qp.parts[-3]], crop_m)
             out["test_coarse"] += learned.samples_from_queries(ref, qs, props, cfg)[0]
     return out
 
@@ -129,10 +129,10 @@ def main() -> None:
             if not s["train"]:
                 raise SystemExit(f"{args.results}: no */queries/queries.parquet with maps; run the pipeline first")
             t0, c0 = time.perf_counter(), time.process_time()
-            res = learned.train(s["train"], s["val"], cfg)
+            res = training.train(s["train"], s["val"], cfg)
             wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             if args.save:
-                learned.save_checkpoint(res, args.save.with_name(f"{args.save.stem}-{slug}_{mt}{args.save.suffix}"))
+                checkpoints.save_checkpoint(res, args.save.with_name(f"{args.save.stem}-{slug}_{mt}{args.save.suffix}"))
             per, per_cpu = wall / cfg.epochs, cpu / cfg.epochs
             test = within = coarse = "-"
             if args.full and s["test"]:

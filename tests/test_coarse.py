@@ -5,10 +5,10 @@ import pandas as pd
 import pytest
 import torch
 
-from flatlandia import geo, io, tables
+from flatlandia import checkpoints, geo, io, paper, tables
 from flatlandia.classes import CLASSES
-from flatlandia.coarse import graphs, retrieval, target
-from flatlandia.data import localmaps, map_files
+from flatlandia.coarse import evaluation, graphs, retrieval, target, training
+from flatlandia.data import localmaps, queries, recover, reference_map
 
 torch.set_num_threads(1)
 
@@ -181,19 +181,19 @@ def test_scene_similarity_table_shape():
 
 
 def test_triplet_loss_by_hand():
-    lt = retrieval.triplet_loss(torch.tensor([0.1, 0.5]), torch.tensor([0.3, 0.4]), margin=0.5)
+    lt = training.triplet_loss(torch.tensor([0.1, 0.5]), torch.tensor([0.3, 0.4]), margin=0.5)
     assert float(lt) == pytest.approx((0.3 + 0.6) / 2)
-    assert float(retrieval.triplet_loss(torch.tensor([0.0]), torch.tensor([2.0]), 0.5)) == 0.0
+    assert float(training.triplet_loss(torch.tensor([0.0]), torch.tensor([2.0]), 0.5)) == 0.0
 
 
 def test_sim_loss_by_hand():
     S = torch.tensor([1.0, 0.5, 0.0, 0.2])
     qpos = torch.tensor([0, 0, 0, 1])
-    assert float(retrieval.sim_loss(1.0 - S, S, qpos, 2)) == pytest.approx(0.0, abs=1e-7)
+    assert float(training.sim_loss(1.0 - S, S, qpos, 2)) == pytest.approx(0.0, abs=1e-7)
     s = torch.tensor([0.0, 0.0, 0.0, 1.0])
     # query 0: weights 1.1, 0.6, 0.1; errors 0, 0.25, 1 -> (0.15 + 0.1) / 1.8; query 1: error 0.04
     expected = ((0.6 * 0.25 + 0.1 * 1.0) / 1.8 + 0.2**2) / 2
-    assert float(retrieval.sim_loss(s, S, qpos, 2, floor=0.1)) == pytest.approx(expected, rel=1e-6)
+    assert float(training.sim_loss(s, S, qpos, 2, floor=0.1)) == pytest.approx(expected, rel=1e-6)
 
 
 def test_draw_triplets_picks_unmatched_negatives():
@@ -202,7 +202,7 @@ def test_draw_triplets_picks_unmatched_negatives():
         retrieval.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None),
         retrieval.Sample(0, "b", "train", {}, np.array([0, 2, 3]), 3, np.zeros(2), None, None),
     ]
-    ip, ineg = retrieval.draw_triplets(smp, [6, 6], rng)
+    ip, ineg = training.draw_triplets(smp, [6, 6], rng)
     assert len(ip) == len(ineg) == 5
     assert set(ip[:2]) == {1, 4} and set(ip[2:]) == {6, 8, 9}
     assert not set(ineg[:2]) & {1, 4} and all(0 <= v < 6 for v in ineg[:2])
@@ -212,12 +212,12 @@ def test_draw_triplets_picks_unmatched_negatives():
 def test_draw_triplets_hard_negatives_are_the_best_ranked_unmatched():
     smp = [retrieval.Sample(0, "a", "train", {}, np.array([1, 4]), 2, np.zeros(2), None, None)]
     scores = np.array([0.9, 0.0, 0.2, 0.1, 0.5, 0.8])  # unmatched ranked 3 (0.1), 2 (0.2), 5, 0
-    ip, ineg = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=1.0)
+    ip, ineg = training.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=1.0)
     assert ip.tolist() == [1, 4] and ineg.tolist() == [3, 2]
-    ip, ineg = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.5)
+    ip, ineg = training.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.5)
     assert ineg[0] == 3 and ineg[1] in {0, 2, 5}  # one hard, one random among the rest
-    _, ineg0 = retrieval.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.0)
-    _, ineg1 = retrieval.draw_triplets(smp, [6], np.random.default_rng(0))
+    _, ineg0 = training.draw_triplets(smp, [6], np.random.default_rng(0), scores, hard_fraction=0.0)
+    _, ineg1 = training.draw_triplets(smp, [6], np.random.default_rng(0))
     assert ineg0.tolist() == ineg1.tolist()  # fraction 0: the paper's random negatives
 
 
@@ -231,7 +231,7 @@ def test_fused_scores_equal_separately_embedded_graphs():
     qs = [graphs.query_graph(rng.uniform(0, 40, (m, 2)), rng.integers(0, 42, m)) for m in (3, 5, 12)]
     with torch.no_grad():
         fused = retrieval.fused_scores(model, rg, qs)
-        ref_emb = retrieval._embed(model, rg)
+        ref_emb = retrieval.embed(model, rg)
         cached = retrieval.fused_scores(model, None, qs, ref_emb=ref_emb)
         qb = graphs.batch(qs)
         node, qpos = np.tile(np.arange(30), 3), np.repeat(np.arange(3), 30)
@@ -254,25 +254,25 @@ SCORE = np.array([0.5, 0.1, 0.3, 0.2, 0.9, 0.05])
 
 
 def test_proposals_each_strategy():
-    assert retrieval.propose(SCORE, XY, 2, "N_LM").tolist() == [1, 5]
-    assert retrieval.propose(SCORE, XY, 2, "2N_LM").tolist() == [1, 2, 3, 5]
+    assert evaluation.propose(SCORE, XY, 2, "N_LM").tolist() == [1, 5]
+    assert evaluation.propose(SCORE, XY, 2, "2N_LM").tolist() == [1, 2, 3, 5]
     s = SCORE.copy()
     s[5] = 1.0  # best node is 1 (x = 10 m)
-    assert retrieval.propose(s, XY, 2, "R_30").tolist() == [0, 1, 2, 3]  # 40 m is exactly 30 m away
-    assert retrieval.propose(s, XY, 2, "R_30", radius_m=20.0).tolist() == [0, 1, 2]
+    assert evaluation.propose(s, XY, 2, "R_30").tolist() == [0, 1, 2, 3]  # 40 m is exactly 30 m away
+    assert evaluation.propose(s, XY, 2, "R_30", radius_m=20.0).tolist() == [0, 1, 2]
     # GT-BB: box of matched rows 1, 2 and the camera at (10, 10), enlarged 10%
-    bb = retrieval.propose(SCORE, XY, 2, "GT-BB", matched_rows=[1, 2], cam_xy=[10.0, 10.0])
+    bb = evaluation.propose(SCORE, XY, 2, "GT-BB", matched_rows=[1, 2], cam_xy=[10.0, 10.0])
     assert bb.tolist() == [1, 2]
     with pytest.raises(ValueError):
-        retrieval.propose(SCORE, XY, 2, "top-k")
+        evaluation.propose(SCORE, XY, 2, "top-k")
 
 
 def test_proposal_metrics():
-    m = retrieval.proposal_metrics([1, 2, 3, 5], [1, 2, 3, 4])
+    m = evaluation.proposal_metrics([1, 2, 3, 5], [1, 2, 3, 4])
     assert (m["precision"], m["recall"], m["success"], m["n_correct"]) == (0.75, 0.75, True, 3)
-    m = retrieval.proposal_metrics([1, 9], [1, 2, 3])
+    m = evaluation.proposal_metrics([1, 9], [1, 2, 3])
     assert m["precision"] == 0.5 and m["recall"] == pytest.approx(1 / 3) and not m["success"]
-    assert retrieval.proposal_metrics([], [1, 2, 3])["precision"] == 0.0
+    assert evaluation.proposal_metrics([], [1, 2, 3])["precision"] == 0.0
 
 
 def test_summarise_and_markdown_have_the_paper_beside():
@@ -291,12 +291,12 @@ def test_summarise_and_markdown_have_the_paper_beside():
             "success": [True, False],
         }
     )
-    t = retrieval.summarise(rows)
-    assert list(t.columns) == [c for c, _, _ in retrieval.TABLE_COLUMNS]
+    t = evaluation.summarise(rows)
+    assert list(t.columns) == [c for c, _, _ in evaluation.TABLE_COLUMNS]
     r = t.iloc[0]
     assert (r.precision, r.recall, r.success, r.queries) == (0.375, 0.5, 0.5, 2)
-    assert (r.paper_precision, r.paper_recall, r.paper_success) == retrieval.PAPER_TABLE3[("Sim+Trip", "R_30", "gt")]
-    md = retrieval.render_markdown(t)
+    assert (r.paper_precision, r.paper_recall, r.paper_success) == paper.TABLE3[("Sim+Trip", "R_30", "gt")]
+    md = evaluation.render_markdown(t)
     assert "| Sim+Trip | R_30 | 0.375 / 0.500 / 0.500 | 0.148 / 0.543 / 0.600 |" in md
     tables.check_schema(t, "coarse_localization")  # the schema-checked writer accepts it
     assert [c.name for c in tables.SCHEMAS["coarse_localization"]] == list(t.columns)
@@ -322,13 +322,13 @@ def real_data(flat_root):
     for s in REAL_SCENES:
         lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{s}.json", len(CLASSES))
         frame = geo.frame_for(lonlat)
-        ref = map_files.reference_table(s, lonlat, classes, CLASSES, frame)
+        ref = reference_map.reference_table(s, lonlat, classes, CLASSES, frame)
         local = {
             t: {"GT": np.asarray(m["GT"], float), "depth": np.asarray(m["depth"], float)}
             for t, m in local_all[s].items()
         }
-        rec = localmaps.recover_scene(s, lonlat, classes, local)
-        q = localmaps.build_queries(s, rec, ref, local, frame, localmaps.split_queries(list(rec["token"]), 0, salt=s))
+        rec = recover.recover_scene(s, lonlat, classes, local)
+        q = queries.build_queries(s, rec, ref, local, frame, queries.split_queries(list(rec["token"]), 0, salt=s))
         out.append((ref, q, target.scene_similarity(ref, q)))
     return out
 
@@ -345,12 +345,12 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
     cfg = retrieval.CoarseConfig(loss="simtrip", epochs=8, seed=0)
     ds = retrieval.build_dataset(real_data, cfg)
     assert cfg.depth_unit_m is not None and 10 < cfg.depth_unit_m < 60
-    res = retrieval.train(ds, cfg)
+    res = training.train(ds, cfg)
     hist = pd.DataFrame(res["history"])
     assert hist["train_loss"].iloc[-3:].mean() < hist["train_loss"].iloc[0]
     assert hist["loss_trip"].iloc[-1] < hist["loss_trip"].iloc[0]
-    per_q = retrieval.evaluate({"Sim+Trip": (res["model"], cfg)}, ds, "test")
-    t = retrieval.summarise(per_q).set_index(["loss", "strategy", "map_type"])
+    per_q = evaluation.evaluate({"Sim+Trip": (res["model"], cfg)}, ds, "test")
+    t = evaluation.summarise(per_q).set_index(["loss", "strategy", "map_type"])
     for mt in ("gt", "depth"):
         for strat in ("2N_LM", "R_30"):
             assert t.loc[("Sim+Trip", strat, mt), "success"] > t.loc[("random", strat, mt), "success"]
@@ -364,19 +364,19 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
             for k in (0, 1)
         ]
     )
-    assert retrieval.validation_metric(res["model"], ds, ds.split("test"), cfg) == pytest.approx(crit, abs=1e-12)
+    assert training.validation_metric(res["model"], ds, ds.split("test"), cfg) == pytest.approx(crit, abs=1e-12)
     # checkpoint round trip, with the resolved config
     path = tmp_path / "model.pt"
-    retrieval.save_checkpoint(res, path)
-    model, cfg2 = retrieval.load_checkpoint(path)
+    checkpoints.save_checkpoint(res, path)
+    model, cfg2 = checkpoints.load_checkpoint(path, retrieval.CoarseConfig, retrieval.build_model)
     assert cfg2.to_dict() == cfg.to_dict()
     test = ds.split("test")
     a = retrieval.score_samples(res["model"], ds, test, "gt")
     b = retrieval.score_samples(model, ds, test, "gt")
     assert all(np.allclose(x, y) for x, y in zip(a, b))
     # same seed, same weights (CPU)
-    res2 = retrieval.train(ds, retrieval.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
-    res3 = retrieval.train(ds, retrieval.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
+    res2 = training.train(ds, retrieval.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
+    res3 = training.train(ds, retrieval.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
     assert all(torch.equal(res2["state_dict"][k], res3["state_dict"][k]) for k in res2["state_dict"])
 
 
@@ -384,7 +384,7 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
 def test_each_loss_trains(real_data, loss):
     cfg = retrieval.CoarseConfig(loss=loss, epochs=3, seed=1, batching="mixed")
     ds = retrieval.build_dataset(real_data[:2], cfg, splits=("train", "val"))
-    hist = pd.DataFrame(retrieval.train(ds, cfg)["history"])
+    hist = pd.DataFrame(training.train(ds, cfg)["history"])
     key = "loss_sim" if loss == "sim" else "loss_trip"
     assert key in hist and np.isfinite(hist["train_loss"]).all()
     assert hist[key].iloc[-1] < hist[key].iloc[0]

@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 import torch
 
-from flatlandia import geo, io
+from flatlandia import checkpoints, geo, io, proposals
 from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps, map_files
-from flatlandia.fine import evaluation, learned, solver
+from flatlandia.data import queries, recover, reference_map
+from flatlandia.fine import evaluation, learned, report, solver, training
 
 torch.set_num_threads(1)
 
@@ -20,11 +20,11 @@ def scene(flat_root):
     """Scene 9's reference map and queries, built from the published data."""
     lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
     frame = geo.frame_for(lonlat)
-    ref = map_files.reference_table("9", lonlat, classes, CLASSES, frame)
+    ref = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
     local = io.read_local_maps(flat_root / "local_maps.json", "9")
-    rec = localmaps.recover_scene("9", lonlat, classes, local)
-    split = localmaps.split_queries(list(rec["token"]), 0, salt="9")
-    return ref, localmaps.build_queries("9", rec, ref, local, frame, split)
+    rec = recover.recover_scene("9", lonlat, classes, local)
+    split = queries.split_queries(list(rec["token"]), 0, salt="9")
+    return ref, queries.build_queries("9", rec, ref, local, frame, split)
 
 
 # ----------------------------------------------------------------------------- solver
@@ -32,7 +32,7 @@ def scene(flat_root):
 
 def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
     ref, q = scene
-    props = evaluation.gtbb_proposals(ref, q)
+    props = proposals.gtbb_proposals(ref, q)
     e = evaluation.evaluate_solver(ref, q, props, "gt")
     assert len(e) == len(q)
     assert (e["error_m"] < 0.1).mean() >= 0.99
@@ -42,7 +42,7 @@ def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
 def test_solver_exact_on_gt_maps_whole_map(scene):
     ref, q = scene
     q = q.iloc[:20]
-    e = evaluation.evaluate_solver(ref, q, evaluation.whole_map_proposals(ref, q), "gt")
+    e = evaluation.evaluate_solver(ref, q, proposals.whole_map_proposals(ref, q), "gt")
     assert (e["error_m"] < 0.1).mean() >= 0.95
 
 
@@ -190,7 +190,7 @@ def test_solvable_counts_class_multiset():
 
 def test_gtbb_box_and_paper_units():
     ref_xy = np.array([[0.0, 0.0], [10.0, 10.0], [10.5, 5.0], [12.0, 5.0], [-0.4, 5.0]])
-    idx = evaluation.gtbb_indices(ref_xy, [0, 1], [10.0, 0.0])
+    idx = proposals.gtbb_indices(ref_xy, [0, 1], [10.0, 0.0])
     assert set(idx) == {0, 1, 2, 4}  # box [0,10]^2 enlarged 10%: [-0.5, 10.5]
     mpu = evaluation.metres_per_unit(45.0)
     assert evaluation.paper_metres(mpu, 45.0) == pytest.approx(215.0)
@@ -208,11 +208,11 @@ def test_markdown_table_layout():
             mean_query_s=0.002,
             failure_pct=0.0,
             gross_pct=1.0,
-            **{c: 10.0 for c in evaluation._TH_COLS},
+            **{c: 10.0 for c in evaluation.THRESHOLD_COLUMNS},
         )
         for mt in ("gt", "depth")
     ]
-    md = evaluation.render_markdown(evaluation.table_rows(rows))
+    md = report.render_markdown(report.table_rows(rows))
     assert "Table 4" in md and "| MLP | GT-BB |" in md and "13.3" in md  # the paper's depth MLP median
 
 
@@ -240,7 +240,7 @@ def test_models_forward_backward_shapes(name):
     batch = learned.Batch.from_data_list(samples)
     out = model(batch)
     assert out.shape == (5, 3)
-    loss = learned.pose_loss(out, batch.y)
+    loss = training.pose_loss(out, batch.y)
     loss.backward()
     assert all(p.grad is not None for p in model.parameters() if p.requires_grad)
 
@@ -273,8 +273,8 @@ def test_dense_row_selection_equals_graph_batch(name):
         assert torch.allclose(model(sel), model(learned.Batch.from_data_list([samples[i] for i in pick])), atol=1e-5)
     gen_a, gen_b = torch.Generator().manual_seed(3), torch.Generator().manual_seed(3)
     cfg.map_type = "depth"
-    aug_d = learned.augment(dense, cfg, gen_a)
-    aug_g = learned.augment(learned.Batch.from_data_list(samples), cfg, gen_b)
+    aug_d = training.augment(dense, cfg, gen_a)
+    aug_g = training.augment(learned.Batch.from_data_list(samples), cfg, gen_b)
     assert torch.allclose(aug_d.y, aug_g.y)
     assert torch.allclose(aug_d.r_xy[dense.r_mask], aug_g.local[~aug_g.is_q], atol=1e-6)
     assert torch.allclose(aug_d.q_xy[dense.q_mask], aug_g.local[aug_g.is_q], atol=1e-6)
@@ -283,16 +283,16 @@ def test_dense_row_selection_equals_graph_batch(name):
 def test_loss_and_angle_wrap():
     a = torch.tensor([math.radians(179.0)])
     b = torch.tensor([math.radians(-179.0)])
-    assert learned.angle_distance(a, b).item() == pytest.approx(math.radians(2.0), abs=1e-6)
+    assert training.angle_distance(a, b).item() == pytest.approx(math.radians(2.0), abs=1e-6)
     pred = torch.tensor([[0.3, 0.4, 0.1]])
-    assert learned.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]])).item() == pytest.approx(0.5, abs=1e-6)
+    assert training.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]])).item() == pytest.approx(0.5, abs=1e-6)
 
 
 def test_augmentation_is_a_rigid_motion_of_region_and_target():
     cfg = learned.FineConfig(model="MLP", map_type="gt", aug_depth_scale=0.0)
     samples = _toy_samples(3, cfg)
     batch = learned.Batch.from_data_list(samples)
-    aug = learned.augment(batch, cfg, torch.Generator().manual_seed(0))
+    aug = training.augment(batch, cfg, torch.Generator().manual_seed(0))
     q = batch.is_q
     assert torch.allclose(aug.local[q], batch.local[q])  # query stays in its camera frame
     for g in range(3):
@@ -307,15 +307,15 @@ def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
     cfg = learned.FineConfig(model="MLP", map_type="gt", hidden=32, epochs=8, batch_size=16, lr=3e-3, augment=False)
     train = _toy_samples(64, cfg, seed=1)
     val = _toy_samples(16, cfg, seed=2)
-    res = learned.train(train, val, cfg)
+    res = training.train(train, val, cfg)
     losses = [h["train_loss"] for h in res["history"]]
     assert losses[-1] < losses[0]
     assert res["best_val_median_m"] <= res["history"][0]["val_median_m"]
-    res2 = learned.train(train, val, cfg)
+    res2 = training.train(train, val, cfg)
     assert [h["train_loss"] for h in res2["history"]] == losses  # seeded, deterministic on CPU
     path = tmp_path / "ck.pt"
-    learned.save_checkpoint(res, path)
-    model, cfg2 = learned.load_checkpoint(path)
+    checkpoints.save_checkpoint(res, path)
+    model, cfg2 = checkpoints.load_checkpoint(path, learned.FineConfig, learned.build_model)
     assert cfg2 == cfg
     assert np.allclose(learned.predict(model, val), learned.predict(res["model"], val), atol=1e-6)
 
@@ -324,10 +324,10 @@ def test_learned_model_on_real_scene_samples(scene):
     ref, q = scene
     cfg = learned.FineConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
     tr = q[q["split"] == "train"]
-    samples, kept = learned.samples_from_queries(ref, tr, evaluation.gtbb_proposals(ref, tr), cfg)
+    samples, kept = learned.samples_from_queries(ref, tr, proposals.gtbb_proposals(ref, tr), cfg)
     assert len(samples) == len(kept) == len(tr) > 3
     model = learned.build_model(cfg)
-    e = learned.evaluate_model(model, cfg, ref, tr.iloc[:4], evaluation.gtbb_proposals(ref, tr.iloc[:4]))
+    e = evaluation.evaluate_model(model, cfg, ref, tr.iloc[:4], proposals.gtbb_proposals(ref, tr.iloc[:4]))
     assert len(e) == 4 and np.isfinite(e["error_m"]).all()
 
 
@@ -335,7 +335,7 @@ def test_external_proposal_table_and_failure_rate(scene):
     """A coarse-style proposal table (scene, token, strategy, proposal): too-small proposals count in F%."""
     ref, q = scene
     q = q.iloc[:6]
-    good = evaluation.gtbb_proposals(ref, q)
+    good = proposals.gtbb_proposals(ref, q)
     props = good.copy()
     props["strategy"] = "2N_LM"
     props.loc[0, "proposal"] = [int(ref["obj_idx"].iloc[0])]  # one object: cannot hold a solution
@@ -347,8 +347,8 @@ def test_external_proposal_table_and_failure_rate(scene):
 
 def test_simulated_coarse_proposals_look_like_2n_lm(scene):
     ref, q = scene
-    props = evaluation.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
-    again = evaluation.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
+    props = proposals.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
+    again = proposals.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
     assert props["proposal"].map(list).tolist() == again["proposal"].map(list).tolist()  # seeded
     cls = dict(zip(ref["obj_idx"].astype(int), ref["class_id"].astype(int)))
     recall = []
@@ -379,12 +379,12 @@ def test_crop_to_densest_keeps_the_densest_group(scene):
             "proposal": [[0, 1, 2, 3, 4, 5], [4, 5, 6, 0]],
         }
     )
-    out = evaluation.crop_to_densest(ref, props, 30.0)
+    out = proposals.crop_to_densest(ref, props, 30.0)
     assert out["proposal"].tolist() == [[0, 1, 2, 3], [4, 5, 6]]
-    assert evaluation.crop_to_densest(ref, props, 0.0) is props  # 0: off
+    assert proposals.crop_to_densest(ref, props, 0.0) is props  # 0: off
     ref9, q9 = scene
-    real = evaluation.crop_to_densest(
-        ref9, evaluation.simulated_coarse_proposals(ref9, q9, np.random.default_rng(1)), 30.0
+    real = proposals.crop_to_densest(
+        ref9, proposals.simulated_coarse_proposals(ref9, q9, np.random.default_rng(1)), 30.0
     )
     xy = dict(zip(ref9["obj_idx"].astype(int), ref9[["x_m", "y_m"]].to_numpy()))
     for p in real["proposal"]:  # every kept object within 2 radii of every other
@@ -394,16 +394,12 @@ def test_crop_to_densest_keeps_the_densest_group(scene):
 
 def test_training_proposals_regimes(scene):
     ref, q = scene
-    gt = evaluation.training_proposals(ref, q, "gtbb", np.random.default_rng(0))
+    gt = proposals.training_proposals(ref, q, "gtbb", np.random.default_rng(0))
     assert len(gt) == 1 and gt[0]["strategy"].eq("GT-BB").all()
-    co = evaluation.training_proposals(
-        ref, q, "coarse", np.random.default_rng(0), copies=3, keep_gtbb=True, crop_m=30.0
-    )
+    co = proposals.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=3, keep_gtbb=True, crop_m=30.0)
     assert len(co) == 4 and co[0]["strategy"].eq("GT-BB").all()
     assert all(p["strategy"].eq("simulated 2N_LM").all() and len(p) == len(q) for p in co[1:])
     assert co[1]["proposal"].map(list).tolist() != co[2]["proposal"].map(list).tolist()  # fresh draws
-    assert (
-        len(evaluation.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=2, keep_gtbb=False)) == 2
-    )
+    assert len(proposals.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=2, keep_gtbb=False)) == 2
     with pytest.raises(ValueError, match="gtbb or coarse"):
-        evaluation.training_proposals(ref, q, "whole", np.random.default_rng(0))
+        proposals.training_proposals(ref, q, "whole", np.random.default_rng(0))

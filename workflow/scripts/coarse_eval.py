@@ -10,8 +10,8 @@ also a flat markdown ``coarse_localization_rows.md`` and LaTeX) and markdown lai
 import pandas as pd
 import torch
 
-from flatlandia import io, runlog, tables
-from flatlandia.coarse import retrieval
+from flatlandia import checkpoints, io, runlog, tables
+from flatlandia.coarse import evaluation, retrieval
 
 
 def main(smk, log):
@@ -19,7 +19,9 @@ def main(smk, log):
     losses = list(smk.params.losses)
     models = {}
     for loss, path in zip(losses, smk.input.models):
-        models[retrieval.LOSSES[loss]] = retrieval.load_checkpoint(path)
+        models[retrieval.LOSSES[loss]] = checkpoints.load_checkpoint(
+            path, retrieval.CoarseConfig, retrieval.build_model
+        )
     cfgs = [c for _, c in models.values()]
     graph_keys = ("scale_m", "depth_unit_m", "knn")
     if any(tuple(getattr(c, k) for k in graph_keys) != tuple(getattr(cfgs[0], k) for k in graph_keys) for c in cfgs):
@@ -33,7 +35,7 @@ def main(smk, log):
     ]
     ds = retrieval.build_dataset(scenes, cfgs[0], splits=("test",))
     log.info("%d test queries over %d scenes; models %s", len(ds.samples), len(scenes), list(models))
-    per_query = retrieval.evaluate(models, ds, "test", baselines=True, seed=int(smk.params.seed))
+    per_query = evaluation.evaluate(models, ds, "test", baselines=True, seed=int(smk.params.seed))
     for loss, path in zip(losses, smk.output.proposals):
         rows = per_query[per_query["loss"] == retrieval.LOSSES[loss]].reset_index(drop=True)
         io.write_parquet(
@@ -41,8 +43,8 @@ def main(smk, log):
             path,
             {"loss": retrieval.LOSSES[loss], "config": models[retrieval.LOSSES[loss]][1].to_dict(), "split": "test"},
         )
-    table = retrieval.summarise(per_query)
-    timing = retrieval.time_one_query(next(iter(models.values()))[0], ds, ds.samples[0]) if ds.samples else {}
+    table = evaluation.summarise(per_query)
+    timing = evaluation.time_one_query(next(iter(models.values()))[0], ds, ds.samples[0]) if ds.samples else {}
     trained = ", ".join(f"{k}: {c.epochs} epochs" for k, (_, c) in models.items())
     c0 = cfgs[0]
     note = (
@@ -66,7 +68,7 @@ def main(smk, log):
         title="Coarse map localization (Table 3): precision / recall / success, test split",
         note=note,
     )
-    io.write_text(retrieval.render_markdown(table, note=note), smk.output.markdown)
+    io.write_text(evaluation.render_markdown(table, note=note), smk.output.markdown)
     log.info("\n%s", table.to_string())
 
 

@@ -7,8 +7,8 @@ Best-on-validation weights are saved with their resolved config (torch.save({'st
 import pandas as pd
 import torch
 
-from flatlandia import io, runlog
-from flatlandia.coarse import retrieval
+from flatlandia import checkpoints, io, runlog
+from flatlandia.coarse import retrieval, training
 
 
 def main(smk, log):
@@ -27,15 +27,15 @@ def main(smk, log):
         len(scenes),
         cfg.to_dict(),
     )
-    res = retrieval.train(ds, cfg, log=log, progress=runlog.progress(log, f"coarse {cfg.loss}"))
-    retrieval.save_checkpoint(res, smk.output.model)
+    res = training.train(ds, cfg, log=log, progress=runlog.progress(log, f"coarse {cfg.loss}"))
+    checkpoints.save_checkpoint(res, smk.output.model)
     meta = {
         "config": res["config"],
         "best_epoch": res["best_epoch"],
         "best_val": res["best_val"],
         "seconds": res["seconds"],
         "seconds_per_epoch": res["seconds_per_epoch"],
-        "n_parameters": retrieval.n_parameters(res["model"]),
+        "n_parameters": checkpoints.n_parameters(res["model"]),
     }
     io.write_parquet(pd.DataFrame(res["history"]), smk.output.history, meta)
     log.info(

@@ -3,7 +3,7 @@
 import pandas as pd
 import torch
 
-from flatlandia import figures, runlog
+from flatlandia import checkpoints, figures, runlog
 from flatlandia.coarse import retrieval
 
 
@@ -11,7 +11,8 @@ def main(smk, log):
     torch.set_num_threads(1)
     ref, q, sim = (pd.read_parquet(p) for p in (smk.input.reference_map, smk.input.queries, smk.input.similarity))
     models = {
-        retrieval.LOSSES[loss]: retrieval.load_checkpoint(p) for loss, p in zip(smk.params.losses, smk.input.models)
+        retrieval.LOSSES[loss]: checkpoints.load_checkpoint(p, retrieval.CoarseConfig, retrieval.build_model)
+        for loss, p in zip(smk.params.losses, smk.input.models)
     }
     cfg0 = next(iter(models.values()))[1]
     ds = retrieval.build_dataset([(ref, q, sim)], cfg0, splits=("test",))

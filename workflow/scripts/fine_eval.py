@@ -4,7 +4,7 @@ Methods: ``geo`` (the geometric solver, priors from the training split) or a tra
 checkpoint. Proposals: ``gtbb`` (oracle), ``whole`` (whole reference map), or a coarse proposal
 table (columns scene, token, strategy, proposal) filtered on the configured strategy; a learned
 model trained on simulated coarse proposals gets the real ones cut to their densest objects
-(learned.coarse_training.crop_m), as in its training.
+(config fine.coarse_training.crop_m), as in its training.
 """
 
 import os
@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import io, runlog
+from flatlandia import checkpoints, io, proposals, runlog
 from flatlandia.data import localmaps
 from flatlandia.fine import evaluation, learned, solver
 
@@ -21,9 +21,9 @@ from flatlandia.fine import evaluation, learned, solver
 def proposals_for(smk, ref, queries, coarse):
     kind = smk.params.p["proposal"]
     if kind == "gtbb":
-        return evaluation.gtbb_proposals(ref, queries)
+        return proposals.gtbb_proposals(ref, queries)
     if kind == "whole":
-        return evaluation.whole_map_proposals(ref, queries)
+        return proposals.whole_map_proposals(ref, queries)
     scene = str(ref["scene"].iloc[0])
     p = coarse[(coarse["scene"].astype(str) == scene) & (coarse["strategy"] == smk.params.p["strategy"])]
     return p[p["token"].astype(str).isin(queries["token"].astype(str))]
@@ -48,7 +48,7 @@ def main(smk, log):
         log.info("depth scale prior (log metres per unit): %s", scale_prior)
     model = cfg = None
     if method != "geo":
-        model, cfg = learned.load_checkpoint(smk.input.checkpoint)
+        model, cfg = checkpoints.load_checkpoint(smk.input.checkpoint, learned.FineConfig, learned.build_model)
     parts, map_kb = [], []
     for ref_path, q_path in zip(smk.input.reference_maps, smk.input.queries):
         ref, q = pd.read_parquet(ref_path), qs[q_path]
@@ -73,8 +73,8 @@ def main(smk, log):
             )
         else:  # learned models on coarse proposals see them cut like their training proposals
             parts.append(
-                learned.evaluate_model(
-                    model, cfg, ref, test, evaluation.crop_to_densest(ref, props, float(smk.params.p["crop_m"]))
+                evaluation.evaluate_model(
+                    model, cfg, ref, test, proposals.crop_to_densest(ref, props, float(smk.params.p["crop_m"]))
                 )
             )
     errors = pd.concat(parts, ignore_index=True)
@@ -99,12 +99,12 @@ def main(smk, log):
         ref_map_kb=float(np.mean(map_kb)) if map_kb else float("nan"),
         train_s=0.0,
         epochs=0,
-        trained_on=evaluation.training_label(smk.params.p["train_regime"], smk.params.p["crop_m"]),
+        trained_on=proposals.training_label(smk.params.p["train_regime"], smk.params.p["crop_m"]),
     )
     if model is not None:
-        info = learned.checkpoint_info(smk.input.checkpoint)
+        info = checkpoints.checkpoint_info(smk.input.checkpoint)
         summary.update(
-            n_parameters=learned.n_parameters(model),
+            n_parameters=checkpoints.n_parameters(model),
             model_mb=os.path.getsize(smk.input.checkpoint) / 1e6,
             train_s=float(info.get("seconds") or 0.0),
             epochs=int(cfg.epochs),

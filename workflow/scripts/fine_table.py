@@ -8,12 +8,12 @@ the paper's Tables 4 and 5) as ``fine_localization.md``.
 import json
 
 from flatlandia import io, runlog, tables
-from flatlandia.fine import evaluation
+from flatlandia.fine import report
 
 
 def main(smk, log):
     summaries = [json.loads(open(p).read()) for p in smk.input.summaries]
-    df = evaluation.table_rows(summaries)
+    df = report.table_rows(summaries)
     note = (
         "Test split of every scene; errors in true metres (pu: the paper's convention, local-map units x 215). "
         "Learned models train on the train split (best-on-validation weights) with GT-BB proposals, or, for "
@@ -30,7 +30,7 @@ def main(smk, log):
         title="Fine 3DoF localization (Tables 4-5), test split",
         note=note,
     )
-    text = evaluation.render_markdown(df, note=note)
+    text = report.render_markdown(df, note=note)
     io.write_text(text, smk.output.markdown)
     log.info("\n%s", text)
 

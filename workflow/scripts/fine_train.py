@@ -2,7 +2,7 @@
 type and one training regime.
 
 Trains on the train split of every scene with GT-BB proposals (``gtbb``, the paper's training) or
-with simulated coarse proposals (``coarse``, config learned.coarse_training; for the runs evaluated on
+with simulated coarse proposals (``coarse``, config fine.coarse_training; for the runs evaluated on
 coarse proposals), keeps the best-on-validation weights and saves them with the resolved config
 (torch.save({'state_dict', 'config', ...})).
 """
@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import io, runlog
-from flatlandia.fine import evaluation, learned
+from flatlandia import checkpoints, io, proposals, runlog
+from flatlandia.fine import learned, training
 
 
 def main(smk, log):
@@ -27,7 +27,7 @@ def main(smk, log):
         ref, q = pd.read_parquet(ref_path), pd.read_parquet(q_path)
         for split, dest, copies in (("train", train, int(ct.get("copies", 2))), ("val", val, 1)):
             qs = q[q["split"] == split]
-            for props in evaluation.training_proposals(
+            for props in proposals.training_proposals(
                 ref, qs, regime, rng, copies, bool(ct.get("keep_gtbb", True)), float(ct.get("crop_m", 0.0))
             ):
                 dest += learned.samples_from_queries(ref, qs, props, cfg)[0]
@@ -41,8 +41,8 @@ def main(smk, log):
         cfg.to_dict(),
         ct if regime == "coarse" else "-",
     )
-    res = learned.train(train, val, cfg, log=log, progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"))
-    learned.save_checkpoint(res, smk.output.checkpoint)
+    res = training.train(train, val, cfg, log=log, progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"))
+    checkpoints.save_checkpoint(res, smk.output.checkpoint)
     hist = pd.DataFrame(res["history"])
     io.write_parquet(
         hist,
@@ -52,7 +52,7 @@ def main(smk, log):
             "best_epoch": res["best_epoch"],
             "train_proposals": regime,
             "coarse_training": ct if regime == "coarse" else None,
-            "n_parameters": learned.n_parameters(res["model"]),
+            "n_parameters": checkpoints.n_parameters(res["model"]),
             "train_seconds": res["seconds"],
         },
     )
@@ -61,7 +61,7 @@ def main(smk, log):
         res["best_epoch"],
         res["best_val_median_m"],
         res["seconds"],
-        learned.n_parameters(res["model"]),
+        checkpoints.n_parameters(res["model"]),
     )
 
 

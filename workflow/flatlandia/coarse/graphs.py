@@ -1,4 +1,4 @@
-"""Graphs of the coarse localization task (PAPER.md, "Coarse map localization").
+"""Graphs of the coarse localization task (the paper's "Coarse map localization").
 
 * **Reference graph** (one per scene): one node per reference object; each node receives
   directed edges from its ``k = 7`` nearest neighbours (messages flow neighbour -> node).
@@ -30,9 +30,9 @@ import pandas as pd
 import torch
 from torch_geometric.data import Batch, Data
 
+from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
 
-N_CLASSES = 42
 REF_KNN = 7
 
 

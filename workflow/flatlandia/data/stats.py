@@ -8,17 +8,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import ConvexHull
 
-from flatlandia import geo
-
-#: Table 2 of the paper, as far as PAPER.md gives it: per city (scenes, objects, queries per scene).
-PAPER_TABLE2 = {
-    "Barcelona": {"scenes": 3, "objects": 73, "queries": 63},
-    "Berlin": {"scenes": 2, "objects": 181, "queries": 89},
-    "Lisbon": {"scenes": 7, "objects": 137, "queries": 120},
-    "Paris": {"scenes": 7, "objects": 83, "queries": 83},
-    "Vienna": {"scenes": 1, "objects": 223, "queries": 420},
-    "all": {"scenes": 20, "area_km2": 0.025, "kb_per_map": 5.6, "images": 316, "objects": 118, "queries": 110},
-}
+from flatlandia import geo, paper
 
 
 def hull_area_m2(xy: np.ndarray) -> float:
@@ -61,7 +51,7 @@ def city_table(per_scene: pd.DataFrame, union_km2: dict[str, float]) -> pd.DataF
     rows = []
     groups = list(per_scene.groupby("city", sort=True)) + [("all", per_scene)]
     for city, g in groups:
-        paper = PAPER_TABLE2.get(city, {})
+        published = paper.TABLE2.get(city, {})
         rows.append(
             {
                 "city": city,
@@ -75,12 +65,12 @@ def city_table(per_scene: pd.DataFrame, union_km2: dict[str, float]) -> pd.DataF
                 "total_queries": int(g["queries"].sum()),
                 "union_area_km2": union_km2.get(city, np.nan),
                 "density_per_1000m2": g["objects"].sum() / (g["area_km2"].sum() * 1000.0),
-                "paper_scenes": paper.get("scenes", np.nan),
-                "paper_objects": paper.get("objects", np.nan),
-                "paper_queries": paper.get("queries", np.nan),
-                "paper_area_km2": paper.get("area_km2", np.nan),
-                "paper_kb_per_map": paper.get("kb_per_map", np.nan),
-                "paper_images": paper.get("images", np.nan),
+                "paper_scenes": published.get("scenes", np.nan),
+                "paper_objects": published.get("objects", np.nan),
+                "paper_queries": published.get("queries", np.nan),
+                "paper_area_km2": published.get("area_km2", np.nan),
+                "paper_kb_per_map": published.get("kb_per_map", np.nan),
+                "paper_images": published.get("images", np.nan),
             }
         )
     df = pd.DataFrame(rows)

@@ -7,10 +7,7 @@ pose (x, y, theta) in the region's frame.
 Normalisation ("scene scaled into a unit square"): region coordinates are centred on the
 proposal's centroid and divided by ``scale_m``; GT query maps are divided by ``scale_m`` too, depth
 query maps (median object range 1) are multiplied by ``depth_unit_m / scale_m``, a fixed typical
-range, so both map types live in the same units. The loss is ``Δo + w Δθ``: Euclidean position
-error in those units plus the absolute wrapped angle (radians). Augmentation: a random rigid
-roto-translation of the region together with the target pose (the query stays in its camera
-frame), and for depth maps an optional random scale of the query.
+range, so both map types live in the same units.
 
 Models (``hidden`` = 64 in the paper):
 - ``MLP``: Psi_Q = maxpool(Π(query nodes)); Psi = maxpool_j σ3([Psi_Q, Π(region node j)]); ρ -> pose.
@@ -22,15 +19,13 @@ Models (``hidden`` = 64 in the paper):
   on inter-map edges updating nodes and edges); Psi = maxpool(inter-map edge embeddings).
 - ``GAT+ATT``: self-attention over the inter-map edge embeddings before the pool.
 
-Batches are torch-geometric batches (one ``Data`` per query); everything is seeded and runs
-deterministically on CPU. Checkpoints hold ``{'state_dict', 'config', ...}``.
+Batches are torch-geometric batches (one ``Data`` per query), or padded :class:`DenseMaps` for
+the MLP models. Training, loss and augmentation: :mod:`flatlandia.fine.training`.
 """
 
 from __future__ import annotations
 
-import copy
 import math
-import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -41,9 +36,9 @@ from torch_geometric.data import Batch, Data
 from torch_geometric.nn import GATv2Conv
 from torch_geometric.utils import scatter, to_dense_batch
 
+from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
 
-N_CLASSES = 42
 MODELS = ("MLP", "MLP+ATT", "GAT", "GAT+ATT")
 
 
@@ -338,76 +333,22 @@ class GATModel(_Base):
 
 
 def build_model(cfg: FineConfig) -> nn.Module:
+    """The model a config names (the signature :func:`flatlandia.checkpoints.load_checkpoint` wants)."""
     if cfg.model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {cfg.model!r}")
     att = cfg.model.endswith("+ATT")
     return MLPModel(cfg, att) if cfg.model.startswith("MLP") else GATModel(cfg, att)
 
 
-def n_parameters(model: nn.Module) -> int:
-    return int(sum(p.numel() for p in model.parameters()))
+# ----------------------------------------------------------------------------- inference
 
 
-# ----------------------------------------------------------------------------- loss, augmentation
-
-
-def angle_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Absolute wrapped angle difference in radians, in [0, pi]."""
-    d = a - b
-    return torch.atan2(torch.sin(d), torch.cos(d)).abs()
-
-
-def pose_loss(pred: torch.Tensor, target: torch.Tensor, angle_weight: float = 1.0) -> torch.Tensor:
-    """Mean of Δo (Euclidean position error, normalised units) + w Δθ (radians)."""
-    d_o = (pred[:, :2] - target[:, :2]).norm(dim=1)
-    return (d_o + angle_weight * angle_distance(pred[:, 2], target[:, 2])).mean()
-
-
-def augment(batch, cfg: FineConfig, gen: torch.Generator):
-    """Random rigid roto-translation of every region (and its target pose); query maps unchanged
-    but for an optional random scale of depth maps. Takes a graph batch or :class:`DenseMaps`
-    (same random draws for the same samples); returns a new one."""
-    n_graphs = int(batch.num_graphs)
-    phi = (torch.rand(n_graphs, generator=gen) * 2 - 1) * math.radians(cfg.aug_rotate_deg)
-    tr = (torch.rand(n_graphs, 2, generator=gen) * 2 - 1) * cfg.aug_translate
-    c, s = torch.cos(phi), torch.sin(phi)
-    rot = torch.stack([torch.stack([c, -s], -1), torch.stack([s, c], -1)], -2)  # (B, 2, 2)
-    scale = (
-        torch.exp(torch.randn(n_graphs, generator=gen) * cfg.aug_depth_scale)
-        if cfg.map_type == "depth" and cfg.aug_depth_scale > 0
-        else None
-    )
-    y = batch.y.clone()
-    y[:, :2] = torch.einsum("bij,bj->bi", rot, y[:, :2]) + tr
-    y[:, 2] = torch.atan2(torch.sin(y[:, 2] + phi), torch.cos(y[:, 2] + phi))
-    if isinstance(batch, DenseMaps):
-        r_xy = torch.einsum("bij,blj->bli", rot, batch.r_xy) + tr[:, None]
-        q_xy = batch.q_xy * scale[:, None, None] if scale is not None else batch.q_xy
-        return DenseMaps(batch.q_cls, q_xy, batch.q_mask, batch.r_cls, r_xy, batch.r_mask, y)
-    b = copy.copy(batch)
-    g = batch.batch
-    loc = batch.local
-    moved = torch.einsum("nij,nj->ni", rot[g], loc) + tr[g]
-    qloc = loc * scale[g][:, None] if scale is not None else loc
-    b.local = torch.where(batch.is_q[:, None], qloc, moved)
-    b.y = y
-    return b
-
-
-# ----------------------------------------------------------------------------- training
-
-
-def set_determinism(seed: int) -> None:
-    torch.manual_seed(seed)
-    np.random.seed(seed)
-    torch.use_deterministic_algorithms(True, warn_only=True)
-
-
-def _is_dense(model: nn.Module) -> bool:
+def is_dense(model: nn.Module) -> bool:
+    """Does the model take padded :class:`DenseMaps` (the MLP models) rather than graph batches."""
     return isinstance(model, MLPModel)
 
 
-def _batches(samples, batch_size: int, order: np.ndarray | None = None):
+def batches(samples, batch_size: int, order: np.ndarray | None = None):
     """Batches of a sample list (torch-geometric) or row selections of :class:`DenseMaps`."""
     idx = np.arange(len(samples)) if order is None else order
     for k in range(0, len(idx), batch_size):
@@ -421,9 +362,9 @@ def _batches(samples, batch_size: int, order: np.ndarray | None = None):
 def predict(model: nn.Module, samples, batch_size: int = 256) -> np.ndarray:
     """(N, 3) predictions in the normalised region frame (x, y, theta); samples: a list or DenseMaps."""
     model.eval()
-    if _is_dense(model) and not isinstance(samples, DenseMaps) and len(samples):
+    if is_dense(model) and not isinstance(samples, DenseMaps) and len(samples):
         samples = dense_maps(samples)
-    out = [model(b) for b in _batches(samples, batch_size)]
+    out = [model(b) for b in batches(samples, batch_size)]
     return torch.cat(out).numpy() if out else np.zeros((0, 3))
 
 
@@ -437,149 +378,6 @@ def errors_metres(pred: np.ndarray, samples: list[Data], cfg: FineConfig) -> tup
 
 
 def to_world(pred: np.ndarray, samples: list[Data], cfg: FineConfig) -> np.ndarray:
+    """Normalised predictions back to the scene's metric frame: (N, 3) as x, y (metres), theta."""
     centre = torch.cat([s.centre for s in samples]).numpy()
     return np.column_stack([pred[:, :2] * cfg.scale_m + centre, pred[:, 2]])
-
-
-def train(train_samples: list[Data], val_samples: list[Data], cfg: FineConfig, log=None, progress=None) -> dict:
-    """Adam on batches; the best-on-validation (median position error) weights are kept.
-
-    Returns {'model', 'state_dict', 'config', 'history', 'best_epoch', 'best_val_median_m', 'seconds'}.
-    """
-    set_determinism(cfg.seed)
-    model = build_model(cfg)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
-    sched = (
-        torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.epochs, 1), eta_min=0.01 * cfg.lr)
-        if cfg.lr_schedule == "cosine"
-        else None
-    )
-    gen = torch.Generator().manual_seed(cfg.seed)
-    rng = np.random.default_rng(cfg.seed)
-    history, best, best_state, best_epoch = [], float("inf"), None, -1
-    t0 = time.perf_counter()
-    data, val_data = train_samples, val_samples
-    if _is_dense(model):  # padded once; a batch is a row selection
-        data = dense_maps(train_samples)
-        val_data = dense_maps(val_samples) if val_samples else val_samples
-    epochs = range(cfg.epochs)
-    for ep in progress(epochs) if progress else epochs:
-        model.train()
-        tot, n = 0.0, 0
-        for batch in _batches(data, cfg.batch_size, rng.permutation(len(train_samples))):
-            if cfg.augment:
-                batch = augment(batch, cfg, gen)
-            opt.zero_grad()
-            loss = pose_loss(model(batch), batch.y, cfg.angle_weight)
-            loss.backward()
-            opt.step()
-            tot += float(loss.detach()) * int(batch.num_graphs)
-            n += int(batch.num_graphs)
-        if sched is not None:
-            sched.step()
-        rec = {"epoch": ep, "train_loss": tot / max(n, 1)}
-        if val_samples and (ep % cfg.eval_every == 0 or ep == cfg.epochs - 1):
-            e_m, e_deg = errors_metres(predict(model, val_data), val_samples, cfg)
-            rec.update(val_median_m=float(np.median(e_m)), val_median_deg=float(np.median(e_deg)))
-            if rec["val_median_m"] < best:
-                best, best_epoch = rec["val_median_m"], ep
-                best_state = copy.deepcopy(model.state_dict())
-        history.append(rec)
-        if log is not None:
-            log.info("epoch %d: %s", ep, {k: round(v, 4) for k, v in rec.items() if k != "epoch"})
-    if best_state is None:
-        best_state = copy.deepcopy(model.state_dict())
-    model.load_state_dict(best_state)
-    return {
-        "model": model,
-        "state_dict": best_state,
-        "config": cfg.to_dict(),
-        "history": history,
-        "best_epoch": best_epoch,
-        "best_val_median_m": best,
-        "seconds": time.perf_counter() - t0,
-    }
-
-
-def save_checkpoint(result: dict, path) -> None:
-    """torch.save({'state_dict', 'config', 'history', 'best_epoch', 'best_val_median_m'}) atomically."""
-    from flatlandia.io import atomic_path
-
-    with atomic_path(path) as tmp:
-        torch.save(
-            {
-                k: result[k]
-                for k in ("state_dict", "config", "history", "best_epoch", "best_val_median_m", "seconds")
-                if k in result
-            },
-            tmp,
-        )
-
-
-def load_checkpoint(path) -> tuple[nn.Module, FineConfig]:
-    ck = torch.load(path, map_location="cpu", weights_only=False)
-    cfg = FineConfig.from_dict(ck["config"])
-    model = build_model(cfg)
-    model.load_state_dict(ck["state_dict"])
-    model.eval()
-    return model, cfg
-
-
-def checkpoint_info(path) -> dict:
-    """The bookkeeping of a checkpoint: config, best epoch and validation median, training seconds."""
-    ck = torch.load(path, map_location="cpu", weights_only=False)
-    return {k: ck.get(k) for k in ("config", "best_epoch", "best_val_median_m", "seconds")}
-
-
-def evaluate_model(
-    model: nn.Module,
-    cfg: FineConfig,
-    ref: pd.DataFrame,
-    queries: pd.DataFrame,
-    proposals: pd.DataFrame,
-    method: str | None = None,
-) -> pd.DataFrame:
-    """Per-query error rows (same columns as the solver's) for one scene; query time is the
-    single-query inference time (batch of one, after building the sample)."""
-    from flatlandia.fine import evaluation
-
-    samples, kept = samples_from_queries(ref, queries, proposals, cfg)
-    ref_cls = ref["class_id"].to_numpy()
-    pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}
-    props = dict(zip(proposals["token"].astype(str), proposals["proposal"]))
-    strat = dict(zip(proposals["token"].astype(str), proposals["strategy"]))
-    lat = float(ref["lat"].mean())
-    rows = []
-    model.eval()
-    for s, r in zip(samples, kept.itertuples(index=False)):
-        t0, c0 = time.perf_counter(), time.process_time()
-        with torch.no_grad():
-            p = model(Batch.from_data_list([s])).numpy()
-        dt, dc = time.perf_counter() - t0, time.process_time() - c0
-        x, y, th = to_world(p, [s], cfg)[0]
-        e_m, e_deg = evaluation.pose_errors(x, y, th, r.x_m, r.y_m, math.radians(r.theta_deg))
-        idx = np.array([pos[int(o)] for o in props.get(str(r.token), []) if int(o) in pos], int)
-        rows.append(
-            {
-                "scene": str(r.scene),
-                "token": str(r.token),
-                "method": method or cfg.model,
-                "map_type": cfg.map_type,
-                "strategy": strat.get(str(r.token), "none"),
-                "n_objects": int(r.n_objects),
-                "proposal_size": int(len(idx)),
-                "solvable": bool(evaluation.solvable(r.classes, ref_cls[idx])) if len(idx) else False,
-                "x": float(x),
-                "y": float(y),
-                "theta_deg": float(math.degrees(th)),
-                "error_m": float(e_m),
-                "error_deg": float(e_deg),
-                "error_paper_m": float(evaluation.paper_metres(e_m, lat)),
-                "confidence": float("nan"),
-                "n_inliers": 0,
-                "n_correct_inliers": 0,
-                "seconds": float(dt),
-                "cpu_seconds": float(dc),
-            }
-        )
-    return pd.DataFrame(rows)
