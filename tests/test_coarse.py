@@ -1,4 +1,4 @@
-"""Coarse map localization (issue 4): graphs, similarity target, losses, proposals, metrics, training."""
+"""Coarse map localization: graphs, similarity target, losses, proposals, metrics, training."""
 
 import numpy as np
 import pandas as pd

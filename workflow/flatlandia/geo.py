@@ -21,8 +21,6 @@ from flatlandia.errors import InputError
 TO_FLATLANDIA = 0.0033780547666424354
 #: Degrees per local-map unit (docs/conventions.md, "Local maps").
 UNIT_DEG = TO_FLATLANDIA / 2.0
-#: The upstream code turns local-map units into its "metres" with this factor.
-PAPER_METRES_PER_UNIT = 215.0
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Rule coarse_similarity: the neighbourhood similarity target S of every (query, reference object) of a scene.
+"""Rule coarse_target: the neighbourhood similarity target S of every (query, reference object) of a scene.
 
 Cached as Parquet (columns scene, token, obj_idx, S, d_p, d_s, n_matched); the settings and the
 measured time per query go into the file's metadata.
@@ -13,7 +13,7 @@ from flatlandia.coarse import target
 
 
 def main(smk, log):
-    cfg = target.SimilarityConfig(**dict(smk.params.similarity))
+    cfg = target.SimilarityConfig.from_dict(smk.params.similarity)
     ref = pd.read_parquet(smk.input.reference_map)
     queries = pd.read_parquet(smk.input.queries)
     scene = str(smk.wildcards.scene)

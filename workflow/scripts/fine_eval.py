@@ -41,7 +41,7 @@ def main(smk, log):
     qs = {p: pd.read_parquet(p) for p in smk.input.queries}
     geo_cfg = dict(smk.params.geo)
     scale_prior = None
-    if method == "geo" and mt == "depth" and geo_cfg.get("scale_prior", True):
+    if method == "geo" and mt == "depth" and geo_cfg["scale_prior"]:
         scale_prior = solver.fit_priors(
             [localmaps.xy(c) for q in qs.values() for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
         )

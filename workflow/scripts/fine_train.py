@@ -25,10 +25,10 @@ def main(smk, log):
     train, val = [], []
     for ref_path, q_path in zip(smk.input.reference_maps, smk.input.queries):
         ref, q = pd.read_parquet(ref_path), pd.read_parquet(q_path)
-        for split, dest, copies in (("train", train, int(ct.get("copies", 2))), ("val", val, 1)):
+        for split, dest, copies in (("train", train, int(ct["copies"])), ("val", val, 1)):
             qs = q[q["split"] == split]
             for props in proposals.training_proposals(
-                ref, qs, regime, rng, copies, bool(ct.get("keep_gtbb", True)), float(ct.get("crop_m", 0.0))
+                ref, qs, regime, rng, copies, bool(ct["keep_gtbb"]), float(ct["crop_m"])
             ):
                 dest += learned.samples_from_queries(ref, qs, props, cfg)[0]
     log.info(

@@ -12,7 +12,7 @@ as one disjoint union (:func:`fused_scores`). Graphs and targets of every query:
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -22,6 +22,7 @@ from torch_geometric.data import Batch
 from torch_geometric.nn import GATConv, GATv2Conv, global_mean_pool
 from torch_geometric.utils import add_self_loops
 
+from flatlandia import config
 from flatlandia.classes import N_CLASSES
 from flatlandia.coarse import graphs
 
@@ -29,37 +30,41 @@ LOSSES = {"sim": "Sim", "trip": "Trip", "simtrip": "Sim+Trip"}
 MAP_TYPES = ["gt", "depth"]
 
 
+#: Defaults: the `coarse.train` section of workflow/schemas/config.schema.yaml.
+_TRAIN = config.section_defaults("coarse.train")
+
+
 @dataclass
 class CoarseConfig:
     loss: str = "simtrip"  # sim | trip | simtrip
-    epochs: int = 20
-    batch_size: int = 20
-    lr: float = 1e-2  # peak learning rate
-    weight_decay: float = 0.0
-    margin: float = 0.5  # triplet margin (score units)
-    trip_weight: float = 1.0  # Sim+Trip: weight of the triplet term
-    hard_negatives: float = 0.5  # Trip: share of negatives that are the best-ranked unmatched nodes (paper 0)
-    sim_weight_floor: float = 0.1  # Sim: weight S/max(S) + floor
-    grad_clip: float = 1.0  # max gradient norm (0: off); damps the Sim loss spikes
-    lr_schedule: str = "cosine"  # constant | cosine (per step, from lr down to lr * lr_min_factor)
-    lr_min_factor: float = 0.01
-    hidden: int = 32
-    heads: int = 2
-    layers: int = 3
-    out_dim: int = 32
-    dropout: float = 0.0
-    normalize: bool = True  # L2-normalise embeddings: scores in [0, 2], no blow-ups of the Sim loss
-    conv: str = "gatv2"  # gatv2 | gat
-    train_maps: list = field(default_factory=lambda: ["gt", "depth"])
-    batching: str = "scene"  # scene: each batch holds queries of one scene | mixed: any scenes
-    eval_every: int = 1
+    epochs: int = _TRAIN["epochs"]
+    batch_size: int = _TRAIN["batch_size"]
+    lr: float = _TRAIN["lr"]
+    weight_decay: float = _TRAIN["weight_decay"]
+    margin: float = _TRAIN["margin"]
+    trip_weight: float = _TRAIN["trip_weight"]
+    hard_negatives: float = _TRAIN["hard_negatives"]
+    sim_weight_floor: float = _TRAIN["sim_weight_floor"]
+    grad_clip: float = _TRAIN["grad_clip"]
+    lr_schedule: str = _TRAIN["lr_schedule"]
+    lr_min_factor: float = _TRAIN["lr_min_factor"]
+    hidden: int = _TRAIN["hidden"]
+    heads: int = _TRAIN["heads"]
+    layers: int = _TRAIN["layers"]
+    out_dim: int = _TRAIN["out_dim"]
+    dropout: float = _TRAIN["dropout"]
+    normalize: bool = _TRAIN["normalize"]
+    conv: str = _TRAIN["conv"]
+    train_maps: list = field(default_factory=lambda: list(_TRAIN["train_maps"]))
+    batching: str = _TRAIN["batching"]
+    eval_every: int = _TRAIN["eval_every"]
     seed: int = 0
     # graph normalisation (graphs.GraphConfig); depth_unit_m null = median range of training GT maps
-    scale_m: float = 50.0
-    depth_unit_m: float | None = None
-    knn: int = graphs.REF_KNN
-    radius_m: float = 30.0  # R_30
-    bb_enlarge: float = 0.10  # GT-BB
+    scale_m: float = _TRAIN["scale_m"]
+    depth_unit_m: float | None = _TRAIN["depth_unit_m"]
+    knn: int = _TRAIN["knn"]
+    radius_m: float = _TRAIN["radius_m"]
+    bb_enlarge: float = _TRAIN["bb_enlarge"]
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -73,12 +78,9 @@ class CoarseConfig:
             raise ValueError(f"train_maps must be a non-empty subset of {MAP_TYPES}, got {self.train_maps}")
 
     @classmethod
-    def from_dict(cls, d: dict) -> CoarseConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ValueError(f"unknown coarse config keys {unknown}; known: {sorted(known)}")
-        return cls(**{k: (list(v) if isinstance(v, (list, tuple)) else v) for k, v in d.items()})
+    def from_dict(cls, d: dict | None) -> CoarseConfig:
+        """Strict: a key that is not a coarse training setting raises, naming the closest one."""
+        return config.from_section(cls, "coarse.train", d)
 
     def to_dict(self) -> dict:
         return asdict(self)

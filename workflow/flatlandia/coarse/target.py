@@ -43,16 +43,25 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pandas as pd
 
+from flatlandia import config
 from flatlandia.data import localmaps
+
+#: Defaults: the `coarse.similarity` section of workflow/schemas/config.schema.yaml.
+_SIMILARITY = config.section_defaults("coarse.similarity")
 
 
 @dataclass(frozen=True)
 class SimilarityConfig:
-    radius_m: float = 30.0  # neighbourhood radius (also the d_s normaliser)
-    max_neighbours: int = 24  # at most this many nearest objects (node included) per neighbourhood
-    cap_m: float = 5.0  # residual cap (d_p normaliser) and inlier threshold
-    pair_tol_m: float = 2.0  # pair lengths must agree within this to generate a motion
-    chunk: int = 20000  # hypotheses evaluated per array chunk
+    radius_m: float = _SIMILARITY["radius_m"]
+    max_neighbours: int = _SIMILARITY["max_neighbours"]
+    cap_m: float = _SIMILARITY["cap_m"]
+    pair_tol_m: float = _SIMILARITY["pair_tol_m"]
+    chunk: int = _SIMILARITY["chunk"]
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> SimilarityConfig:
+        """Strict: a key that is not a target setting raises, naming the closest one."""
+        return config.from_section(cls, "coarse.similarity", d)
 
     def to_dict(self) -> dict:
         return asdict(self)

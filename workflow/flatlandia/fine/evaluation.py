@@ -20,7 +20,7 @@ import torch
 from torch import nn
 from torch_geometric.data import Batch
 
-from flatlandia import geo, paper
+from flatlandia import config, geo, paper
 from flatlandia.data import localmaps
 from flatlandia.fine import learned, solver
 
@@ -32,16 +32,16 @@ THRESHOLD_COLUMNS = [f"pct_{m:g}m_{d:g}deg" for m, d in paper.THRESHOLDS]
 PAPER_UNIT_THRESHOLD_COLUMNS = [f"pct_pu_{m:g}m_{d:g}deg" for m, d in paper.THRESHOLDS]
 
 
-def training_priors(queries: pd.DataFrame, config: dict | None = None):
+def training_priors(queries: pd.DataFrame, geo_config: dict | None = None):
     """The solver's priors from one scene's training split: (prior cameras (P, 3) as x, y, heading
     in radians, or None when ``camera_prior`` is off; per prior camera the reference ``obj_idx`` it
     saw, for the co-visibility cost, or None). Test queries never contribute."""
-    cfg = dict(config or {})
-    if not cfg.get("camera_prior", True):
+    cfg = {**config.section_defaults("fine.geo"), **(geo_config or {})}
+    if not cfg["camera_prior"]:
         return None, None
     tr = queries[queries["split"] == "train"]
     prior = np.column_stack([tr["x_m"], tr["y_m"], np.radians(tr["theta_deg"])]).astype(float)
-    seen = [np.asarray(v, int) for v in tr["ref_idx"]] if float(cfg.get("covis_weight", 0)) > 0 else None
+    seen = [np.asarray(v, int) for v in tr["ref_idx"]] if float(cfg["covis_weight"]) > 0 else None
     return prior, seen
 
 

@@ -36,40 +36,45 @@ from torch_geometric.data import Batch, Data
 from torch_geometric.nn import GATv2Conv
 from torch_geometric.utils import scatter, to_dense_batch
 
+from flatlandia import config
 from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
 
 MODELS = ("MLP", "MLP+ATT", "GAT", "GAT+ATT")
 
 
+#: Defaults: the `fine.train` section of workflow/schemas/config.schema.yaml.
+_TRAIN = config.section_defaults("fine.train")
+
+
 @dataclass
 class FineConfig:
     model: str = "MLP"
     map_type: str = "depth"  # gt | depth
-    hidden: int = 64
-    heads: int = 4
-    rounds: int = 3  # GAT: rounds of (2 intra-map layers + 1 inter-map layer)
-    knn: int = 3  # GAT: region kNN for intra-map edges
-    epochs: int = 20
-    batch_size: int = 32
-    lr: float = 1e-3
-    weight_decay: float = 0.0
-    lr_schedule: str = "none"  # none | cosine (to 1% of lr over the epochs)
-    scale_m: float = 15.0  # metres per normalised unit (tuned on val: 100 -> 15 m, MLP 5.7 -> 3.6 m)
-    depth_unit_m: float = 25.0  # metres assumed per depth-map unit (typical median object range)
-    angle_weight: float = 1.0
-    augment: bool = True
-    aug_rotate_deg: float = 180.0  # max |rotation| of the augmentation (180: any rotation)
-    aug_translate: float = 0.25  # max translation (normalised units) of the augmentation
-    aug_depth_scale: float = 0.2  # std of log scale jitter of depth query maps (0: none)
-    seed: int = 0
-    eval_every: int = 1
+    hidden: int = _TRAIN["hidden"]
+    heads: int = _TRAIN["heads"]
+    rounds: int = _TRAIN["rounds"]
+    knn: int = _TRAIN["knn"]
+    epochs: int = _TRAIN["epochs"]
+    batch_size: int = _TRAIN["batch_size"]
+    lr: float = _TRAIN["lr"]
+    weight_decay: float = _TRAIN["weight_decay"]
+    lr_schedule: str = _TRAIN["lr_schedule"]
+    scale_m: float = _TRAIN["scale_m"]
+    depth_unit_m: float = _TRAIN["depth_unit_m"]
+    angle_weight: float = _TRAIN["angle_weight"]
+    augment: bool = _TRAIN["augment"]
+    aug_rotate_deg: float = _TRAIN["aug_rotate_deg"]
+    aug_translate: float = _TRAIN["aug_translate"]
+    aug_depth_scale: float = _TRAIN["aug_depth_scale"]
+    seed: int = _TRAIN["seed"]
+    eval_every: int = _TRAIN["eval_every"]
     extra: dict = field(default_factory=dict)
 
     @classmethod
     def from_dict(cls, d: dict | None) -> FineConfig:
-        d = dict(d or {})
-        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+        """Strict: a key that is not a training setting raises, naming the closest one."""
+        return config.from_section(cls, "fine.train", d)
 
     def to_dict(self) -> dict:
         return asdict(self)
