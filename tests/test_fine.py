@@ -10,7 +10,7 @@ import torch
 from flatlandia import checkpoints, geo, io, proposals
 from flatlandia.classes import CLASSES
 from flatlandia.data import queries, recover, reference_map
-from flatlandia.fine import evaluation, learned, report, solver, training
+from flatlandia.fine import evaluation, learned, report, solver, solver_problem, solver_scoring, training
 
 torch.set_num_threads(1)
 
@@ -86,17 +86,17 @@ def test_compiled_scoring_equals_padded_numpy_costs(metric):
     rng = np.random.default_rng(3)
     ref, cls = rng.uniform(-100, 100, (150, 2)), rng.integers(0, 6, 150)
     q, qc = rng.uniform(1, 30, (7, 2)), np.r_[rng.integers(0, 6, 6), 9]  # class 9: no candidates
-    pb = solver._Problem(q, qc, ref, cls, metric, solver.SolverConfig(position_sigma_m=5.0))  # inliers by chance
+    pb = solver_problem.Problem(q, qc, ref, cls, metric, solver.SolverConfig(position_sigma_m=5.0))  # inliers by chance
     t, th, s = rng.uniform(-100, 100, (4000, 2)), rng.uniform(-np.pi, np.pi, 4000), rng.uniform(2, 50, 4000)
-    total, inl, match = pb.data_cost(t, th, s)
-    cost = pb.costs(t, th, s)
+    total, inl, match = solver_scoring.data_cost(pb, t, th, s)
+    cost = solver_scoring.padded_costs(pb, t, th, s)
     best = cost.argmin(2)
     bc = np.take_along_axis(cost, best[..., None], 2)[..., 0]
     tau2 = pb.cfg.tau**2
     np.testing.assert_allclose(total, np.minimum(bc, tau2).sum(1), rtol=1e-4, atol=1e-4)
     ok = np.abs(bc - tau2) > 1e-3  # float32 reference: leave exact ties with the cap aside
     assert (inl == (bc < tau2))[ok].all() and inl.sum() > 100
-    ref_match = pb.cand[np.arange(pb.m)[None], best]
+    ref_match = solver_scoring.padded_candidates(pb)[0][np.arange(pb.m)[None], best]
     assert (match[inl] == ref_match[inl]).all()
     assert not inl[:, -1].any()
 

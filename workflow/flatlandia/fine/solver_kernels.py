@@ -5,7 +5,7 @@ spent most of a whole-map query (about 60 % of 47 ms) building temporaries for c
 bearing test rejects at once. Here each (hypothesis, query object) walks only its own class's
 candidates and skips a candidate as soon as its bearing cost alone cannot beat the best so far or
 the inlier cap; the result is the same MSAC data term, inlier mask and matches as the numpy
-reference ``_Problem.costs`` (tested against it).
+reference ``solver_scoring.padded_costs`` (tested against it).
 
 Candidates are given flat: object ``k``'s candidates are ``cand_x/cand_y/cand_idx[ptr[k]:ptr[k+1]]``.
 """
@@ -13,9 +13,46 @@ Candidates are given flat: object ``k``'s candidates are ``cand_x/cand_y/cand_id
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+
+
+class Candidates(NamedTuple):
+    """Same-class candidates of every query object, flat: object ``k``'s are ``[ptr[k]:ptr[k+1]]``."""
+
+    x: np.ndarray  # (N,) candidate positions
+    y: np.ndarray
+    idx: np.ndarray  # (N,) int64 rows of the reference map
+    ptr: np.ndarray  # (M + 1,) int64 offsets per query object
+
+
+class QueryTerms(NamedTuple):
+    """The query's observations and noise, as the scoring and refinement kernels read them."""
+
+    metric: bool  # GT (metre) local map, else an unscaled depth map
+    qx: np.ndarray  # (M,) local positions
+    qy: np.ndarray
+    bear: np.ndarray  # (M,) bearings (rad)
+    range_eps: np.ndarray  # (M,) range + eps (small-range guard)
+    eps: float
+    bearing_sigma: float  # depth maps (rad)
+    log_range_sigma: float  # depth maps
+    position_sigma: float  # metric maps (m)
+
+
+class PriorTerms(NamedTuple):
+    """Prior rows of the refinement (depth maps); a weight of 0 switches a prior off."""
+
+    cam: np.ndarray  # (C, 2) the prior camera each hypothesis is tied to
+    weight: float
+    sigma: float
+    head: np.ndarray  # (C,) its heading (rad)
+    head_sigma: float  # 0: no heading prior
+    scale_mu: float
+    scale_sd: float
+    scale_weight: float
 
 
 @njit(cache=True, inline="always")
@@ -30,9 +67,12 @@ def _record(c, k, best, bj, tau2, inl, match, cand_idx, ptr):
 
 
 @njit(cache=True, fastmath=False)
-def score_depth(tx, ty, theta, s, q_bear, q_range_eps, eps_q, cand_x, cand_y, cand_idx, ptr, sb, sr, tau2):
+def score_depth(tx, ty, theta, s, query, cands, tau2):
     """Depth (unscaled) local maps: bearing error as a tangent (weight 1/sb) plus log-range error
     (weight 1/sr) at scale ``s``. Returns the capped data cost (C,), inliers (C, M), matches (C, M)."""
+    q_bear, q_range_eps, eps_q = query.bear, query.range_eps, query.eps
+    sb, sr = query.bearing_sigma, query.log_range_sigma
+    cand_x, cand_y, cand_idx, ptr = cands
     n_hyp, m = tx.shape[0], q_bear.shape[0]
     total = np.zeros(n_hyp)
     inl = np.zeros((n_hyp, m), np.bool_)
@@ -68,8 +108,10 @@ def score_depth(tx, ty, theta, s, q_bear, q_range_eps, eps_q, cand_x, cand_y, ca
 
 
 @njit(cache=True, fastmath=False)
-def score_metric(tx, ty, theta, qx, qy, cand_x, cand_y, cand_idx, ptr, sp, tau2):
+def score_metric(tx, ty, theta, query, cands, tau2):
     """Metric (GT) local maps: squared position error in the camera frame over ``sp``**2."""
+    qx, qy, sp = query.qx, query.qy, query.position_sigma
+    cand_x, cand_y, cand_idx, ptr = cands
     n_hyp, m = tx.shape[0], qx.shape[0]
     total = np.zeros(n_hyp)
     inl = np.zeros((n_hyp, m), np.bool_)
@@ -133,40 +175,93 @@ def _wrap(a):
 
 
 @njit(cache=True)
-def refine_gauss_newton(
-    p,
-    R,
-    inl,
-    metric,
-    qx,
-    qy,
-    q_bear,
-    q_range,
-    eps,
-    sb,
-    sr,
-    sp,
-    cam,
-    prior_w,
-    prior_sigma,
-    head,
-    head_sigma,
-    scale_mu,
-    scale_sd,
-    scale_w,
-    iters,
-):
+def _match_rows(H, g, J, p, c, R, inl, query, npar):
+    """Add the soft-L1 weighted rows of hypothesis ``c``'s matches to the normal equations: bearing
+    and log-range rows (depth maps) or the two position rows in the camera frame (metric maps)."""
+    cs, sn = math.cos(p[c, 2]), math.sin(p[c, 2])
+    sc = math.exp(p[c, 3])
+    sp, sb, sr, eps = query.position_sigma, query.bearing_sigma, query.log_range_sigma, query.eps
+    for k in range(R.shape[1]):
+        if not inl[c, k]:
+            continue
+        rx = R[c, k, 0] - p[c, 0]
+        ry = R[c, k, 1] - p[c, 1]
+        for row in range(2):
+            for a in range(4):
+                J[a] = 0.0
+            if query.metric:
+                lx = cs * rx + sn * ry
+                ly = -sn * rx + cs * ry
+                if row == 0:
+                    e = (lx - query.qx[k]) / sp
+                    J[0], J[1], J[2] = -cs / sp, -sn / sp, ly / sp
+                else:
+                    e = (ly - query.qy[k]) / sp
+                    J[0], J[1], J[2] = sn / sp, -cs / sp, -lx / sp
+            else:
+                rho2 = max(rx * rx + ry * ry, 1e-12)
+                rho = math.sqrt(rho2)
+                if row == 0:
+                    e = _wrap(math.atan2(ry, rx) - p[c, 2] - query.bear[k]) / sb
+                    J[0], J[1], J[2] = ry / rho2 / sb, -rx / rho2 / sb, -1.0 / sb
+                else:
+                    gg = 1.0 / (rho + sc * eps)
+                    e = (math.log(rho + sc * eps) - math.log(sc * query.range_eps[k])) / sr
+                    J[0], J[1] = -rx / rho * gg / sr, -ry / rho * gg / sr
+                    J[3] = (sc * eps * gg - 1.0) / sr
+            w = 1.0 / math.sqrt(1.0 + e * e)
+            for a in range(npar):
+                g[a] += w * J[a] * e
+                for b in range(npar):
+                    H[a, b] += w * J[a] * J[b]
+
+
+@njit(cache=True)
+def _prior_rows(H, g, p, c, priors):
+    """Add the prior rows of hypothesis ``c`` (position, heading, log scale); they share one
+    soft-L1 weight on their total."""
+    ex0 = ex1 = ex2 = ex3 = 0.0
+    tot = 0.0
+    if priors.weight > 0:
+        wpr = math.sqrt(priors.weight)
+        ex0 = wpr * (p[c, 0] - priors.cam[c, 0]) / priors.sigma
+        ex1 = wpr * (p[c, 1] - priors.cam[c, 1]) / priors.sigma
+        tot += ex0 * ex0 + ex1 * ex1
+        if priors.head_sigma > 0:
+            ex2 = wpr * _wrap(p[c, 2] - priors.head[c]) / priors.head_sigma
+            tot += ex2 * ex2
+    if priors.scale_weight > 0:
+        ex3 = math.sqrt(priors.scale_weight) * (p[c, 3] - priors.scale_mu) / priors.scale_sd
+        tot += ex3 * ex3
+    w = 1.0 / math.sqrt(1.0 + tot)
+    if priors.weight > 0:
+        jp = math.sqrt(priors.weight) / priors.sigma
+        H[0, 0] += w * jp * jp
+        H[1, 1] += w * jp * jp
+        g[0] += w * jp * ex0
+        g[1] += w * jp * ex1
+        if priors.head_sigma > 0:
+            jh = math.sqrt(priors.weight) / priors.head_sigma
+            H[2, 2] += w * jh * jh
+            g[2] += w * jh * ex2
+    if priors.scale_weight > 0:
+        js = math.sqrt(priors.scale_weight) / priors.scale_sd
+        H[3, 3] += w * js * js
+        g[3] += w * js * ex3
+
+
+@njit(cache=True)
+def refine_gauss_newton(p, R, inl, query, priors, iters):
     """Robust Gauss-Newton (soft-L1 IRLS, analytic Jacobians) of each hypothesis on its matches.
 
     ``p`` (C, 4): x, y, theta, log scale (updated in place); ``R`` (C, M, 2) matched candidates;
-    ``inl`` (C, M) which matches count. Depth maps: bearing residuals (1/sb) and log-range
-    residuals (1/sr); metric maps: positions in the camera frame (1/sp), 3 parameters. Priors
-    (depth maps; weight 0 = off): position ``cam`` (C, 2) with ``prior_sigma``, heading ``head`` (C,)
-    with ``head_sigma``, log scale (``scale_mu``, ``scale_sd``); their rows share one soft-L1 weight.
-    Stops a hypothesis when its step is below 1e-10. Mirrors the numpy loop it replaced.
+    ``inl`` (C, M) which matches count; ``query`` (:class:`QueryTerms`): bearing residuals (1/sb)
+    and log-range residuals (1/sr) for depth maps, positions in the camera frame (1/sp, 3
+    parameters) for metric maps; ``priors`` (:class:`PriorTerms`, depth maps only). Stops a
+    hypothesis when its step is below 1e-10.
     """
     n_hyp, m = R.shape[0], R.shape[1]
-    npar = 3 if metric else 4
+    npar = 3 if query.metric else 4
     J = np.zeros(4)
     for c in range(n_hyp):
         n_in = 0
@@ -178,70 +273,9 @@ def refine_gauss_newton(
         for _ in range(iters):
             H = np.zeros((4, 4))
             g = np.zeros(4)
-            cs, sn = math.cos(p[c, 2]), math.sin(p[c, 2])
-            sc = math.exp(p[c, 3])
-            for k in range(m):
-                if not inl[c, k]:
-                    continue
-                rx = R[c, k, 0] - p[c, 0]
-                ry = R[c, k, 1] - p[c, 1]
-                for row in range(2):
-                    for a in range(4):
-                        J[a] = 0.0
-                    if metric:
-                        lx = cs * rx + sn * ry
-                        ly = -sn * rx + cs * ry
-                        if row == 0:
-                            e = (lx - qx[k]) / sp
-                            J[0], J[1], J[2] = -cs / sp, -sn / sp, ly / sp
-                        else:
-                            e = (ly - qy[k]) / sp
-                            J[0], J[1], J[2] = sn / sp, -cs / sp, -lx / sp
-                    else:
-                        rho2 = max(rx * rx + ry * ry, 1e-12)
-                        rho = math.sqrt(rho2)
-                        if row == 0:
-                            e = _wrap(math.atan2(ry, rx) - p[c, 2] - q_bear[k]) / sb
-                            J[0], J[1], J[2] = ry / rho2 / sb, -rx / rho2 / sb, -1.0 / sb
-                        else:
-                            gg = 1.0 / (rho + sc * eps)
-                            e = (math.log(rho + sc * eps) - math.log(sc * (q_range[k] + eps))) / sr
-                            J[0], J[1] = -rx / rho * gg / sr, -ry / rho * gg / sr
-                            J[3] = (sc * eps * gg - 1.0) / sr
-                    w = 1.0 / math.sqrt(1.0 + e * e)
-                    for a in range(npar):
-                        g[a] += w * J[a] * e
-                        for b in range(npar):
-                            H[a, b] += w * J[a] * J[b]
-            if not metric:  # priors: rows sharing one soft-L1 weight on their total
-                ex0 = ex1 = ex2 = ex3 = 0.0
-                tot = 0.0
-                if prior_w > 0:
-                    wpr = math.sqrt(prior_w)
-                    ex0 = wpr * (p[c, 0] - cam[c, 0]) / prior_sigma
-                    ex1 = wpr * (p[c, 1] - cam[c, 1]) / prior_sigma
-                    tot += ex0 * ex0 + ex1 * ex1
-                    if head_sigma > 0:
-                        ex2 = wpr * _wrap(p[c, 2] - head[c]) / head_sigma
-                        tot += ex2 * ex2
-                if scale_w > 0:
-                    ex3 = math.sqrt(scale_w) * (p[c, 3] - scale_mu) / scale_sd
-                    tot += ex3 * ex3
-                w = 1.0 / math.sqrt(1.0 + tot)
-                if prior_w > 0:
-                    jp = math.sqrt(prior_w) / prior_sigma
-                    H[0, 0] += w * jp * jp
-                    H[1, 1] += w * jp * jp
-                    g[0] += w * jp * ex0
-                    g[1] += w * jp * ex1
-                    if head_sigma > 0:
-                        jh = math.sqrt(prior_w) / head_sigma
-                        H[2, 2] += w * jh * jh
-                        g[2] += w * jh * ex2
-                if scale_w > 0:
-                    js = math.sqrt(scale_w) / scale_sd
-                    H[3, 3] += w * js * js
-                    g[3] += w * js * ex3
+            _match_rows(H, g, J, p, c, R, inl, query, npar)
+            if not query.metric:
+                _prior_rows(H, g, p, c, priors)
             for a in range(npar):
                 H[a, a] += 1e-6
             step = _solve_small(H, g, npar)
@@ -286,7 +320,7 @@ def covis_counts(d, j, seen, match, inl, radius):
 def triple_resections(ca, cb, cc, rx, ry, bi, bj, bk, ri, rj, rk, eps, min_scale, max_scale, metric):
     """3-bearing resections of query bearings (bi, bj, bk) (ranges ri, rj, rk + ``eps`` give the
     scale) onto every triple of distinct candidates from ``ca`` x ``cb`` x ``cc``. See
-    ``_Problem.triple_hypotheses`` for the algebra. Returns t (H, 2), theta (H,), scale (H,)."""
+    ``solver_hypotheses.triple_hypotheses`` for the algebra. Returns t (H, 2), theta (H,), scale (H,)."""
     n = len(ca) * len(cb) * len(cc)
     t = np.empty((n, 2))
     th = np.empty(n)

@@ -1,0 +1,210 @@
+"""Pose hypotheses of the solver: where they come from, and which ones are kept.
+
+Depth maps first get 3-bearing resections (range-free: bearings are what depth maps get right),
+then 2-point fits of query pairs onto same-class candidate pairs (position, heading and, for
+depth maps, scale). Hypotheses are gated by the prior cameras, scored in large chunks, and each
+batch keeps its ``top_k``; :func:`distinct_best` picks the ``top_k`` distinct ones to refine.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+
+import numpy as np
+
+from flatlandia import geo
+from flatlandia.fine import solver_kernels, solver_scoring
+from flatlandia.fine.solver_priors import Priors
+from flatlandia.fine.solver_problem import Problem
+
+
+def query_pairs(problem: Problem) -> list[tuple[int, int]]:
+    """Query object pairs with candidates, best conditioned first."""
+    q, same = problem.q, problem.same
+    m = problem.m
+    pairs = [
+        (i, j)
+        for i in range(m)
+        for j in range(i + 1, m)
+        if np.hypot(*(q[j] - q[i])) > 1e-9 and len(same[i]) and len(same[j])
+    ]
+    if problem.metric:  # longest pairs first; rarer classes first among ties
+        key = [(-np.hypot(*(q[j] - q[i])) / (1 + 0.1 * len(same[i]) * len(same[j]))) for i, j in pairs]
+    else:  # wide angular separation, rare classes
+        key = []
+        for i, j in pairs:
+            sep = abs(float(geo.wrap_angle(problem.q_bear[i] - problem.q_bear[j])))
+            sep = min(sep, np.radians(60.0))
+            key.append(-sep / np.sqrt(len(same[i]) * len(same[j])))
+    order = np.argsort(key, kind="stable")
+    return [pairs[k] for k in order]
+
+
+def query_triples(problem: Problem) -> list[tuple[int, int, int]]:
+    """Query object triples, widest bearing gaps and fewest candidate triples first."""
+    m = problem.m
+    triples = [(i, j, k) for i in range(m) for j in range(i + 1, m) for k in range(j + 1, m)]
+    key = []
+    for i, j, k in triples:
+        b = np.sort(problem.q_bear[[i, j, k]])
+        sep = min(b[1] - b[0], b[2] - b[1])  # the smaller gap conditions the resection
+        n = len(problem.same[i]) * len(problem.same[j]) * len(problem.same[k])
+        key.append(-min(sep, np.radians(30.0)) / (1 + n) ** (1 / 3))
+    order = np.argsort(key, kind="stable")
+    return [triples[o] for o in order]
+
+
+def pair_hypotheses(problem: Problem, i: int, j: int):
+    """2-point fits of query objects (i, j) onto every same-class ordered candidate pair (a, b)."""
+    a, b = problem.same[i], problem.same[j]
+    if not len(a) or not len(b):
+        return None
+    dq = problem.q[j] - problem.q[i]
+    if float(np.hypot(*dq)) < 1e-9:
+        return None
+    cfg = problem.cfg
+    return solver_kernels.pair_fits(
+        a.astype(np.int64),
+        b.astype(np.int64),
+        problem.rx,
+        problem.ry,
+        float(problem.q[i, 0]),
+        float(problem.q[i, 1]),
+        float(dq[0]),
+        float(dq[1]),
+        problem.metric,
+        float(cfg.pair_len_tol_m),
+        float(cfg.min_scale),
+        float(cfg.max_scale),
+    )
+
+
+def triple_hypotheses(problem: Problem, i: int, j: int, k: int, limit: int):
+    """3-bearing resections (range-free) of query objects (i, j, k) onto same-class candidate triples.
+
+    With u = 1 / (A - z) (complex, z the camera), the bearing condition
+    arg((P - z) / (A - z)) = beta_P - beta_A reads Im(e^{-i alpha} ((P - A) u + 1)) = 0, linear
+    in u; the two conditions for P = B, C fix u and so z; theta follows from A.
+    """
+    ca, cb, cc = problem.same[i], problem.same[j], problem.same[k]
+    if min(len(ca), len(cb), len(cc)) == 0 or len(ca) * len(cb) * len(cc) > limit:
+        return None
+    qb, qr, cfg = problem.q_bear, problem.q_range, problem.cfg
+    return solver_kernels.triple_resections(
+        ca.astype(np.int64),
+        cb.astype(np.int64),
+        cc.astype(np.int64),
+        problem.rx,
+        problem.ry,
+        float(qb[i]),
+        float(qb[j]),
+        float(qb[k]),
+        float(qr[i]),
+        float(qr[j]),
+        float(qr[k]),
+        float(problem.eps_q),
+        float(cfg.min_scale),
+        float(cfg.max_scale),
+        problem.metric,
+    )
+
+
+def hypothesis_batches(problem: Problem) -> Iterator:
+    """(t, theta, s) batches, or None where a query tuple has no candidates: resections of the
+    first ``max_triples`` triples (depth maps), then fits of the first ``max_pairs`` pairs."""
+    cfg = problem.cfg
+    if not problem.metric:
+        for i, j, k in query_triples(problem)[: cfg.max_triples]:
+            yield triple_hypotheses(problem, i, j, k, cfg.max_triple_hyp)
+    for i, j in query_pairs(problem)[: cfg.max_pairs]:
+        yield pair_hypotheses(problem, i, j)
+
+
+class ScoredHypotheses:
+    """Hypotheses scored in chunks of ``chunk`` (fewer, larger array operations); of each batch
+    chunk only the ``top_k`` cheapest are kept, as if every batch were scored on its own."""
+
+    def __init__(self, problem: Problem, priors: Priors):
+        self.problem, self.priors = problem, priors
+        self.pending: list[tuple] = []  # gated batches waiting to be scored together
+        self.n_pending = 0
+        self.kept: list[tuple] = []  # (cost, t, theta, s) of the kept hypotheses, per chunk
+        self.best = np.inf  # lowest cost so far
+        self.n_hypotheses = 0
+
+    def add(self, t, theta, s) -> None:
+        t, theta, s = self.priors.keep_near(t, theta, s)
+        if len(t):
+            self.pending.append((t, theta, s))
+            self.n_pending += len(t)
+        self.n_hypotheses += len(t)
+
+    def flush(self) -> None:
+        """Score the pending batches in one pass and keep each batch chunk's ``top_k``."""
+        self.n_pending = 0
+        if not self.pending:
+            return
+        chunk, top_k = self.problem.cfg.chunk, self.problem.cfg.top_k
+        t, th, s = (np.concatenate([b[n] for b in self.pending]) for n in range(3))
+        cost = np.concatenate(
+            [
+                solver_scoring.score(self.problem, self.priors, t[o : o + chunk], th[o : o + chunk], s[o : o + chunk])[
+                    0
+                ]
+                for o in range(0, len(t), chunk)
+            ]
+        )
+        start = 0
+        for bt, _, _ in self.pending:
+            for o in range(0, len(bt), chunk):
+                lo, hi = start + o, start + min(o + chunk, len(bt))
+                top = lo + np.argsort(cost[lo:hi], kind="stable")[:top_k]
+                self.kept.append((cost[top], t[top], th[top], s[top]))
+                self.best = min(self.best, float(cost[top[0]]) if len(top) else np.inf)
+            start += len(bt)
+        self.pending.clear()
+
+    def arrays(self):
+        """(cost, t, theta, s) of every kept hypothesis, or None when none was kept."""
+        if not self.kept:
+            return None
+        return tuple(np.concatenate([k[n] for k in self.kept]) for n in range(4))
+
+
+def score_hypotheses(problem: Problem, priors: Priors) -> ScoredHypotheses:
+    """Generate, gate and score hypotheses until ``max_hyp``; GT maps score every batch at once and
+    stop early once a hypothesis explains every object within a sigma (``early_stop``)."""
+    cfg = problem.cfg
+    scored = ScoredHypotheses(problem, priors)
+    for n_batch, batch in enumerate(hypothesis_batches(problem)):
+        if scored.n_hypotheses >= cfg.max_hyp:
+            break
+        if batch is None:
+            continue
+        scored.add(*batch)
+        if problem.metric or scored.n_pending >= cfg.chunk:
+            scored.flush()
+        if cfg.early_stop and problem.metric and scored.best < problem.m and n_batch >= 1:
+            break
+    scored.flush()
+    return scored
+
+
+def distinct_best(cost, t, theta, top_k: int) -> np.ndarray:
+    """Indices of the ``top_k`` cheapest hypotheses, skipping any within 1 m and 2 degrees of a
+    cheaper one already chosen (scalar maths: many short loops)."""
+    chosen: list[int] = []
+    tx, ty, tth = t[:, 0].tolist(), t[:, 1].tolist(), theta.tolist()
+    two_deg, two_pi = math.radians(2.0), 2.0 * math.pi
+    for w in np.argsort(cost, kind="stable").tolist():
+        if len(chosen) >= top_k:
+            break
+        if any(
+            math.hypot(tx[w] - tx[v], ty[w] - ty[v]) < 1.0
+            and abs((tth[w] - tth[v] + math.pi) % two_pi - math.pi) < two_deg
+            for v in chosen
+        ):
+            continue
+        chosen.append(w)
+    return np.array(chosen, int)

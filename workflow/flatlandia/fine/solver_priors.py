@@ -1,0 +1,186 @@
+"""What the training split tells the solver about a pose: camera positions (and headings), the
+log-scale of depth maps, and which objects the training cameras saw (co-visibility).
+
+Why apart from the scoring: the priors gate hypotheses, add costs and add rows to the
+refinement; keeping them in one object keeps those three uses consistent.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from flatlandia import geo
+from flatlandia.fine import solver_kernels
+from flatlandia.fine.solver_kernels import PriorTerms
+
+
+class PriorGate:
+    """Which points lie within ``radius`` of a prior camera: a 1 m grid of sure-inside / sure-outside
+    cells, an exact tree query only for cells on the boundary. Same answer as the tree query alone;
+    built once per set of prior cameras (a scene) and cached, as every query of a scene shares it."""
+
+    CELL = 1.0
+
+    def __init__(self, cams: np.ndarray, radius: float):
+        self.tree = cKDTree(cams)
+        self.radius = float(radius)
+        pad = radius + 2 * self.CELL
+        self.lo = cams.min(0) - pad
+        shape = np.ceil((cams.max(0) + pad - self.lo) / self.CELL).astype(int) + 1
+        if shape.prod() > 4_000_000:  # cameras spread over kilometres: the tree alone
+            shape = np.array([1, 1])
+        gx, gy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+        centres = self.lo + (np.stack([gx, gy], -1).reshape(-1, 2) + 0.5) * self.CELL
+        half_diag = self.CELL * math.sqrt(0.5)
+        d = self.tree.query(centres, k=1, distance_upper_bound=radius + half_diag + 1e-9)[0].reshape(shape)
+        self.state = np.where(d <= radius - half_diag, 1, np.where(d <= radius + half_diag, 2, 0)).astype(np.int8)
+
+    def near(self, t: np.ndarray) -> np.ndarray:
+        """(C,) True where a prior camera is within ``radius``."""
+        ij = np.floor((t - self.lo) / self.CELL).astype(np.int64)
+        inside = (ij >= 0).all(1) & (ij[:, 0] < self.state.shape[0]) & (ij[:, 1] < self.state.shape[1])
+        st = np.zeros(len(t), np.int8)
+        st[inside] = self.state[ij[inside, 0], ij[inside, 1]]
+        out = st == 1
+        edge = np.flatnonzero(st == 2)
+        if len(edge):
+            out[edge] = self.tree.query(t[edge], k=1, distance_upper_bound=self.radius + 1e-9)[0] <= self.radius
+        return out
+
+
+_GATES: dict = {}
+
+
+def prior_gate(cams: np.ndarray, radius: float) -> PriorGate:
+    """The gate of a set of prior cameras, cached (every query of a scene shares its cameras)."""
+    cams = np.ascontiguousarray(cams, dtype=float)
+    key = (cams.shape, hash(cams.tobytes()), float(radius))
+    if key not in _GATES:
+        if len(_GATES) >= 64:
+            _GATES.clear()
+        _GATES[key] = PriorGate(cams, radius)
+    return _GATES[key]
+
+
+class Priors:
+    """The priors of one query; any of them may be absent (then it costs nothing)."""
+
+    def __init__(self, cfg, metric: bool, prior_xy=None, scale_prior=None, prior_seen=None, n_ref: int = 0):
+        self.cfg = cfg
+        self.metric = metric
+        self.scale = scale_prior  # (mean, std) of log(metres per local unit), or None
+        cams = np.asarray(prior_xy, float).reshape(len(prior_xy), -1) if prior_xy is not None else None
+        self.gate = prior_gate(cams[:, :2], cfg.prior_radius_m) if cams is not None and len(cams) else None
+        self.tree = self.gate.tree if self.gate is not None else None  # prior camera positions, or None
+        has_cams = self.tree is not None
+        self.heading = cams[:, 2] if has_cams and cams.shape[1] >= 3 else None  # (P,) radians, or None
+        self.seen = None  # (P, N) bool: prior camera p saw candidate n, or None
+        if has_cams and prior_seen is not None:
+            self.seen = np.ascontiguousarray(np.asarray(prior_seen, bool).reshape(len(cams), n_ref))
+
+    # ------------------------------------------------------------------ gating
+    def keep_near(self, t, theta, s):
+        """The hypotheses within ``prior_radius_m`` of a prior camera (all without cameras)."""
+        if self.gate is None or not len(t):
+            return t, theta, s
+        near = self.gate.near(t)
+        return t[near], theta[near], s[near]
+
+    def too_far(self, t) -> bool:
+        """A refined pose that drifted beyond twice the gate radius from every prior camera."""
+        return self.tree is not None and self.tree.query(t, k=1)[0] > 2 * self.cfg.prior_radius_m
+
+    # ------------------------------------------------------------------ costs
+    def _heading_on(self) -> bool:
+        return self.heading is not None and self.cfg.prior_heading_sigma_deg > 0
+
+    def covis_on(self) -> bool:
+        cfg = self.cfg
+        return self.seen is not None and cfg.covis_weight > 0 and (not self.metric or cfg.covis_metric)
+
+    def neighbours(self, t):
+        """Distances and indices (C, k) of the ``prior_knn`` nearest prior cameras (k = 1 when
+        neither the heading prior nor co-visibility needs more), or None without cameras."""
+        if self.tree is None:
+            return None
+        cfg = self.cfg
+        t = np.asarray(t, float).reshape(-1, 2)
+        k = min(cfg.prior_knn, self.tree.n) if self._heading_on() or self.covis_on() else 1
+        # farther cameras change nothing: their prior cost is capped and co-visibility ignores them
+        bound = max(cfg.tau * cfg.prior_sigma_m, cfg.covis_radius_m if self.covis_on() else 0.0) + 1e-9
+        d, j = self.tree.query(t, k=k, distance_upper_bound=bound)
+        return d.reshape(len(t), k), np.minimum(j, self.tree.n - 1).reshape(len(t), k)  # missing: d = inf
+
+    def _pose_sq(self, theta, nb) -> np.ndarray:
+        """(C,) squared normalised distance of poses to the prior cameras (position [+ heading])."""
+        cfg = self.cfg
+        d, j = nb
+        if not self._heading_on():
+            return (d[:, 0] / cfg.prior_sigma_m) ** 2
+        dth = geo.wrap_angle(self.heading[j] - np.asarray(theta).reshape(-1, 1))
+        return np.min((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, axis=1)
+
+    def cost(self, t, s, theta, nb) -> np.ndarray:
+        """(C,) prior cost: pose vs the nearest prior camera, log-scale; each capped at tau^2."""
+        cfg = self.cfg
+        tau2 = cfg.tau**2
+        out = np.zeros(len(t))
+        if self.tree is not None and cfg.prior_weight > 0:
+            out += cfg.prior_weight * np.minimum(self._pose_sq(theta, nb), tau2)
+        if not self.metric and self.scale is not None and cfg.scale_prior_weight > 0:
+            mu, sd = self.scale
+            out += cfg.scale_prior_weight * np.minimum(((np.log(s) - mu) / sd) ** 2, tau2)
+        return out
+
+    def covis_cost(self, t, inl, match, nb) -> np.ndarray:
+        """(C,) co-visibility cost: ``covis_weight`` per inlier whose candidate no prior camera within
+        ``covis_radius_m`` of the pose saw together with the most of the others (best single camera)."""
+        if not self.covis_on():
+            return np.zeros(len(t))
+        d, j = nb
+        cnt = solver_kernels.covis_counts(
+            np.ascontiguousarray(d),
+            np.ascontiguousarray(j, dtype=np.int64),
+            self.seen,
+            match,
+            inl,
+            float(self.cfg.covis_radius_m),
+        )
+        return self.cfg.covis_weight * (inl.sum(1) - cnt)
+
+    # ------------------------------------------------------------------ refinement
+    def refine_terms(self, p: np.ndarray) -> PriorTerms:
+        """The prior rows of the refinement for poses ``p`` (C, 4), each tied to one prior camera
+        for this round (the nearest, or the best in position and heading)."""
+        cfg = self.cfg
+        n = len(p)
+        use_pose = self.tree is not None and cfg.prior_weight > 0 and not self.metric
+        use_heading = use_pose and self._heading_on()
+        use_scale = not self.metric and self.scale is not None and cfg.scale_prior_weight > 0
+        mu, sd = self.scale if use_scale else (0.0, 1.0)
+        cam, head = np.zeros((n, 2)), np.zeros(n)
+        if use_pose:
+            if use_heading:
+                k = min(cfg.prior_knn, self.tree.n)
+                d, j = self.tree.query(p[:, :2], k=k)
+                d, j = d.reshape(n, k), j.reshape(n, k)
+                dth = geo.wrap_angle(self.heading[j] - p[:, 2:3])
+                sel = np.argmin((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, 1)
+                jj = j[np.arange(n), sel]
+                head = self.heading[jj].astype(float)
+            else:
+                jj = self.tree.query(p[:, :2], k=1)[1]
+            cam = np.ascontiguousarray(self.tree.data[jj], dtype=float)
+        return PriorTerms(
+            cam,
+            float(cfg.prior_weight) if use_pose else 0.0,
+            float(cfg.prior_sigma_m),
+            head,
+            float(np.radians(cfg.prior_heading_sigma_deg)) if use_heading else 0.0,
+            float(mu),
+            float(sd),
+            float(cfg.scale_prior_weight) if use_scale else 0.0,
+        )

@@ -1,0 +1,57 @@
+"""The data of one solver query: the local map, its candidates, and the kernels' views of them.
+
+Why a class of its own: every step of the solver (hypotheses, scoring, refinement) reads the
+same derived arrays (bearings, ranges, the same-class candidate lists); they are computed once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flatlandia.fine.solver_kernels import Candidates, QueryTerms
+
+
+class Problem:
+    """Query objects (camera frame) and candidate reference objects (metric frame) of one query."""
+
+    def __init__(self, q, q_cls, r, r_cls, metric: bool, cfg):
+        self.q = np.asarray(q, float).reshape(-1, 2)
+        self.qc = np.asarray(q_cls).astype(int).ravel()
+        self.r = np.asarray(r, float).reshape(-1, 2)
+        self.rc = np.asarray(r_cls).astype(int).ravel()
+        self.metric = metric
+        self.cfg = cfg
+        self.m = len(self.q)
+        self.q_bear = np.arctan2(self.q[:, 1], self.q[:, 0])
+        self.q_range = np.linalg.norm(self.q, axis=1)
+        #: per query object, the rows of ``r`` of its class
+        self.same = [np.flatnonzero(self.rc == c) for c in self.qc]
+        self.sb = np.radians(cfg.bearing_sigma_deg)
+        # small-range guard (objects at the camera): log of (range + eps)
+        self.eps_q = 0.02 * max(float(np.median(self.q_range)), 1e-9)
+        self.rx, self.ry = self.r[:, 0].copy(), self.r[:, 1].copy()
+        self.candidates = self._flat_candidates()
+        self.terms = QueryTerms(
+            metric,
+            self.q[:, 0].copy(),
+            self.q[:, 1].copy(),
+            self.q_bear,
+            self.q_range + self.eps_q,
+            float(self.eps_q),
+            float(self.sb),
+            float(cfg.log_range_sigma),
+            float(cfg.position_sigma_m),
+        )
+        #: the refinement weighs ranges more weakly than the scoring
+        self.refine_terms = self.terms._replace(log_range_sigma=float(cfg.refine_log_range_sigma))
+
+    def _flat_candidates(self) -> Candidates:
+        """The same-class candidates without padding, as the compiled kernels walk them."""
+        ptr = np.r_[0, np.cumsum([len(s) for s in self.same])].astype(np.int64)
+        idx = np.concatenate(self.same + [np.zeros(0, int)]).astype(np.int64)
+        xy = self.r[idx] if len(idx) else np.zeros((0, 2))
+        return Candidates(xy[:, 0].copy(), xy[:, 1].copy(), idx, ptr)
+
+    def solvable(self) -> bool:
+        """At least two query objects and two candidates: a pose can be hypothesised."""
+        return self.m >= 2 and len(self.r) >= 2
