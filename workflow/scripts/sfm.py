@@ -33,7 +33,7 @@ def main(smk, log):
     cams = sfm.camera_centres(rec)
     bad = sfm.height_outliers(cams[["x", "y", "z"]].to_numpy(), opts.height_mad_k)
     removed = cams.loc[bad, ["image_id", "name"]].assign(reason="off the street-level camera plane")
-    # cameras far from their own GPS fix once the model is aligned to GPS (georef: up axes + RANSAC)
+    # cameras far from their own GPS fix once the model is aligned to GPS (flatlandia.images.gps_alignment: up axes + RANSAC)
     views = {v.name: v for v in image_queries.views_from_colmap(rec)}
     kept = cams.loc[~bad].reset_index(drop=True)
     gps = table.set_index("name").reindex(kept["name"])[["lon", "lat"]].to_numpy(float)
