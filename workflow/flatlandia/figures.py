@@ -13,7 +13,9 @@ import pandas as pd
 from flatlandia.io import atomic_path
 
 
-def _plt():
+def pyplot():
+    """matplotlib's pyplot on the Agg backend (no display on cluster nodes); imported on first use
+    so that rules without figures do not pay for it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -25,7 +27,7 @@ def _plt():
 def _save(fig, path: str | Path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
-    _plt().close(fig)
+    pyplot().close(fig)
 
 
 def ecdf(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -42,7 +44,7 @@ def plot_training_curves(curves: dict[str, pd.DataFrame], path: str | Path) -> N
     ``curves`` maps a label to a history table with columns epoch, train_loss and one
     validation column (val_metric: higher is better; val_median_m: lower is better).
     """
-    plt = _plt()
+    plt = pyplot()
     n = max(1, len(curves))
     cols = min(3, n)
     rows = int(np.ceil(n / cols))
@@ -72,7 +74,7 @@ def plot_error_cdfs(
     errors: dict[str, pd.DataFrame], path: str | Path, max_m: float = 100.0, max_deg: float = 180.0
 ) -> None:
     """CDF of position (m) and orientation (deg) error per run; failures never reach the top."""
-    plt = _plt()
+    plt = pyplot()
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     for label, e in errors.items():
         x, y = ecdf(e["error_m"])
@@ -102,7 +104,7 @@ def errors_by(errors: pd.DataFrame, column: str) -> pd.DataFrame:
 
 def plot_error_vs_objects(errors: dict[str, pd.DataFrame], path: str | Path) -> None:
     """The paper's Fig. 8: median error against the number of objects and of distinct classes."""
-    plt = _plt()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(11, 7))
     for label, e in errors.items():
         for col, (ax_m, ax_d) in (("n_objects", axes[:, 0]), ("n_classes", axes[:, 1])):
@@ -145,7 +147,7 @@ def plot_score_heatmap(
     Scores are distances in embedding space (lower = better), shown as rank percentiles so the
     models are comparable; the query's true objects are ringed and its camera drawn.
     """
-    plt = _plt()
+    plt = pyplot()
     n = len(scores)
     fig, axes = plt.subplots(1, n, figsize=(4.6 * n, 4.4), squeeze=False)
     xy = ref[["x_m", "y_m"]].to_numpy(float)

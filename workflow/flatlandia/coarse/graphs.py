@@ -106,11 +106,8 @@ def reference_graph(ref: pd.DataFrame, cfg: GraphConfig = GraphConfig()) -> Data
 
 def local_map_metres(row, map_type: str, cfg: GraphConfig = GraphConfig()) -> np.ndarray:
     """A query's local map in (assumed) metres: GT as is, depth x ``cfg.depth_unit_m``."""
-    if map_type == "gt":
-        return localmaps.xy(row["gt_local_xy_m"])
-    if map_type == "depth":
-        return localmaps.xy(row["depth_local_xy"]) * cfg.depth_unit_m
-    raise ValueError(f"map_type must be 'gt' or 'depth', got {map_type!r}")
+    local = localmaps.local_map(row, map_type)
+    return local * cfg.depth_unit_m if map_type == "depth" else local
 
 
 def query_graph(local_xy_m: np.ndarray, classes, cfg: GraphConfig = GraphConfig()) -> Data:

@@ -58,3 +58,16 @@ def oracle_scale(src: np.ndarray, dst: np.ndarray) -> float:
 def xy(cell) -> np.ndarray:
     """A local-map cell (list of [x, y], or the array of arrays Parquet gives back) as (M, 2)."""
     return np.stack([np.asarray(p, dtype=float) for p in cell]).reshape(-1, 2)
+
+
+#: local-map column of each map type in queries.parquet
+LOCAL_MAP_COLUMNS = {"gt": "gt_local_xy_m", "depth": "depth_local_xy"}
+
+
+def local_map(row, map_type: str) -> np.ndarray:
+    """A query's local map of one type (GT in metres, depth in normalised units) as (M, 2); ``row``
+    is a DataFrame row, a dict or an ``itertuples`` tuple."""
+    if map_type not in LOCAL_MAP_COLUMNS:
+        raise ValueError(f"map_type must be 'gt' or 'depth', got {map_type!r}")
+    column = LOCAL_MAP_COLUMNS[map_type]
+    return xy(getattr(row, column) if isinstance(row, tuple) else row[column])

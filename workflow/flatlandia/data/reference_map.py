@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo
+from flatlandia import figures, geo
 from flatlandia.io import atomic_path, write_text
 
 
@@ -87,10 +87,7 @@ def write_geoparquet(ref: pd.DataFrame, meta: dict, path: str | Path) -> None:
 
 def plot_reference_map(ref: pd.DataFrame, queries: pd.DataFrame | None, path: str | Path, title: str) -> None:
     """Objects coloured by class, query cameras with heading arrows, in metres."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = figures.pyplot()
 
     fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
     cmap = plt.get_cmap("tab20")

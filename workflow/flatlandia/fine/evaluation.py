@@ -123,14 +123,6 @@ def json_safe(d: dict) -> dict:
 # ----------------------------------------------------------------------------- solver evaluation
 
 
-def local_map(row, map_type: str) -> np.ndarray:
-    if map_type == "gt":
-        return localmaps.xy(row.gt_local_xy_m)
-    if map_type == "depth":
-        return localmaps.xy(row.depth_local_xy)
-    raise ValueError(f"map_type must be gt or depth, got {map_type!r}")
-
-
 def evaluate_solver(
     ref: pd.DataFrame,
     queries: pd.DataFrame,
@@ -168,7 +160,7 @@ def evaluate_solver(
     for r in progress(items) if progress else items:
         strategy, prop = props.get(str(r.token), ("none", []))
         idx = np.array([pos[int(o)] for o in prop if int(o) in pos], int)
-        q = local_map(r, map_type)
+        q = localmaps.local_map(r, map_type)
         t0, c0 = time.perf_counter(), time.process_time()
         sol = (
             solver.solve(

@@ -149,7 +149,7 @@ def samples_from_queries(
     out = []
     for r in queries.itertuples(index=False):
         idx = np.array([pos[int(o)] for o in props.get(str(r.token), []) if int(o) in pos], int)
-        q = localmaps.xy(r.gt_local_xy_m if cfg.map_type == "gt" else r.depth_local_xy)
+        q = localmaps.local_map(r, cfg.map_type)
         out.append(make_sample(q, r.classes, ref_xy[idx], ref_cls[idx], cfg, (r.x_m, r.y_m), math.radians(r.theta_deg)))
     return out, queries.reset_index(drop=True)
 

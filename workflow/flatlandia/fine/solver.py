@@ -22,10 +22,14 @@ object costs the smallest normalised squared residual over same-class candidates
 log-scale for depth maps, co-visibility) when priors are given; (3) the ``top_k`` distinct
 hypotheses are refined (robust Gauss-Newton on their matches, with re-association), re-scored,
 and the best wins. The inner loops (hypotheses, scoring, refinement) are compiled with numba in
-``solver_kernels``; ``solver_scoring.padded_costs`` keeps the padded numpy form as the reference they are
-tested against. For depth maps hypotheses come from 3-bearing resections (range-free) and then
-2-point similarities. The result holds
-the pose, the inlier matches (query index, candidate index) and a confidence in [0, 1].
+``solver_kernels``; ``solver_scoring.padded_costs`` keeps the padded numpy form as the reference
+they are tested against. For depth maps hypotheses come from 3-bearing resections (range-free)
+and then 2-point similarities. The result holds the pose, the inlier matches (query index,
+candidate index) and a confidence in [0, 1].
+
+Where each step lives: ``solver_problem`` (the query's derived arrays), ``solver_priors`` (the
+training-split priors), ``solver_hypotheses`` (generation, gating, chunked scoring, the distinct
+best), ``solver_scoring`` (MSAC cost and refinement), ``solver_kernels`` (the compiled loops).
 """
 
 from __future__ import annotations

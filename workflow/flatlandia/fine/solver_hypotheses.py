@@ -147,14 +147,7 @@ class ScoredHypotheses:
             return
         chunk, top_k = self.problem.cfg.chunk, self.problem.cfg.top_k
         t, th, s = (np.concatenate([b[n] for b in self.pending]) for n in range(3))
-        cost = np.concatenate(
-            [
-                solver_scoring.score(self.problem, self.priors, t[o : o + chunk], th[o : o + chunk], s[o : o + chunk])[
-                    0
-                ]
-                for o in range(0, len(t), chunk)
-            ]
-        )
+        cost = self._chunked_cost(t, th, s)
         start = 0
         for bt, _, _ in self.pending:
             for o in range(0, len(bt), chunk):
@@ -164,6 +157,15 @@ class ScoredHypotheses:
                 self.best = min(self.best, float(cost[top[0]]) if len(top) else np.inf)
             start += len(bt)
         self.pending.clear()
+
+    def _chunked_cost(self, t, theta, s) -> np.ndarray:
+        """(C,) MSAC cost, scored ``chunk`` hypotheses at a time (bounded temporaries)."""
+        chunk = self.problem.cfg.chunk
+        costs = []
+        for o in range(0, len(t), chunk):
+            window = slice(o, o + chunk)
+            costs.append(solver_scoring.score(self.problem, self.priors, t[window], theta[window], s[window])[0])
+        return np.concatenate(costs)
 
     def arrays(self):
         """(cost, t, theta, s) of every kept hypothesis, or None when none was kept."""

@@ -161,19 +161,7 @@ class Priors:
         use_heading = use_pose and self._heading_on()
         use_scale = not self.metric and self.scale is not None and cfg.scale_prior_weight > 0
         mu, sd = self.scale if use_scale else (0.0, 1.0)
-        cam, head = np.zeros((n, 2)), np.zeros(n)
-        if use_pose:
-            if use_heading:
-                k = min(cfg.prior_knn, self.tree.n)
-                d, j = self.tree.query(p[:, :2], k=k)
-                d, j = d.reshape(n, k), j.reshape(n, k)
-                dth = geo.wrap_angle(self.heading[j] - p[:, 2:3])
-                sel = np.argmin((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, 1)
-                jj = j[np.arange(n), sel]
-                head = self.heading[jj].astype(float)
-            else:
-                jj = self.tree.query(p[:, :2], k=1)[1]
-            cam = np.ascontiguousarray(self.tree.data[jj], dtype=float)
+        cam, head = self._tied_cameras(p, use_heading) if use_pose else (np.zeros((n, 2)), np.zeros(n))
         return PriorTerms(
             cam,
             float(cfg.prior_weight) if use_pose else 0.0,
@@ -184,3 +172,21 @@ class Priors:
             float(sd),
             float(cfg.scale_prior_weight) if use_scale else 0.0,
         )
+
+    def _tied_cameras(self, p: np.ndarray, use_heading: bool):
+        """Position (C, 2) and heading (C,) of the prior camera each pose is tied to: the nearest,
+        or with the heading prior the best in position and heading of the ``prior_knn`` nearest."""
+        cfg = self.cfg
+        n = len(p)
+        head = np.zeros(n)
+        if use_heading:
+            k = min(cfg.prior_knn, self.tree.n)
+            d, j = self.tree.query(p[:, :2], k=k)
+            d, j = d.reshape(n, k), j.reshape(n, k)
+            dth = geo.wrap_angle(self.heading[j] - p[:, 2:3])
+            sel = np.argmin((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, 1)
+            jj = j[np.arange(n), sel]
+            head = self.heading[jj].astype(float)
+        else:
+            jj = self.tree.query(p[:, :2], k=1)[1]
+        return np.ascontiguousarray(self.tree.data[jj], dtype=float), head

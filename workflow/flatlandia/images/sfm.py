@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from flatlandia import figures
 from flatlandia.errors import InputError
 
 TESTED_PYCOLMAP = "4.2.1"
@@ -204,10 +205,7 @@ def stats_table(rec, n_input: int, removed: pd.DataFrame) -> pd.DataFrame:
 
 def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, path: Path, title: str) -> None:
     """Top view of the model (cameras + points on the camera plane) beside the GPS track (metres)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = figures.pyplot()
 
     from flatlandia import geo
     from flatlandia.io import atomic_path

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo, io
+from flatlandia import figures, geo, io
 from flatlandia.io import atomic_path
 from flatlandia.objects.cloud import BACKGROUND, macro_of_class, metres_per_unit, read_classified_cloud
 from flatlandia.objects.clustering import ClusterParams, cluster_objects
@@ -91,10 +91,7 @@ def audit_scene(
 
 def plot_audit(ours_xy: np.ndarray, ref_xy: np.ndarray, path: str | Path, title: str) -> None:
     """Ours over theirs, in metres."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = figures.pyplot()
 
     fig, ax = plt.subplots(figsize=(7, 7), dpi=100)
     ax.scatter(ref_xy[:, 0], ref_xy[:, 1], s=40, facecolor="none", edgecolor="k", label=f"published ({len(ref_xy)})")
@@ -162,10 +159,7 @@ def audit_published_scene(
 
 def plot_audit_grid(panels: list[tuple[str, np.ndarray, np.ndarray]], path: str | Path) -> None:
     """One panel per scene: (title, ours_xy, published_xy), ours (red dots) over theirs (circles)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = figures.pyplot()
 
     n = max(1, len(panels))
     cols = min(4, n)
