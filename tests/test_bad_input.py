@@ -2,6 +2,7 @@
 
 import json
 import math
+import os
 
 import pandas as pd
 import pytest
@@ -119,3 +120,14 @@ def test_config_section_layers_files_like_configfile(tmp_path):
     got = io.config_section([base, tmp_path / "missing.yaml", over], "fine")
     assert got == {"train": {"epochs": 1000, "lr": 0.002}, "coarse_strategy": "2N_LM"}
     assert io.config_section([over], "coarse") == {}
+
+
+def test_written_files_take_the_umask_mode(tmp_path):
+    """Temporary files are created 0600; the renamed result gets the mode of any new file."""
+    old = os.umask(0o022)
+    try:
+        io.write_parquet(pd.DataFrame({"a": [1]}), tmp_path / "t.parquet")
+        io.write_json({"a": 1}, tmp_path / "t.json")
+    finally:
+        os.umask(old)
+    assert {oct(p.stat().st_mode & 0o777) for p in tmp_path.iterdir()} == {oct(0o644)}

@@ -90,3 +90,37 @@ def test_a_typo_in_a_config_file_stops_the_run_before_any_job(repo, flat_root, t
     assert err[-1] == "ERROR: config: unknown key 'fine.geo.topk' (did you mean 'fine.geo.top_k'?)"
     assert "Traceback" not in res.stderr and "Building DAG" not in res.stdout + res.stderr
     assert not (tmp_path / "results").exists()
+
+
+def test_nested_command_line_overrides_merge_deeply(repo, flat_root, tmp_path):
+    """`--config 'section={key: value}'` changes that key only; a bad value names the allowed ones."""
+    from snakemake_runner import smk
+
+    out = tmp_path / "resolved.yaml"
+    (tmp_path / "config").symlink_to(repo / "config")  # the workflow's default config, beside the probe
+    probe = tmp_path / "Snakefile"
+    probe.write_text(
+        f"include: {str(repo / 'Snakefile')!r}\n\n"
+        f"import yaml\nopen({str(out)!r}, 'w').write(yaml.safe_dump(dict(config)))\n"
+    )
+    args = [
+        "-n",
+        "all",
+        "--config",
+        f"flatlandia_root={flat_root}",
+        "images={missing_gps: stop}",
+        "fine={geo: {top_k: 12}}",
+    ]
+    res = smk(repo, tmp_path, *args, snakefile=probe)
+    assert res.returncode == 0, res.stderr[-2000:]
+    resolved = yaml.safe_load(out.read_text())
+    assert resolved["images"]["missing_gps"] == "stop" and resolved["fine"]["geo"]["top_k"] == 12
+    assert resolved["images"]["dedup_threshold"] == config.section_defaults("images")["dedup_threshold"]
+    assert resolved["fine"]["geo"]["max_pairs"] == config.section_defaults("fine.geo")["max_pairs"]
+    res = smk(repo, tmp_path, "-n", "all", "--config", f"flatlandia_root={flat_root}", "sfm={matcher: fast}")
+    assert res.returncode != 0
+    assert (
+        res.stderr.strip()
+        .splitlines()[-1]
+        .startswith("ERROR: config: 'sfm.matcher': 'fast' is not one of ['exhaustive', 'sequential']")
+    )

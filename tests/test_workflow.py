@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -72,6 +73,12 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
 
 
 @pytest.mark.slow
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def test_manifest_and_audit_trace_every_artifact(run_two_scenes):
     wd = run_two_scenes
     man = pd.read_parquet(wd / "results/manifest.parquet").set_index("artifact")
@@ -89,6 +96,18 @@ def test_manifest_and_audit_trace_every_artifact(run_two_scenes):
         text=True,
     )
     assert res.returncode == 0 and q in res.stdout and "results/9/" not in res.stdout
+    res = subprocess.run(
+        [str(Path(sys.executable).parent / "flatlandia"), "audit", "--scene", "99"],
+        cwd=wd,
+        capture_output=True,
+        text=True,
+    )
+    assert res.returncode == 1 and res.stdout.startswith(
+        "ERROR: no audit records for scene '99'; scenes with records: "
+    )
+    assert {oct((wd / q).stat().st_mode & 0o777), oct((wd / "results/manifest.parquet").stat().st_mode & 0o777)} == {
+        oct(0o666 & ~_umask())
+    }
 
 
 @pytest.mark.slow

@@ -15,10 +15,14 @@ def audit(args) -> int:
     path = Path(args.manifest)
     df = pd.read_parquet(path) if path.exists() else provenance.manifest(args.provenance)
     if df.empty:
-        print(f"no audit records: run the workflow first ({path} and {args.provenance} are empty)")
+        print(f"ERROR: no audit records: run the workflow first ({path} and {args.provenance} are empty)")
         return 1
     if args.scene:
+        known = sorted(set(df["scene"].dropna().astype(str)) - {""})
         df = df[df["scene"] == args.scene]
+        if df.empty:
+            print(f"ERROR: no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}")
+            return 1
     cols = ["artifact", "rule", "sha256", "bytes", "config_hash", "git_commit", "finished_at"]
     with pd.option_context("display.max_rows", None, "display.max_colwidth", 64, "display.width", 250):
         out = df[cols].assign(sha256=df["sha256"].str[:12])

@@ -87,6 +87,29 @@ def _merge(base, over):
     return copy.deepcopy(over)
 
 
+def _types(node: dict) -> set:
+    kind = node.get("type", [])
+    return set([kind] if isinstance(kind, str) else kind)
+
+
+def _coerce(value, node: dict):
+    """Values of nested ``--config`` mappings reach the workflow as text ('12', 'true'): read text
+    as YAML where the schema does not take a string and the text reads as another type."""
+    if isinstance(value, dict):
+        props = node.get("properties", {})
+        extra = node.get("additionalProperties")
+        return {k: _coerce(v, props.get(k, extra if isinstance(extra, dict) else {})) for k, v in value.items()}
+    if isinstance(value, list) and isinstance(node.get("items"), dict):
+        return [_coerce(v, node["items"]) for v in value]
+    if isinstance(value, str) and _types(node) and "string" not in _types(node):
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError:
+            return value
+        return parsed if not isinstance(parsed, str) else value
+    return value
+
+
 def _type_errors(cfg: dict) -> list[str]:
     import jsonschema
 
@@ -102,7 +125,7 @@ def resolve(cfg: dict | None) -> dict:
     unknown = unknown_keys(cfg)
     if unknown:
         raise ConfigError("unknown key " + "; unknown key ".join(unknown))
-    full = _merge(section_defaults(), cfg)
+    full = _coerce(_merge(section_defaults(), cfg), schema())
     problems = _type_errors(full)
     if problems:
         raise ConfigError("; ".join(problems))
@@ -185,9 +208,16 @@ a file of your own holding only the keys you change, passed after the default:
 
     snakemake --cores 2 all --configfile my.yaml
 
-Files given with `--configfile` are merged key by key over `config/config.yaml` (see
-`config/paper.yaml`, the paper's training lengths). A key the schema does not know, or a value of
-the wrong type, stops the run before any job with one line naming it, e.g.
+Files given with `--configfile` are merged key by key, at every depth, over `config/config.yaml`
+(see `config/paper.yaml`, the paper's training lengths). On the command line, a top-level key is
+`--config seed=1`; a nested key is given as a YAML mapping of its section, which is merged the
+same way (the section's other keys keep their values):
+
+    snakemake --cores 2 all --config 'images={missing_gps: stop}' 'fine={geo: {top_k: 12}}'
+
+(Snakemake itself does not accept dotted keys such as `images.missing_gps=stop`.) A key the schema
+does not know, or a value of the wrong type, stops the run before any job with one line naming
+it, e.g.
 `ERROR: config: unknown key 'fine.geo.topk' (did you mean 'fine.geo.top_k'?)`.
 Relative paths are taken from the working directory, else from the repository. The scene sheet
 (`scenes`) is checked against `workflow/schemas/scenes.schema.yaml`.

@@ -26,9 +26,18 @@ from flatlandia.errors import InputError
 # --------------------------------------------------------------------------- atomic writes
 
 
+def _file_mode() -> int:
+    """Mode of a new file under the process umask (0644 under 0022); temporary files are created
+    0600, so they are given this mode before they are renamed into place."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success (with the
+    mode the umask gives new files)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
@@ -36,6 +45,8 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     tmp = Path(tmp)
     try:
         yield tmp
+        if tmp.exists():
+            tmp.chmod(_file_mode())
         os.replace(tmp, path)
     finally:
         if tmp.exists():
