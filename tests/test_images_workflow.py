@@ -242,3 +242,31 @@ def test_lund_instance_images_split_merged_objects(lund_run, tmp_path):
         classify_points.load_instance_maps(empty, names)
     with pytest.raises(InputError, match="not a folder"):
         classify_points.load_instance_maps(tmp_path / "absent", names)
+
+
+def test_editing_the_photo_folder_reruns_the_audit(repo, flat_root, tmp_path):
+    """The images folder is fingerprinted (names, sizes, times): metadata.csv edits and new photos
+    rerun the audit; an untouched folder is up to date."""
+    import shutil
+
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    for name in ("01.jpg", "02.jpg", "03.jpg"):
+        shutil.copy(flat_root.parent / "images" / "lund" / name, photos / name)
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
+    target = "results/mine/images/images.parquet"
+    args = ["--config", f"flatlandia_root={flat_root}", f"scenes={sheet}"]
+    assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
+    assert "Nothing to be done" in smk(repo, tmp_path, "-n", target, *args).stdout
+    (photos / "metadata.csv").write_text("name,lat,lon\n01.jpg,55.70,13.19\n")
+    assert "images_audit" in smk(repo, tmp_path, "-n", target, *args).stdout
+    assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
+    # an edit in place leaves the folder's own time alone: the fingerprint param sees it
+    with open(photos / "metadata.csv", "a") as f:
+        f.write("02.jpg,55.71,13.19\n")
+    res = smk(repo, tmp_path, "-n", target, *args)
+    assert "images_audit" in res.stdout and "params" in res.stdout.lower(), res.stdout[-2000:]
+    assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
+    shutil.copy(flat_root.parent / "images" / "lund" / "04.jpg", photos / "04.jpg")
+    assert "images_audit" in smk(repo, tmp_path, "-n", target, *args).stdout

@@ -1,5 +1,6 @@
 # Shared helpers: config validation, the scene sheet, the data root, the targets of `all`.
 # Input functions of one stage sit in rules/inputs/{stage}.smk, included by its rule file. No lambdas in rules.
+import hashlib
 import os
 import sys
 from pathlib import Path

@@ -32,6 +32,7 @@ rule images_audit:
     params:
         dedup_threshold=config["images"]["dedup_threshold"],
         missing_gps=config["images"]["missing_gps"],
+        folder_fingerprint=images_folder_fingerprint,
     script:
         "../scripts/images_audit.py"
 

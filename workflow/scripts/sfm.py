@@ -11,6 +11,15 @@ from flatlandia.images import gps_alignment, image_queries, sfm
 
 
 def main(smk, log):
+    """SfM in a scratch folder beside the model, removed whether the reconstruction succeeds or fails."""
+    work = Path(smk.output.model).parent / "work"
+    try:
+        reconstruct(smk, log, work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def reconstruct(smk, log, work: Path):
     import pycolmap
 
     table = pd.read_parquet(smk.input.table)
@@ -26,7 +35,6 @@ def main(smk, log):
         height_mad_k=o["height_mad_k"],
     )
     out = Path(smk.output.model)
-    work = out.parent / "work"
     pycolmap.logging.logtostderr = True  # COLMAP's own log, redirected into the rule's log below
     with runlog.native_output_to(smk.log[0]):
         rec = sfm.run_sfm(Path(smk.input.images), names, Path(smk.input.masks), work, opts, log=log.info)
@@ -80,7 +88,6 @@ def main(smk, log):
     io.write_parquet(
         sfm.camera_centres(rec).merge(table[["name", "lat", "lon", "alt", "heading"]], on="name"), smk.output.cameras
     )
-    shutil.rmtree(work, ignore_errors=True)
     log.info("\n%s", stats.T.to_string())
 
 

@@ -20,3 +20,17 @@ def images_dir(wildcards):
 def images_fetch_params(wildcards):
     row = SCENES_SHEET.loc[wildcards.scene]
     return {"url": row.get("url", ""), "subfolder": row.get("subfolder", "")}
+
+
+def images_folder_fingerprint(wildcards):
+    """Name, size and modification time of every file of the scene's images folder (metadata.csv
+    included), as a param: adding, removing, replacing an image or editing metadata.csv reruns the
+    audit and what depends on it (Snakemake reruns a job whose params changed). Empty while a
+    folder still has to be fetched."""
+    folder = Path(images_dir(wildcards))
+    if not folder.is_dir():
+        return ""
+    entries = sorted(
+        f"{p.relative_to(folder)}:{p.stat().st_size}:{p.stat().st_mtime_ns}" for p in folder.rglob("*") if p.is_file()
+    )
+    return hashlib.sha256("\n".join(entries).encode()).hexdigest()
