@@ -5,6 +5,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from PIL import Image
 
@@ -147,3 +148,27 @@ def test_offline_masks_overlap_the_published_berlin_masks():
         ids, names = backend.labels(berlin / "images" / name)
         ours, _, _ = segment.mask_and_classes(ids, names, None)
         assert segment.ignore_iou(ours, ref) > 0.1  # measured 0.17-0.18
+
+
+def _audit_rows(lonlat, kept=True):
+    return pd.DataFrame(
+        {
+            "name": [f"{k:02d}.jpg" for k in range(len(lonlat))],
+            "lon": [p[0] for p in lonlat],
+            "lat": [p[1] for p in lonlat],
+            "has_gps": [p[0] is not None for p in lonlat],
+            "kept": kept,
+            "drop_reason": "" if kept else "no GPS position",
+        }
+    )
+
+
+def test_alignment_inputs_are_checked_before_sfm(tmp_path):
+    spread = [(13.190, 55.700), (13.191, 55.700), (13.190, 55.701)]  # about 60-110 m apart
+    image_audit.check_alignment_inputs(_audit_rows(spread), tmp_path)
+    with pytest.raises(InputError, match="2 of the 3 kept images carry a GPS position.*metadata.csv"):
+        image_audit.check_alignment_inputs(_audit_rows([*spread[:2], (None, None)]), tmp_path)
+    with pytest.raises(InputError, match="spread over 0 m"):  # every photo at one spot
+        image_audit.check_alignment_inputs(_audit_rows([spread[0]] * 4), tmp_path)
+    with pytest.raises(InputError, match="no image is left after the audit"):
+        image_audit.check_alignment_inputs(_audit_rows([(None, None)] * 3, kept=False), tmp_path)

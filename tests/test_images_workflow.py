@@ -270,3 +270,39 @@ def test_editing_the_photo_folder_reruns_the_audit(repo, flat_root, tmp_path):
     assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
     shutil.copy(flat_root.parent / "images" / "lund" / "04.jpg", photos / "04.jpg")
     assert "images_audit" in smk(repo, tmp_path, "-n", target, *args).stdout
+
+
+def _photos_without_gps(src, dest, names):
+    """Copies of photos with every EXIF tag (GPS included) stripped, as a privacy tool leaves them."""
+    from PIL import Image
+
+    dest.mkdir()
+    for name in names:
+        with Image.open(src / name) as im:
+            im.convert("RGB").save(dest / name, quality=90)
+
+
+@pytest.mark.parametrize("missing_gps", ["keep", "drop"])
+def test_photos_without_gps_stop_at_the_audit_with_one_error(repo, flat_root, tmp_path, missing_gps):
+    photos = tmp_path / "photos"
+    _photos_without_gps(flat_root.parent / "images" / "lund", photos, [f"{k:02d}.jpg" for k in range(1, 6)])
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
+    res = smk(
+        repo,
+        tmp_path,
+        "--cores",
+        "1",
+        "results/mine/maps/reference_map.parquet",
+        "--config",
+        f"flatlandia_root={flat_root}",
+        f"scenes={sheet}",
+        f"images={{missing_gps: {missing_gps}}}",
+    )
+    assert res.returncode != 0
+    errors = [line for line in res.stderr.splitlines() if line.startswith("ERROR:")]
+    want = "no image is left after the audit" if missing_gps == "drop" else "0 of the 5 kept images carry a GPS"
+    assert len(errors) == 1 and want in errors[0], errors
+    assert "metadata.csv" in errors[0] or missing_gps == "drop"  # keep: says how to give positions
+    assert "Traceback" not in res.stderr
+    assert not (tmp_path / "results/mine/images").exists() and not (tmp_path / "results/mine/sfm").exists()

@@ -216,3 +216,35 @@ def audit_table(folder: str | Path, dedup_threshold: float, missing_gps: str = "
     df.loc[ok & (diffs < dedup_threshold), "drop_reason"] = "near-duplicate of previous image"
     df["kept"] = df["drop_reason"] == ""
     return df.drop(columns="unreadable")
+
+
+#: the GPS alignment fits a similarity (7 parameters, scale included) to the geotagged cameras:
+#: it needs at least this many, spread wider than consumer GPS errs (5-10 m)
+MIN_GEOTAGGED = 3
+MIN_GPS_SPAN_M = 10.0
+
+
+def check_alignment_inputs(df: pd.DataFrame, folder: str | Path) -> None:
+    """Stop before any heavy step when the kept images cannot be placed on the map: none kept, or
+    fewer than :data:`MIN_GEOTAGGED` geotagged ones spread over :data:`MIN_GPS_SPAN_M`."""
+    from scipy.spatial.distance import pdist
+
+    from flatlandia import geo
+
+    kept = df[df["kept"]]
+    if kept.empty:
+        reasons = df["drop_reason"].value_counts().to_dict()
+        raise InputError(folder, f"no image is left after the audit ({len(df)} images; dropped: {reasons})")
+    tagged = kept[kept["has_gps"]]
+    span = 0.0
+    if len(tagged) >= 2:
+        frame = geo.MetricFrame(float(tagged["lon"].mean()), float(tagged["lat"].mean()))
+        span = float(pdist(frame.to_xy(tagged[["lon", "lat"]].to_numpy(float))).max())
+    if len(tagged) < MIN_GEOTAGGED or span < MIN_GPS_SPAN_M:
+        raise InputError(
+            folder,
+            f"{len(tagged)} of the {len(kept)} kept images carry a GPS position, spread over {span:.0f} m: "
+            f"aligning the model to the map needs at least {MIN_GEOTAGGED} geotagged images more than "
+            f"{MIN_GPS_SPAN_M:.0f} m apart. Give their positions in {Path(folder) / 'metadata.csv'} "
+            "(columns name, lat, lon; optional alt, heading, capture_time)",
+        )
