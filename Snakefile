@@ -26,3 +26,10 @@ rule all:
     default_target: True
     input:
         all_targets(),
+
+
+onsuccess:
+    # what was built per scene, what is empty and why: on the terminal and in results/summary.md
+    from flatlandia import summary
+
+    print(summary.write_summary("results", selected_scenes()))
