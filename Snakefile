@@ -28,6 +28,18 @@ rule all:
         all_targets(),
 
 
+# The maps of the selected scenes only: `snakemake --cores 2 maps --config select=[Paris]`.
+rule maps:
+    input:
+        map_products(),
+
+
+# The dataset tables, the trained models and the localization tables (Tables 2-5).
+rule benchmark:
+    input:
+        benchmark_products(),
+
+
 onsuccess:
     # what was built per scene, what is empty and why: on the terminal and in results/summary.md
     from flatlandia import summary

@@ -289,3 +289,12 @@ def test_rerun_from_scratch_gives_identical_tables(run_two_scenes, repo, flat_ro
         a, b = pd.read_parquet(run_two_scenes / t), pd.read_parquet(tmp_path / t)
         timing = [c for c in a.columns if re.search(r"(seconds|_s$|_ms$|_time)", c)]
         pd.testing.assert_frame_equal(a.drop(columns=timing), b.drop(columns=timing), check_exact=True, obj=t)
+
+
+def test_maps_of_one_city_plan_no_training_and_no_shared_table(repo, flat_root, tmp_path):
+    res = smk(repo, tmp_path, "-n", "maps", "--config", "select=[Paris]", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stderr[-2000:]
+    planned = {line.split()[0] for line in res.stdout.split("Job stats:")[1].split("\n\n")[0].splitlines()[2:]}
+    assert {"reference_map", "queries", "recover"} <= planned
+    assert not planned & {"coarse_train", "fine_train", "coarse_eval", "fine_eval", "dataset_stats", "fine_table"}
+    assert "results/tables/" not in res.stdout

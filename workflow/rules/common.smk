@@ -120,19 +120,14 @@ def scene_city(wildcards):
     return SCENES_SHEET.loc[wildcards.scene, "city"]
 
 
-def products_of_the_run():
-    """Every artifact `all` asks for, except the manifest that lists them."""
+def map_products():
+    """Per-scene maps of the selected scenes (the `maps` target): reference maps, queries with their
+    local maps, objects; for images scenes the audit-to-map chain. No training, no shared tables."""
     return (
         per_scene("results/{scene}/maps/reference_map.parquet")
         + per_scene("results/{scene}/maps/reference_map.geojson")
         + per_scene("results/{scene}/maps/reference_map.png")
         + per_scene("results/{scene}/queries/queries.parquet")
-        + [
-            "results/tables/dataset_stats.parquet",
-            "results/tables/dataset_stats.md",
-            "results/tables/recovery.parquet",
-            "results/tables/availability.parquet",
-        ]
         + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
         + per_scene("results/{scene}/sfm/sfm_summary.png", images_scenes())
         + per_scene("results/{scene}/sfm/gps_alignment.json", images_scenes())
@@ -140,13 +135,30 @@ def products_of_the_run():
         + per_scene("results/{scene}/maps/reference_map.geojson", images_scenes())
         + per_scene("results/{scene}/maps/reference_map.png", images_scenes())
         + per_scene("results/{scene}/queries/queries.parquet", images_scenes())
-        + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
-        + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
         + per_scene("results/{scene}/objects/objects.parquet", class_cloud_scenes())
         + per_scene("results/{scene}/objects/objects.ply", class_cloud_scenes())
         + per_scene("results/{scene}/objects/principal_plane.json", class_cloud_scenes())
+    )
+
+
+def benchmark_products():
+    """The dataset tables, the models and the localization tables (the `benchmark` target)."""
+    return (
+        [
+            "results/tables/dataset_stats.parquet",
+            "results/tables/dataset_stats.md",
+            "results/tables/recovery.parquet",
+            "results/tables/availability.parquet",
+        ]
+        + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
+        + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
         + (["results/tables/reference_map_reproduction.parquet"] if class_cloud_scenes() else [])
     )
+
+
+def products_of_the_run():
+    """Every artifact `all` asks for, except the manifest that lists them."""
+    return map_products() + benchmark_products()
 
 
 def all_targets():
