@@ -82,6 +82,7 @@ def test_workflow_fetches_when_the_data_folder_is_missing(repo, upstream_zip, tm
         str(cfg),
         "--config",
         "select=[12]",
+        "benchmark_scenes=[12]",
     )
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
     assert (tmp_path / "fetched/local_maps.json").exists()

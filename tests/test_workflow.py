@@ -21,7 +21,17 @@ from flatlandia import io
 @pytest.fixture(scope="module")
 def run_two_scenes(repo, flat_root, tmp_path_factory):
     wd = tmp_path_factory.mktemp("e2e")
-    res = smk(repo, wd, "--cores", "2", "all", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
+    res = smk(
+        repo,
+        wd,
+        "--cores",
+        "2",
+        "all",
+        "--config",
+        "select=[9,12]",
+        "benchmark_scenes=[9,12]",
+        f"flatlandia_root={flat_root}",
+    )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd
 
@@ -112,15 +122,45 @@ def test_manifest_and_audit_trace_every_artifact(run_two_scenes):
 
 @pytest.mark.slow
 def test_rerun_is_a_no_op(run_two_scenes, repo, flat_root):
-    res = smk(repo, run_two_scenes, "-n", "all", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
+    res = smk(
+        repo,
+        run_two_scenes,
+        "-n",
+        "all",
+        "--config",
+        "select=[9,12]",
+        "benchmark_scenes=[9,12]",
+        f"flatlandia_root={flat_root}",
+    )
     assert res.returncode == 0
     assert "Nothing to be done" in res.stdout + res.stderr
+    # selecting one scene afterwards touches neither the models nor the tables of the benchmark
+    res = smk(
+        repo,
+        run_two_scenes,
+        "-n",
+        "all",
+        "--config",
+        "select=[12]",
+        "benchmark_scenes=[9,12]",
+        f"flatlandia_root={flat_root}",
+    )
+    assert res.returncode == 0 and "Nothing to be done" in res.stdout + res.stderr
 
 
 @pytest.mark.slow
 def test_report_holds_every_figure(run_two_scenes, repo, flat_root):
     wd = run_two_scenes
-    res = smk(repo, wd, "--report", "results/report.zip", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
+    res = smk(
+        repo,
+        wd,
+        "--report",
+        "results/report.zip",
+        "--config",
+        "select=[9,12]",
+        "benchmark_scenes=[9,12]",
+        f"flatlandia_root={flat_root}",
+    )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     names = "\n".join(zipfile.ZipFile(wd / "results/report.zip").namelist())
     for figure in (
@@ -185,11 +225,20 @@ def test_paper_config_merges_over_the_default(repo, flat_root, tmp_path):
 
 
 def test_select_a_city(repo, flat_root, tmp_path):
-    res = smk(repo, tmp_path, "-n", "all", "--config", "select=[Berlin]", f"flatlandia_root={flat_root}")
+    res = smk(repo, tmp_path, "-n", "maps", "--config", "select=[Berlin]", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stderr[-2000:]
     out = res.stdout + res.stderr
     assert "results/3/queries/queries.parquet" in out and "results/4/queries/queries.parquet" in out
     assert "results/5/queries/queries.parquet" not in out
+
+
+def test_select_never_shrinks_the_benchmark(repo, flat_root, tmp_path):
+    """`all` with a selection trains on the benchmark scenes (all published ones by default), not on
+    the selection: the models and tables are the benchmark's whatever is selected."""
+    res = smk(repo, tmp_path, "-n", "all", "--config", "select=[Berlin]", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stderr[-2000:]
+    train = [b for b in res.stdout.split("\n\n") if "rule coarse_train:" in b]
+    assert train and all("results/5/queries/queries.parquet" in b for b in train)
 
 
 def test_unknown_selection_is_a_clear_error(repo, flat_root, tmp_path):
@@ -262,7 +311,17 @@ def test_slurm_profile_dry_runs_with_the_expected_resources(repo, flat_root, tmp
 
 @pytest.mark.slow
 def test_rerun_from_scratch_gives_identical_tables(run_two_scenes, repo, flat_root, tmp_path):
-    res = smk(repo, tmp_path, "--cores", "2", "all", "--config", "select=[9,12]", f"flatlandia_root={flat_root}")
+    res = smk(
+        repo,
+        tmp_path,
+        "--cores",
+        "2",
+        "all",
+        "--config",
+        "select=[9,12]",
+        "benchmark_scenes=[9,12]",
+        f"flatlandia_root={flat_root}",
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     tables = [
         "results/12/queries/queries.parquet",

@@ -31,9 +31,9 @@ rule coarse_target:
 
 rule coarse_train:
     input:
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
-        queries=per_scene("results/{scene}/queries/queries.parquet"),
-        similarity=per_scene("results/{scene}/coarse/target.parquet"),
+        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
+        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        similarity=per_scene("results/{scene}/coarse/target.parquet", benchmark_scenes()),
     output:
         model="results/coarse/{loss}/model.pt",
         history="results/coarse/{loss}/training.parquet",
@@ -58,9 +58,9 @@ rule coarse_train:
 rule coarse_eval:
     input:
         models=expand("results/coarse/{loss}/model.pt", loss=coarse_losses()),
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
-        queries=per_scene("results/{scene}/queries/queries.parquet"),
-        similarity=per_scene("results/{scene}/coarse/target.parquet"),
+        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
+        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        similarity=per_scene("results/{scene}/coarse/target.parquet", benchmark_scenes()),
     output:
         proposals=expand("results/coarse/{loss}/proposals.parquet", loss=coarse_losses()),
         table="results/tables/coarse_localization.parquet",

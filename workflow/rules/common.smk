@@ -39,31 +39,45 @@ if SCENES_SHEET["scene"].duplicated().any():
 SCENES_SHEET = SCENES_SHEET.set_index("scene", drop=False)
 
 
-def selected_scenes():
-    """Scene ids to build: all of the sheet, or those whose id or city is in config['select']."""
-    wanted = [str(s) for s in config["select"]]
+def scenes_named(key):
+    """Scene ids of the sheet whose id or city is listed in config[key]; all of the sheet if empty."""
+    wanted = [str(s) for s in config[key]]
     if not wanted:
         return list(SCENES_SHEET["scene"])
     known = set(SCENES_SHEET["scene"]) | set(SCENES_SHEET["city"])
     unknown = [w for w in wanted if w not in known]
     if unknown:
         raise WorkflowError(
-            f"config 'select': unknown scene id(s) or city(ies) {unknown}; "
+            f"config '{key}': unknown scene id(s) or city(ies) {unknown}; "
             f"known scenes {list(SCENES_SHEET['scene'])}, cities {sorted(set(SCENES_SHEET['city']))}"
         )
     mask = SCENES_SHEET["scene"].isin(wanted) | SCENES_SHEET["city"].isin(wanted)
     return list(SCENES_SHEET.loc[mask, "scene"])
 
 
+def selected_scenes():
+    """Scene ids whose maps to build: config 'select' (all of the sheet when empty)."""
+    return scenes_named("select")
+
+
 def published_scenes():
+    """The selected published scenes (per-scene work of `maps`)."""
     return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "flatlandia"]
 
 
-def class_cloud_scenes():
-    """Published scenes that ship a class-segmented point cloud (the objects stage starts from it)."""
+def benchmark_scenes():
+    """The published scenes the models and tables are built on: config 'benchmark_scenes', never
+    'select', so selecting a city neither retrains on it alone nor overwrites the benchmark."""
+    return [s for s in scenes_named("benchmark_scenes") if SCENES_SHEET.loc[s, "source"] == "flatlandia"]
+
+
+def class_cloud_scenes(scenes=None):
+    """Published scenes (the selected ones by default) that ship a class-segmented point cloud
+    (the objects stage starts from it)."""
+    scenes = published_scenes() if scenes is None else scenes
     if FLAT_FETCH:
-        return published_scenes()
-    return [s for s in published_scenes() if (FLAT_ROOT / f"maps/{s}/class_segmented_point_cloud.ply").exists()]
+        return scenes
+    return [s for s in scenes if (FLAT_ROOT / f"maps/{s}/class_segmented_point_cloud.ply").exists()]
 
 
 def published_cities():
@@ -152,7 +166,7 @@ def benchmark_products():
         ]
         + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
         + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
-        + (["results/tables/reference_map_reproduction.parquet"] if class_cloud_scenes() else [])
+        + (["results/tables/reference_map_reproduction.parquet"] if class_cloud_scenes(benchmark_scenes()) else [])
     )
 
 

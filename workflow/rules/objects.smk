@@ -68,7 +68,7 @@ rule reproduction_audit:
     conda:
         "../../envs/flatlandia.yaml"
     params:
-        scenes=class_cloud_scenes(),
+        scenes=class_cloud_scenes(benchmark_scenes()),
         radius_m=config["objects"]["audit_radius_m"],
     script:
         "../scripts/reproduction_audit.py"

@@ -27,7 +27,7 @@ rule figures_training:
 rule figures_fine_errors:
     input:
         errors=expand("results/fine/{run}/errors.parquet", run=fine_runs()),
-        queries=per_scene("results/{scene}/queries/queries.parquet"),
+        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
     output:
         cdf=report(
             "results/figures/fine_error_cdf.png", caption="../report/fine_error_cdf.rst", category="Fine localization"

@@ -6,8 +6,8 @@ include: "inputs/tables.smk"
 
 rule dataset_stats:
     input:
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet"),
-        queries=per_scene("results/{scene}/queries/queries.parquet"),
+        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
+        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
         tokens=tokens_files(),
     output:
         parquet="results/tables/dataset_stats.parquet",
@@ -26,7 +26,7 @@ rule dataset_stats:
 
 rule recovery_table:
     input:
-        recovered=per_scene("results/{scene}/queries/recovered.parquet"),
+        recovered=per_scene("results/{scene}/queries/recovered.parquet", benchmark_scenes()),
     output:
         parquet="results/tables/recovery.parquet",
         markdown=report("results/tables/recovery.md", caption="../report/recovery.rst", category="Tables"),
@@ -41,7 +41,7 @@ rule recovery_table:
 
 rule availability_table:
     input:
-        reports=per_scene("results/{scene}/ingest/ingest.json"),
+        reports=per_scene("results/{scene}/ingest/ingest.json", benchmark_scenes()),
     output:
         parquet="results/tables/availability.parquet",
         markdown="results/tables/availability.md",

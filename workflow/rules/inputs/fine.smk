@@ -15,8 +15,8 @@ def fine_runs():
 
 def fine_eval_inputs(wildcards):
     inp = {
-        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet"),
-        "queries": per_scene("results/{scene}/queries/queries.parquet"),
+        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
+        "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
     }
     if wildcards.method != "geo":
         regime = fine_train_regime(wildcards.proposal)

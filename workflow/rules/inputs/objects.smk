@@ -18,7 +18,7 @@ def objects_inputs(wildcards):
         "reference_map": flatlandia_file(f"individual_reference_maps/map_{s}.json"),
         # label transfer uses the class labels of the *other* scenes' maps
         "other_maps": [
-            flatlandia_file(f"individual_reference_maps/map_{o}.json") for o in published_scenes() if o != s
+            flatlandia_file(f"individual_reference_maps/map_{o}.json") for o in benchmark_scenes() if o != s
         ],
     }
 
@@ -36,7 +36,7 @@ def objects_cluster_params(wildcards):
 
 
 def audit_inputs(wildcards):
-    scenes = class_cloud_scenes()
+    scenes = class_cloud_scenes(benchmark_scenes())
     return {
         "objects": expand("results/{scene}/objects/objects.parquet", scene=scenes),
         "clouds": [flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply") for s in scenes],

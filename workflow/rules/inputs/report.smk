@@ -16,12 +16,12 @@ def fine_trained_models():
 def heatmap_scene():
     """The scene of the coarse heat map: config report.heatmap_scene, else the first published scene."""
     wanted = str(config["report"]["heatmap_scene"])
-    scenes = published_scenes()
+    scenes = benchmark_scenes()
     return wanted if wanted in scenes else (scenes[0] if scenes else None)
 
 
 def report_figures():
-    if not published_scenes():
+    if not benchmark_scenes():
         return []
     out = [
         "results/figures/training_curves.png",

@@ -5,7 +5,7 @@
 def tokens_files():
     if FLAT_FETCH:
         return [FETCH_FLAG]
-    return [p for p in per_scene(str(FLAT_ROOT / "maps/{scene}/tokens.txt")) if Path(p).exists()]
+    return [p for p in per_scene(str(FLAT_ROOT / "maps/{scene}/tokens.txt"), benchmark_scenes()) if Path(p).exists()]
 
 
 def result_tables():
