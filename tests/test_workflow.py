@@ -357,3 +357,14 @@ def test_maps_of_one_city_plan_no_training_and_no_shared_table(repo, flat_root, 
     assert {"reference_map", "queries", "recover"} <= planned
     assert not planned & {"coarse_train", "fine_train", "coarse_eval", "fine_eval", "dataset_stats", "fine_table"}
     assert "results/tables/" not in res.stdout
+
+
+def test_training_on_too_few_queries_is_an_error_not_an_empty_model(repo, flat_root, tmp_path):
+    """Scene 12 alone has 3 queries: no validation split, so training stops with one ERROR line."""
+    model = "results/fine/models/mlp_gt_gtbb/checkpoint.pt"
+    args = ["--cores", "2", model, "--config", "benchmark_scenes=[12]", f"flatlandia_root={flat_root}"]
+    res = smk(repo, tmp_path, *args)
+    assert res.returncode != 0
+    errors = [line for line in res.stderr.splitlines() if line.startswith("ERROR:")]
+    assert errors and "too few queries to train on" in errors[0], res.stderr[-2000:]
+    assert not (tmp_path / model).exists()

@@ -9,6 +9,7 @@ import torch
 
 from flatlandia import checkpoints, io, runlog
 from flatlandia.coarse import retrieval, training
+from flatlandia.errors import InputError
 
 
 def main(smk, log):
@@ -27,6 +28,12 @@ def main(smk, log):
         len(scenes),
         cfg.to_dict(),
     )
+    if not ds.split("train") or not ds.split("val"):
+        raise InputError(
+            smk.input.queries[0] if smk.input.queries else "benchmark_scenes",
+            f"{len(ds.split('train'))} training and {len(ds.split('val'))} validation queries for the coarse "
+            f"{cfg.loss} model: the benchmark scenes (config benchmark_scenes) hold too few queries to train on",
+        )
     res = training.train(ds, cfg, log=log, progress=runlog.progress(log, f"coarse {cfg.loss}"))
     checkpoints.save_checkpoint(res, smk.output.model)
     meta = {

@@ -12,6 +12,7 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints, io, proposals, runlog
+from flatlandia.errors import InputError
 from flatlandia.fine import learned, training
 
 
@@ -41,6 +42,12 @@ def main(smk, log):
         cfg.to_dict(),
         ct if regime == "coarse" else "-",
     )
+    if not train or not val:
+        raise InputError(
+            smk.input.queries[0] if smk.input.queries else "benchmark_scenes",
+            f"{len(train)} training and {len(val)} validation samples for {cfg.model} on {cfg.map_type} maps: "
+            "the benchmark scenes (config benchmark_scenes) hold too few queries to train on",
+        )
     res = training.train(train, val, cfg, log=log, progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"))
     checkpoints.save_checkpoint(res, smk.output.checkpoint)
     hist = pd.DataFrame(res["history"])
