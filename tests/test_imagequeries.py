@@ -4,6 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from flatlandia import geo
 from flatlandia.images import image_queries
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
@@ -71,3 +72,32 @@ def test_too_few_objects_make_no_query(street):
         "s", views, objects, point_object, pts, A, b, obj_xy, {1: 1, 2: 2, 3: 3, 4: 4}, min_objects=4
     )
     assert q.empty and "gt_local_xy_m" in q.columns
+
+
+def test_images_scene_queries_have_the_published_schema():
+    frame = geo.MetricFrame(13.19, 55.70)
+    gt = [[10.0, 1.0], [20.0, -3.0], [15.0, 4.0]]
+    q = pd.DataFrame(
+        {
+            "scene": ["mine"] * 2,
+            "token": ["a.jpg", "b.jpg"],
+            "n_objects": [3, 3],
+            "ref_idx": [[0, 1, 2]] * 2,
+            "classes": [[1, 2, 3]] * 2,
+            "x_m": [0.0, 100.0],
+            "y_m": [0.0, 0.0],
+            "theta_deg": [0.0, 90.0],
+            "gt_local_xy_m": [gt] * 2,
+            "depth_local_xy_m": [[[2 * x, 2 * y] for x, y in gt]] * 2,
+            "boxes": [[[0, 0, 1, 1]] * 3] * 2,
+        }
+    )
+    table = image_queries.query_table(q, frame, {"a.jpg": "train", "b.jpg": "test"})
+    assert list(table.columns) == image_queries.PUBLISHED_QUERY_COLUMNS + image_queries.IMAGES_ONLY_QUERY_COLUMNS
+    assert table["split"].tolist() == ["train", "test"] and (table["resolution"] == "sfm").all()
+    assert np.allclose(table[["lon", "lat"]].to_numpy()[0], [13.19, 55.70])
+    assert table.loc[1, "lon"] > 13.19  # 100 m east
+    assert np.median(np.linalg.norm(np.asarray(table.loc[0, "depth_local_xy"]), axis=1)) == pytest.approx(1.0)
+    assert table.loc[0, "depth_oracle_scale_m"] == pytest.approx(np.median(np.linalg.norm(gt, axis=1)))
+    empty = image_queries.query_table(q.iloc[:0], frame, {})
+    assert list(empty.columns) == list(table.columns) and empty.empty

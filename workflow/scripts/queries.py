@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import geo, io, runlog
-from flatlandia.data import localmaps, queries
+from flatlandia.data import queries
 from flatlandia.images import depth, image_queries
 from flatlandia.objects import clustering
 
@@ -79,24 +79,10 @@ def images_scene(smk, log):
         lift=lift,
     )
     frame = geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
-    if len(q):
-        ll = frame.to_lonlat(q[["x_m", "y_m"]].to_numpy(float))
-        q.insert(5, "lon", ll[:, 0])
-        q.insert(6, "lat", ll[:, 1])
-        q["depth_local_xy"] = [
-            localmaps.normalise_depth_map(np.asarray(d, float))[0].tolist() for d in q["depth_local_xy_m"]
-        ]
-        split = queries.split_queries(
-            q["token"].tolist(), int(smk.params.seed), split_fractions(smk.params.split), salt=scene
-        )
-        q["split"] = q["token"].map(split)
-    else:
-        q = q.assign(
-            lon=pd.Series(dtype=float),
-            lat=pd.Series(dtype=float),
-            depth_local_xy=pd.Series(dtype=object),
-            split=pd.Series(dtype=str),
-        )
+    split = queries.split_queries(
+        q["token"].tolist(), int(smk.params.seed), split_fractions(smk.params.split), salt=scene
+    )
+    q = image_queries.query_table(q, frame, split)
     meta = {
         "scene": scene,
         "source": "images",

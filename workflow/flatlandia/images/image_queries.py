@@ -200,3 +200,52 @@ def scene_queries(
         "boxes",
     ]
     return pd.DataFrame(rows, columns=cols)
+
+
+#: the columns of a published scene's queries.parquet, in order (docs/tables.md, README); an images
+#: scene's table has them all, then its own: metric depth map and the detection boxes
+PUBLISHED_QUERY_COLUMNS = [
+    "scene",
+    "token",
+    "n_objects",
+    "ref_idx",
+    "classes",
+    "lon",
+    "lat",
+    "x_m",
+    "y_m",
+    "theta_deg",
+    "split",
+    "gt_local_xy_m",
+    "depth_local_xy",
+    "depth_oracle_scale_m",
+    "residual_m",
+    "ambiguous",
+    "resolution",
+    "n_solutions",
+    "second_residual_m",
+    "second_cam_dist_m",
+]
+IMAGES_ONLY_QUERY_COLUMNS = ["depth_local_xy_m", "boxes"]
+
+
+def query_table(q: pd.DataFrame, frame: geo.MetricFrame, split: dict[str, str]) -> pd.DataFrame:
+    """An images scene's queries in the published scenes' schema: lon/lat, the depth map normalised
+    to a median object range of 1, the split, the oracle depth scale; the recovery diagnostics say
+    the pose comes from SfM (resolution ``sfm``, one solution, no residual)."""
+    from flatlandia.data.localmaps import normalise_depth_map, oracle_scale
+
+    q = q.copy()
+    ll = frame.to_lonlat(q[["x_m", "y_m"]].to_numpy(float)) if len(q) else np.zeros((0, 2))
+    q["lon"], q["lat"] = ll[:, 0], ll[:, 1]
+    depth = [normalise_depth_map(np.asarray(d, float).reshape(-1, 2))[0] for d in q["depth_local_xy_m"]]
+    q["depth_local_xy"] = [d.tolist() for d in depth]
+    q["split"] = q["token"].map(split).astype(str) if len(q) else pd.Series(dtype=str)
+    q["depth_oracle_scale_m"] = [oracle_scale(d, np.asarray(g, float)) for d, g in zip(depth, q["gt_local_xy_m"])]
+    q["residual_m"] = np.nan
+    q["ambiguous"] = False
+    q["resolution"] = "sfm"
+    q["n_solutions"] = 1
+    q["second_residual_m"] = np.nan
+    q["second_cam_dist_m"] = np.nan
+    return q[PUBLISHED_QUERY_COLUMNS + IMAGES_ONLY_QUERY_COLUMNS].reset_index(drop=True)
