@@ -42,7 +42,7 @@ def scene_line(results: Path, scene: str) -> tuple[str, list[str]]:
         parts.append(f"SfM {int(s['registered'])} cameras, {int(s['points3D'])} points")
     objects = _rows(base / "objects" / "objects.parquet")
     if objects is not None:
-        parts.append(f"{objects} objects")
+        parts.append(f"{objects} clustered objects")
         if objects == 0:
             meta = io.read_parquet_metadata(base / "objects" / "objects.parquet")
             empty.append(meta.get("empty_because", EMPTY_MAP_HINT))
