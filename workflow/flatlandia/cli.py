@@ -13,7 +13,13 @@ from flatlandia import config, provenance
 
 def audit(args) -> int:
     path = Path(args.manifest)
-    df = pd.read_parquet(path) if path.exists() else provenance.manifest(args.provenance)
+    # the live provenance records describe the latest run, whatever its target; the manifest is
+    # the fallback for a results folder copied without its logs
+    df = provenance.manifest(args.provenance)
+    if not df.empty:
+        df = df[[Path(a).exists() for a in df["artifact"]]]  # records of outputs since deleted
+    if df.empty and path.exists():
+        df = pd.read_parquet(path)
     if df.empty:
         print(f"ERROR: no audit records: run the workflow first ({path} and {args.provenance} are empty)")
         return 1

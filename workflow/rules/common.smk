@@ -80,8 +80,8 @@ def class_cloud_scenes(scenes=None):
     return [s for s in scenes if (FLAT_ROOT / f"maps/{s}/class_segmented_point_cloud.ply").exists()]
 
 
-def published_cities():
-    return {s: SCENES_SHEET.loc[s, "city"] for s in published_scenes()}
+def benchmark_cities():
+    return {s: SCENES_SHEET.loc[s, "city"] for s in benchmark_scenes()}
 
 
 def images_scenes():

@@ -1,4 +1,4 @@
-# Tables over all selected scenes.
+# Tables over the benchmark scenes (config benchmark_scenes; `select` does not change them).
 
 
 include: "inputs/tables.smk"
@@ -19,7 +19,7 @@ rule dataset_stats:
     conda:
         "../../envs/flatlandia.yaml"
     params:
-        cities=published_cities(),
+        cities=benchmark_cities(),
     script:
         "../scripts/dataset_stats.py"
 
@@ -58,9 +58,12 @@ rule tables:
         result_tables(),
 
 
+# The benchmark's audit snapshot: every artifact with a provenance record (maps included), rebuilt
+# when the benchmark's results change; `select` does not change it. `flatlandia audit` reads the
+# live records, so it describes any run.
 rule manifest:
     input:
-        products_of_the_run() + report_figures(),
+        benchmark_products() + report_figures(),
     output:
         parquet="results/manifest.parquet",
     log:
