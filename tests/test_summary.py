@@ -22,5 +22,9 @@ def test_summary_names_empty_scenes_and_why(tmp_path):
         line.split("|")[1].strip(): line for line in text.splitlines() if line.startswith("| ") and "---" not in line
     }
     assert "reference map of 44 objects" in lines["12"] and "10 queries (test 2, train 8)" in lines["12"]
-    assert "5 of 6 images kept" in lines["mine"] and "0 clustered objects" in lines["mine"] and "no classes" in lines["mine"]
+    assert (
+        "5 of 6 images kept" in lines["mine"]
+        and "0 clustered objects" in lines["mine"]
+        and "no classes" in lines["mine"]
+    )
     assert "nothing built yet" in lines["nothing"]
