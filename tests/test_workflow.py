@@ -368,3 +368,27 @@ def test_training_on_too_few_queries_is_an_error_not_an_empty_model(repo, flat_r
     errors = [line for line in res.stderr.splitlines() if line.startswith("ERROR:")]
     assert errors and "too few queries to train on" in errors[0], res.stderr[-2000:]
     assert not (tmp_path / model).exists()
+
+
+def test_a_broken_input_after_a_good_run_leaves_nothing_looking_current(repo, flat_root, tmp_path):
+    """Build scene 12's queries, then break its reference map: the failed check removes the stale
+    outputs it guards, so the next run rebuilds everything after it instead of trusting them."""
+    data = tmp_path / "data"
+    shutil.copytree(flat_root, data, ignore=shutil.ignore_patterns("*.ply", "*.bin", "*.zip", "MANIFEST.tsv"))
+    for p in data.rglob("*"):
+        p.chmod(0o755 if p.is_dir() else 0o644)
+    wd = tmp_path / "wd"
+    wd.mkdir()
+    target = "results/12/queries/queries.parquet"
+    args = ["--config", f"flatlandia_root={data}", "benchmark_scenes=[12]"]
+    assert smk(repo, wd, "--cores", "1", target, *args).returncode == 0
+    bad = data / "individual_reference_maps/map_12.json"
+    objs = json.loads(bad.read_text())
+    objs[3][0][0] = None
+    bad.write_text(json.dumps(objs))
+    res = smk(repo, wd, "--cores", "1", target, *args)
+    assert res.returncode != 0
+    assert [line for line in res.stderr.splitlines() if line.startswith("ERROR:")], res.stderr[-2000:]
+    assert not (wd / "results/12/ingest/ingest.json").exists()  # the failed check's own output is gone
+    plan = smk(repo, wd, "-n", target, *args).stdout
+    assert "rule ingest:" in plan and "rule queries:" in plan  # nothing downstream is taken as current
