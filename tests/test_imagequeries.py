@@ -5,6 +5,7 @@ import pandas as pd
 import pytest
 
 from flatlandia import geo
+from flatlandia.data import queries
 from flatlandia.images import image_queries
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
@@ -93,7 +94,7 @@ def test_images_scene_queries_have_the_published_schema():
         }
     )
     table = image_queries.query_table(q, frame, {"a.jpg": "train", "b.jpg": "test"})
-    assert list(table.columns) == image_queries.PUBLISHED_QUERY_COLUMNS + image_queries.IMAGES_ONLY_QUERY_COLUMNS
+    assert list(table.columns) == queries.QUERY_COLUMNS + image_queries.IMAGES_ONLY_QUERY_COLUMNS
     assert table["split"].tolist() == ["train", "test"] and (table["resolution"] == "sfm").all()
     assert np.allclose(table[["lon", "lat"]].to_numpy()[0], [13.19, 55.70])
     assert table.loc[1, "lon"] > 13.19  # 100 m east

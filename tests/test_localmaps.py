@@ -78,6 +78,7 @@ def test_query_table_schema(scene9):
         "ambiguous",
     }
     assert need <= set(q.columns)
+    assert list(q.columns) == queries.QUERY_COLUMNS  # the documented order; images scenes share it
     assert (q["n_objects"] == q["ref_idx"].map(len)).all()
     assert q["split"].isin(["train", "val", "test"]).all()
 

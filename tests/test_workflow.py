@@ -18,6 +18,11 @@ from snakemake_runner import smk
 from flatlandia import io
 
 
+def two_scenes(flat_root, select="[9,12]") -> list[str]:
+    """--config of the two-scene runs: scenes 9 and 12 are both the selection and the benchmark."""
+    return ["--config", f"select={select}", "benchmark_scenes=[9,12]", f"flatlandia_root={flat_root}"]
+
+
 @pytest.fixture(scope="module")
 def run_two_scenes(repo, flat_root, tmp_path_factory):
     wd = tmp_path_factory.mktemp("e2e")
@@ -27,10 +32,7 @@ def run_two_scenes(repo, flat_root, tmp_path_factory):
         "--cores",
         "2",
         "all",
-        "--config",
-        "select=[9,12]",
-        "benchmark_scenes=[9,12]",
-        f"flatlandia_root={flat_root}",
+        *two_scenes(flat_root),
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd
@@ -127,10 +129,7 @@ def test_rerun_is_a_no_op(run_two_scenes, repo, flat_root):
         run_two_scenes,
         "-n",
         "all",
-        "--config",
-        "select=[9,12]",
-        "benchmark_scenes=[9,12]",
-        f"flatlandia_root={flat_root}",
+        *two_scenes(flat_root),
     )
     assert res.returncode == 0
     assert "Nothing to be done" in res.stdout + res.stderr
@@ -140,10 +139,7 @@ def test_rerun_is_a_no_op(run_two_scenes, repo, flat_root):
         run_two_scenes,
         "-n",
         "all",
-        "--config",
-        "select=[12]",
-        "benchmark_scenes=[9,12]",
-        f"flatlandia_root={flat_root}",
+        *two_scenes(flat_root, select="[12]"),
     )
     assert res.returncode == 0 and "Nothing to be done" in res.stdout + res.stderr
 
@@ -156,10 +152,7 @@ def test_report_holds_every_figure(run_two_scenes, repo, flat_root):
         wd,
         "--report",
         "results/report.zip",
-        "--config",
-        "select=[9,12]",
-        "benchmark_scenes=[9,12]",
-        f"flatlandia_root={flat_root}",
+        *two_scenes(flat_root),
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     names = "\n".join(zipfile.ZipFile(wd / "results/report.zip").namelist())
@@ -317,10 +310,7 @@ def test_rerun_from_scratch_gives_identical_tables(run_two_scenes, repo, flat_ro
         "--cores",
         "2",
         "all",
-        "--config",
-        "select=[9,12]",
-        "benchmark_scenes=[9,12]",
-        f"flatlandia_root={flat_root}",
+        *two_scenes(flat_root),
     )
     assert res.returncode == 0, res.stderr[-2000:]
     tables = [

@@ -53,7 +53,7 @@ def scene_line(results: Path, scene: str) -> tuple[str, list[str]]:
             empty.append("the reference map is empty: " + EMPTY_MAP_HINT)
     queries = base / "queries" / "queries.parquet"
     if queries.exists():
-        q = pd.read_parquet(queries, columns=["split"]) if _rows(queries) else pd.DataFrame({"split": []})
+        q = pd.read_parquet(queries, columns=["split"])
         split = q["split"].value_counts().to_dict()
         parts.append(
             f"{len(q)} queries" + (f" ({', '.join(f'{k} {v}' for k, v in sorted(split.items()))})" if split else "")

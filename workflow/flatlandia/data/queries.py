@@ -9,6 +9,30 @@ from flatlandia import geo
 from flatlandia.data.localmaps import metric_local_map, normalise_depth_map, oracle_scale, published_to_metric_frame
 from flatlandia.errors import InputError
 
+#: the columns of queries.parquet, in order (README "queries.parquet", docs/tables.md)
+QUERY_COLUMNS = [
+    "scene",
+    "token",
+    "n_objects",
+    "ref_idx",
+    "classes",
+    "lon",
+    "lat",
+    "x_m",
+    "y_m",
+    "theta_deg",
+    "split",
+    "gt_local_xy_m",
+    "depth_local_xy",
+    "depth_oracle_scale_m",
+    "residual_m",
+    "ambiguous",
+    "resolution",
+    "n_solutions",
+    "second_residual_m",
+    "second_cam_dist_m",
+]
+
 
 def split_queries(
     tokens: list[str], seed: int, fractions: tuple[float, float, float] = (0.8, 0.1, 0.1), salt: str = ""
@@ -82,4 +106,4 @@ def build_queries(
                 second_cam_dist_m=r.second_cam_dist_m,
             )
         )
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=QUERY_COLUMNS)

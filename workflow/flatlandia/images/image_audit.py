@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from PIL import ExifTags, Image
+from scipy.spatial.distance import pdist
 
+from flatlandia import geo
 from flatlandia.errors import InputError
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
@@ -227,10 +229,6 @@ MIN_GPS_SPAN_M = 10.0
 def check_alignment_inputs(df: pd.DataFrame, folder: str | Path) -> None:
     """Stop before any heavy step when the kept images cannot be placed on the map: none kept, or
     fewer than :data:`MIN_GEOTAGGED` geotagged ones spread over :data:`MIN_GPS_SPAN_M`."""
-    from scipy.spatial.distance import pdist
-
-    from flatlandia import geo
-
     kept = df[df["kept"]]
     if kept.empty:
         reasons = df["drop_reason"].value_counts().to_dict()

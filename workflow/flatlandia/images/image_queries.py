@@ -22,6 +22,8 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import geo
+from flatlandia.data.localmaps import normalise_depth_map, oracle_scale
+from flatlandia.data.queries import QUERY_COLUMNS
 
 
 @dataclass
@@ -202,30 +204,8 @@ def scene_queries(
     return pd.DataFrame(rows, columns=cols)
 
 
-#: the columns of a published scene's queries.parquet, in order (docs/tables.md, README); an images
-#: scene's table has them all, then its own: metric depth map and the detection boxes
-PUBLISHED_QUERY_COLUMNS = [
-    "scene",
-    "token",
-    "n_objects",
-    "ref_idx",
-    "classes",
-    "lon",
-    "lat",
-    "x_m",
-    "y_m",
-    "theta_deg",
-    "split",
-    "gt_local_xy_m",
-    "depth_local_xy",
-    "depth_oracle_scale_m",
-    "residual_m",
-    "ambiguous",
-    "resolution",
-    "n_solutions",
-    "second_residual_m",
-    "second_cam_dist_m",
-]
+#: an images scene's queries.parquet has every column of a published scene's
+#: (:data:`flatlandia.data.queries.QUERY_COLUMNS`), then its own: metric depth map and detection boxes
 IMAGES_ONLY_QUERY_COLUMNS = ["depth_local_xy_m", "boxes"]
 
 
@@ -233,8 +213,6 @@ def query_table(q: pd.DataFrame, frame: geo.MetricFrame, split: dict[str, str]) 
     """An images scene's queries in the published scenes' schema: lon/lat, the depth map normalised
     to a median object range of 1, the split, the oracle depth scale; the recovery diagnostics say
     the pose comes from SfM (resolution ``sfm``, one solution, no residual)."""
-    from flatlandia.data.localmaps import normalise_depth_map, oracle_scale
-
     q = q.copy()
     ll = frame.to_lonlat(q[["x_m", "y_m"]].to_numpy(float)) if len(q) else np.zeros((0, 2))
     q["lon"], q["lat"] = ll[:, 0], ll[:, 1]
@@ -248,4 +226,4 @@ def query_table(q: pd.DataFrame, frame: geo.MetricFrame, split: dict[str, str]) 
     q["n_solutions"] = 1
     q["second_residual_m"] = np.nan
     q["second_cam_dist_m"] = np.nan
-    return q[PUBLISHED_QUERY_COLUMNS + IMAGES_ONLY_QUERY_COLUMNS].reset_index(drop=True)
+    return q[QUERY_COLUMNS + IMAGES_ONLY_QUERY_COLUMNS].reset_index(drop=True)
