@@ -208,6 +208,69 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
 
 
 @pytest.mark.slow
+def test_local_frame_is_the_gps_map_up_to_a_rotation_and_scale(lund_run):
+    """images.align.mode none on the real Lund model: the map on the SfM ground plane differs
+    from the GPS-aligned one by a proper rotation, the SfM scale and a shift (no reflection), and
+    objects keep their places on it with lon/lat NaN."""
+    wd = lund_run
+    model = pycolmap.Reconstruction(str(wd / "results/lund/sfm/model"))
+    gps = json.loads((wd / "results/lund/sfm/gps_alignment.json").read_text())
+    views = image_queries.views_from_colmap(model)
+    local = gps_alignment.local_frame(np.array([v.centre for v in views]), np.array([v.R for v in views]))
+    assert gps_alignment.is_local(local) and gps_alignment.frame_of(local) is None
+    X = np.array([p.xyz for p in model.points3D.values()])
+    a, b = gps_alignment.map_points(local, X), gps_alignment.map_points(gps, X)
+    fit = gps_alignment.umeyama(a, b, allow_reflection=True)
+    assert not fit.reflection
+    assert fit.scale == pytest.approx(gps["metres_per_sfm_unit"], rel=1e-6)
+    assert np.abs(fit.apply(a) - b).max() < 1e-6 * np.ptp(b)
+    assert np.allclose(gps_alignment.map_points(local, np.array([v.centre for v in views])).mean(0), 0, atol=1e-9)
+    maps, _, _ = _painted_label_maps(model, radius_sfm=1.5 / gps["metres_per_sfm_unit"])
+    pts = classify_points.point_votes(model, maps)
+    objs, _ = labels.images_scene_objects("lund", pts, local, clustering.ClusterParams(eps_m=1.0), CLASSES)
+    assert len(objs) >= 3 and objs[["lon", "lat"]].isna().all().all()
+    assert np.allclose(objs[["x_m", "y_m"]].to_numpy(), gps_alignment.map_points(local, objs[["cx", "cy", "cz"]]))
+
+
+def test_photos_without_gps_in_local_frame_mode_give_a_local_map(repo, flat_root, tmp_path):
+    """The way forward the audit names for photos without GPS: images.align.mode none ends in an
+    SfM model and a reference map in the SfM frame (unit stated, no lon/lat, no CRS)."""
+    import geopandas as gpd
+
+    photos = tmp_path / "photos"
+    _photos_without_gps(flat_root.parent / "images" / "lund", photos, [f"{k:02d}.jpg" for k in range(1, 6)])
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
+    res = smk(
+        repo,
+        tmp_path,
+        "--cores",
+        "2",
+        "maps",
+        "--config",
+        f"flatlandia_root={flat_root}",
+        f"scenes={sheet}",
+        "select=[mine]",
+        "images={align: {mode: none}}",
+    )
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "Traceback" not in res.stderr
+    model = pycolmap.Reconstruction(str(tmp_path / "results/mine/sfm/model"))
+    assert model.num_reg_images() >= 3
+    al = json.loads((tmp_path / "results/mine/sfm/gps_alignment.json").read_text())
+    assert al["mode"] == "none" and al["crs"] is None and al["unit"] == "SfM unit"
+    meta = io.read_parquet_metadata(tmp_path / "results/mine/maps/reference_map.parquet")
+    assert meta["frame"] == "local" and meta["crs"] is None and "SfM unit" in meta["axes"]
+    assert gpd.read_parquet(tmp_path / "results/mine/maps/reference_map.parquet").crs is None
+    geo = json.loads((tmp_path / "results/mine/maps/reference_map.geojson").read_text())
+    assert geo["flatlandia"]["frame"] == "local"
+    q = io.read_parquet_metadata(tmp_path / "results/mine/queries/queries.parquet")
+    assert q["frame"] == "local" and q["crs"] is None
+    summary = (tmp_path / "results/summary.md").read_text()
+    assert "local frame (SfM unit, no lon/lat)" in summary
+
+
+@pytest.mark.slow
 def test_lund_instance_images_split_merged_objects(lund_run, tmp_path):
     """Same-class objects that one cluster merges (a radius larger than the street) come apart
     again with instance images: one object per painted instance, through the PNG folder the

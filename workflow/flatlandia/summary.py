@@ -48,7 +48,11 @@ def scene_line(results: Path, scene: str) -> tuple[str, list[str]]:
             empty.append(meta.get("empty_because", EMPTY_MAP_HINT))
     ref = _rows(base / "maps" / "reference_map.parquet")
     if ref is not None:
-        parts.append(f"reference map of {ref} objects")
+        meta = io.read_parquet_metadata(base / "maps" / "reference_map.parquet")
+        local = meta.get("frame") == "local"
+        parts.append(
+            f"reference map of {ref} objects" + (f" in a local frame ({meta.get('unit')}, no lon/lat)" if local else "")
+        )
         if ref == 0 and not empty:
             empty.append("the reference map is empty: " + EMPTY_MAP_HINT)
     queries = base / "queries" / "queries.parquet"

@@ -32,6 +32,7 @@ rule images_audit:
     params:
         dedup_threshold=config["images"]["dedup_threshold"],
         missing_gps=config["images"]["missing_gps"],
+        align_mode=config["images"]["align"]["mode"],
         folder_fingerprint=images_folder_fingerprint,
     script:
         "../scripts/images_audit.py"
@@ -142,7 +143,7 @@ rule gps_alignment:
     conda:
         "../../envs/flatlandia.yaml"
     params:
-        align=config["images"]["gps_alignment"],
+        align=config["images"]["align"],
         seed=config["seed"],
     script:
         "../scripts/gps_alignment.py"

@@ -1,4 +1,8 @@
-"""Rule gps_alignment: SfM cameras of an images scene -> GPS-aligned ground plane (affine map + residuals)."""
+"""Rule gps_alignment: SfM cameras of an images scene -> the map's ground plane (affine map + residuals).
+
+``images.align.mode: gps`` aligns the cameras to their GPS fixes (metres, lon/lat); ``none``
+keeps the SfM frame on its ground plane (photos without GPS: SfM units, no lon/lat).
+"""
 
 import numpy as np
 import pandas as pd
@@ -8,14 +12,9 @@ from flatlandia import io, runlog
 from flatlandia.images import gps_alignment, image_queries
 
 
-def main(smk, log):
-    rec = pycolmap.Reconstruction(smk.input.model)
-    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
-    cams = pd.read_parquet(smk.input.cameras)
-    cams = cams[cams["name"].isin(views)].sort_values("name").reset_index(drop=True)
+def gps_mode(smk, views, cams, p):
     has_gps = cams["lat"].notna() & cams["lon"].notna()
     cams = cams[has_gps].reset_index(drop=True)
-    p = dict(smk.params.align)
     out = gps_alignment.fit_gps_alignment(
         np.array([views[n].centre for n in cams["name"]]).reshape(-1, 3),
         np.array([views[n].R for n in cams["name"]]).reshape(-1, 3, 3),
@@ -28,17 +27,33 @@ def main(smk, log):
         use_heading=bool(p["use_heading"]),
         source=str(smk.input.cameras),
     )
-    out = {
-        "scene": smk.wildcards.scene,
-        "method": "camera up axes -> ground plane; RANSAC similarity to GPS",
-        "cameras": cams["name"].tolist(),
-        **out,
-    }
-    io.write_json(out, smk.output.json)
+    return cams, out, "camera up axes -> ground plane; RANSAC similarity to GPS"
+
+
+def main(smk, log):
+    rec = pycolmap.Reconstruction(smk.input.model)
+    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
+    cams = pd.read_parquet(smk.input.cameras)
+    cams = cams[cams["name"].isin(views)].sort_values("name").reset_index(drop=True)
+    p = dict(smk.params.align)
+    scene = smk.wildcards.scene
+    if p["mode"] == "none":
+        out = gps_alignment.local_frame(
+            np.array([views[n].centre for n in cams["name"]]).reshape(-1, 3),
+            np.array([views[n].R for n in cams["name"]]).reshape(-1, 3, 3),
+            unit_m=float(p["unit_m"]),
+        )
+        method = "camera up axes -> ground plane; local frame, no GPS (images.align.mode: none)"
+    else:
+        cams, out, method = gps_mode(smk, views, cams, p)
+    io.write_json({"scene": scene, "method": method, "cameras": cams["name"].tolist(), **out}, smk.output.json)
+    if gps_alignment.is_local(out):
+        log.info("scene %s: local frame on the SfM ground plane of %d cameras, unit: %s", scene, len(cams), out["unit"])
+        return
     log.info(
         "scene %s: %d/%d cameras inliers, camera-to-GPS residual median %.2f m (inliers %.2f m), max %.2f m; "
         "%.3f m per SfM unit; compass vs SfM heading median %.1f deg",
-        smk.wildcards.scene,
+        scene,
         out["inliers"],
         out["cameras_with_gps"],
         out["median_residual_m"],

@@ -6,7 +6,7 @@ from flatlandia.images import image_audit
 
 def main(smk, log):
     df = image_audit.audit_table(smk.input.images, smk.params.dedup_threshold, smk.params.missing_gps)
-    image_audit.check_alignment_inputs(df, smk.input.images)  # before SfM, not after it
+    image_audit.check_alignment_inputs(df, smk.input.images, smk.params.align_mode)  # before SfM, not after it
     io.write_parquet(df, smk.output.table)
     log.info(
         "%d images, %d kept; dropped: %s",

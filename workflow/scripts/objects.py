@@ -11,6 +11,7 @@ import pandas as pd
 
 from flatlandia import geo, io, runlog
 from flatlandia.classes import CLASSES
+from flatlandia.images import gps_alignment
 from flatlandia.objects import cloud, clustering, labels
 
 
@@ -70,14 +71,21 @@ def images_scene(smk, log):
     objs, member = labels.images_scene_objects(
         scene, points, alignment, params, CLASSES, source=str(smk.input.points), instances=instances
     )
+    local = gps_alignment.is_local(alignment)
     meta = {
         "scene": scene,
+        "frame": "local" if local else "gps",
         "crs": alignment["crs"],
         "lon0": alignment["frame_lon0"],
         "lat0": alignment["frame_lat0"],
+        "unit": alignment.get("unit", "m"),
         "metres_per_sfm_unit": alignment["metres_per_sfm_unit"],
         "cluster_params": dict(smk.params.cluster),
-        "coordinates": "cx/cy/cz, box_* in SfM units; x_m/y_m metric frame of the GPS alignment; lon/lat WGS84",
+        "coordinates": (
+            "cx/cy/cz, box_* in SfM units; x_m/y_m on the SfM ground plane in the local frame's unit; no lon/lat"
+            if local
+            else "cx/cy/cz, box_* in SfM units; x_m/y_m metric frame of the GPS alignment; lon/lat WGS84"
+        ),
         "label": "majority 42-class of the object's points",
         "instance_split": bool(len(instances)),
     }  # clusters split by the image instances their points fall on

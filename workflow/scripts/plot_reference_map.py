@@ -2,7 +2,7 @@
 
 import pandas as pd
 
-from flatlandia import runlog
+from flatlandia import io, runlog
 from flatlandia.data import reference_map
 
 
@@ -11,7 +11,11 @@ def main(smk, log):
     q = pd.read_parquet(smk.input.queries)
     scene = smk.wildcards.scene
     reference_map.plot_reference_map(
-        ref, q, smk.output.png, f"scene {scene} ({smk.params.city}): {len(ref)} objects, {len(q)} queries"
+        ref,
+        q,
+        smk.output.png,
+        f"scene {scene} ({smk.params.city}): {len(ref)} objects, {len(q)} queries",
+        axes=reference_map.axis_labels(io.read_parquet_metadata(smk.input.reference_map)),
     )
     log.info("wrote %s", smk.output.png)
 

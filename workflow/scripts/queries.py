@@ -12,7 +12,7 @@ import pandas as pd
 
 from flatlandia import geo, io, runlog
 from flatlandia.data import queries
-from flatlandia.images import depth, image_queries
+from flatlandia.images import depth, gps_alignment, image_queries
 from flatlandia.objects import clustering
 
 
@@ -78,7 +78,7 @@ def images_scene(smk, log):
         min_points=int(images["min_points"]),
         lift=lift,
     )
-    frame = geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
+    frame = gps_alignment.frame_of(alignment)  # None: a local frame (no GPS), no lon/lat
     split = queries.split_queries(
         q["token"].tolist(), int(smk.params.seed), split_fractions(smk.params.split), salt=scene
     )
@@ -86,7 +86,9 @@ def images_scene(smk, log):
     meta = {
         "scene": scene,
         "source": "images",
-        "crs": frame.proj4,
+        "frame": "local" if frame is None else "gps",
+        "crs": None if frame is None else frame.proj4,
+        "unit": alignment.get("unit", "m"),
         "views": len(views),
         "min_objects": int(images["min_objects"]),
         "depth_backend": dcfg["backend"],

@@ -31,12 +31,17 @@ def images_scene(smk, log):
     scene = smk.wildcards.scene
     objs = pd.read_parquet(smk.input.objects)
     meta_in = io.read_parquet_metadata(smk.input.objects)
-    frame = geo.MetricFrame(lon0=meta_in["lon0"], lat0=meta_in["lat0"])
     objs = objs[objs["class_id"].astype(int) < len(CLASSES)].reset_index(drop=True)
     lonlat = objs[["lon", "lat"]].to_numpy(float).reshape(-1, 2)
-    ref = reference_map.reference_table(scene, lonlat, objs["class_id"].to_numpy(np.int64), CLASSES, frame)
+    xy = objs[["x_m", "y_m"]].to_numpy(float).reshape(-1, 2)
+    if meta_in.get("frame") == "local":  # photos without GPS: the SfM ground plane, no lon/lat
+        frame, frame_meta = None, reference_map.local_frame_metadata(scene, meta_in["unit"])
+    else:
+        frame = geo.MetricFrame(lon0=meta_in["lon0"], lat0=meta_in["lat0"])
+        frame_meta = reference_map.frame_metadata(scene, frame)
+    ref = reference_map.reference_table(scene, lonlat, objs["class_id"].to_numpy(np.int64), CLASSES, frame, xy)
     ref["object_id"] = objs["object_id"].to_numpy(np.int64)
-    meta = {**reference_map.frame_metadata(scene, frame), "source": "images: objects from the classified SfM model"}
+    meta = {**frame_meta, "source": "images: objects from the classified SfM model"}
     reference_map.write_geoparquet(ref, meta, smk.output.parquet)
     reference_map.write_geojson(ref, meta, smk.output.geojson)
     log.info("scene %s: %d objects on the reference map", scene, len(ref))

@@ -13,10 +13,16 @@ from flatlandia.io import atomic_path, write_text
 
 
 def reference_table(
-    scene: str, lonlat: np.ndarray, classes: np.ndarray, labels: list[str], frame: geo.MetricFrame
+    scene: str,
+    lonlat: np.ndarray,
+    classes: np.ndarray,
+    labels: list[str],
+    frame: geo.MetricFrame | None,
+    xy: np.ndarray | None = None,
 ) -> pd.DataFrame:
-    """One row per object: its index in the published map, class, lon/lat and metric x/y."""
-    xy = frame.to_xy(lonlat)
+    """One row per object: its index in the published map, class, lon/lat and x/y (metres of
+    ``frame``; a local-frame map without GPS has no frame: its ``xy`` are given, lon/lat NaN)."""
+    xy = frame.to_xy(lonlat) if xy is None else np.asarray(xy, float).reshape(-1, 2)
     return pd.DataFrame(
         {
             "scene": scene,
@@ -34,19 +40,46 @@ def reference_table(
 def frame_metadata(scene: str, frame: geo.MetricFrame) -> dict:
     return {
         "scene": scene,
+        "frame": "gps",
         "crs": frame.proj4,
         "lon0": frame.lon0,
         "lat0": frame.lat0,
+        "unit": "m",
         "axes": "x east, y north, metres (transverse Mercator centred on the scene)",
     }
 
 
+def local_frame_metadata(scene: str, unit: str) -> dict:
+    """A map without GPS (images.align.mode: none): no CRS, x/y on the SfM ground plane."""
+    return {
+        "scene": scene,
+        "frame": "local",
+        "crs": None,
+        "lon0": None,
+        "lat0": None,
+        "unit": unit,
+        "axes": (
+            f"x, y on the SfM ground plane (normal to the cameras' mean up axis), origin at the cameras' "
+            f"centroid, unit: {unit}; no geographic position (no lon/lat)"
+        ),
+    }
+
+
+def is_local(meta: dict) -> bool:
+    return meta.get("frame") == "local"
+
+
 def geojson(ref: pd.DataFrame, meta: dict) -> dict:
-    """A FeatureCollection of the objects as points in EPSG:4326 (RFC 7946 order lon, lat)."""
+    """A FeatureCollection of the objects as points in EPSG:4326 (RFC 7946 order lon, lat); a
+    local-frame map (no GPS) has its x/y as coordinates, in no geographic CRS (see its metadata)."""
+    local = is_local(meta)
     feats = [
         {
             "type": "Feature",
-            "geometry": {"type": "Point", "coordinates": [float(r.lon), float(r.lat)]},
+            "geometry": {
+                "type": "Point",
+                "coordinates": [float(r.x_m), float(r.y_m)] if local else [float(r.lon), float(r.lat)],
+            },
             "properties": {
                 "obj_idx": int(r.obj_idx),
                 "class_id": int(r.class_id),
@@ -70,10 +103,14 @@ def write_geojson(ref: pd.DataFrame, meta: dict, path: str | Path) -> None:
 
 
 def write_geoparquet(ref: pd.DataFrame, meta: dict, path: str | Path) -> None:
-    """GeoParquet (EPSG:4326 points) with the frame metadata; opens in QGIS and geopandas."""
+    """GeoParquet (EPSG:4326 points; a local-frame map: x/y points without CRS) with the frame
+    metadata; opens in QGIS and geopandas."""
     import geopandas as gpd
 
-    gdf = gpd.GeoDataFrame(ref.copy(), geometry=gpd.points_from_xy(ref["lon"], ref["lat"]), crs="EPSG:4326")
+    if is_local(meta):
+        gdf = gpd.GeoDataFrame(ref.copy(), geometry=gpd.points_from_xy(ref["x_m"], ref["y_m"]), crs=None)
+    else:
+        gdf = gpd.GeoDataFrame(ref.copy(), geometry=gpd.points_from_xy(ref["lon"], ref["lat"]), crs="EPSG:4326")
     with atomic_path(path) as tmp:
         gdf.to_parquet(tmp, index=False)
         # keep the metric frame next to the geo metadata
@@ -85,8 +122,21 @@ def write_geoparquet(ref: pd.DataFrame, meta: dict, path: str | Path) -> None:
         pq.write_table(table.replace_schema_metadata(md), tmp)
 
 
-def plot_reference_map(ref: pd.DataFrame, queries: pd.DataFrame | None, path: str | Path, title: str) -> None:
-    """Objects coloured by class, query cameras with heading arrows, in metres."""
+def axis_labels(meta: dict) -> tuple[str, str]:
+    """Axis names of a map: east/north metres, or a local frame's x/y in its unit."""
+    if is_local(meta):
+        return f"x ({meta.get('unit', 'SfM unit')})", f"y ({meta.get('unit', 'SfM unit')})"
+    return "x east (m)", "y north (m)"
+
+
+def plot_reference_map(
+    ref: pd.DataFrame,
+    queries: pd.DataFrame | None,
+    path: str | Path,
+    title: str,
+    axes: tuple[str, str] = ("x east (m)", "y north (m)"),
+) -> None:
+    """Objects coloured by class, query cameras with heading arrows, in the map's unit."""
     plt = figures.pyplot()
 
     fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
@@ -120,8 +170,8 @@ def plot_reference_map(ref: pd.DataFrame, queries: pd.DataFrame | None, path: st
         ax.scatter([], [], marker=r"$\rightarrow$", color="0.55", label="query camera (train)")
         ax.scatter([], [], marker=r"$\rightarrow$", color="tab:red", label="query camera (test)")
     ax.set_aspect("equal")
-    ax.set_xlabel("x east (m)")
-    ax.set_ylabel("y north (m)")
+    ax.set_xlabel(axes[0])
+    ax.set_ylabel(axes[1])
     ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))

@@ -286,12 +286,14 @@ def fit_gps_alignment(
     inl = np.zeros(len(centres), bool)
     inl[np.flatnonzero(ok)[sim.inliers]] = True
     out = {
+        "mode": "gps",
         "A": A.tolist(),
         "b": b.tolist(),
         "up": up.tolist(),
         "frame_lon0": frame.lon0,
         "frame_lat0": frame.lat0,
         "crs": frame.proj4,
+        "unit": "m",
         "metres_per_sfm_unit": float(sim.scale),
         "rotation_deg": sim.angle_deg(),
         "cameras_with_gps": int(ok.sum()),
@@ -319,13 +321,57 @@ def fit_gps_alignment(
     return out
 
 
+def local_frame(centres: np.ndarray, rotations: np.ndarray, unit_m: float = 1.0) -> dict:
+    """The map of a scene without GPS (``images.align.mode: none``): the SfM ground plane.
+
+    x/y lie on the plane normal to the cameras' mean up axis (right-handed, so angles keep their
+    sense), origin at the cameras' centroid, in SfM units times ``unit_m`` (the metres a user
+    assumes per SfM unit; 1 = the SfM unit itself). No lon/lat: ``crs`` and the frame origin are
+    None. Same keys as :func:`fit_gps_alignment`, so objects and queries are built alike.
+    """
+    centres = np.asarray(centres, float).reshape(-1, 3)
+    if len(centres) == 0:
+        raise ValueError("no registered camera: no ground plane")
+    up = camera_up(np.asarray(rotations, float).reshape(-1, 3, 3))
+    A = float(unit_m) * plane_basis(up)
+    b = -A @ centres.mean(0)
+    return {
+        "mode": "none",
+        "A": A.tolist(),
+        "b": b.tolist(),
+        "up": up.tolist(),
+        "frame_lon0": None,
+        "frame_lat0": None,
+        "crs": None,
+        "unit": "SfM unit" if float(unit_m) == 1.0 else f"SfM unit x {float(unit_m):g} (assumed metres)",
+        "metres_per_sfm_unit": float(unit_m),
+        "cameras_with_gps": 0,
+        "inliers": 0,
+    }
+
+
+def is_local(alignment: dict) -> bool:
+    """A local-frame map (no GPS): x/y in SfM units, no lon/lat."""
+    return alignment.get("mode") == "none"
+
+
 def map_points(alignment: dict, X: np.ndarray) -> np.ndarray:
-    """SfM points (N, 3) -> metric map xy (N, 2)."""
+    """SfM points (N, 3) -> map xy (N, 2): metres of the GPS frame, or the local frame's unit."""
     return np.asarray(X, float).reshape(-1, 3) @ np.asarray(alignment["A"]).T + np.asarray(alignment["b"])
 
 
-def frame_of(alignment: dict) -> geo.MetricFrame:
+def frame_of(alignment: dict) -> geo.MetricFrame | None:
+    """The metric frame of a GPS-aligned map; None for a local-frame map."""
+    if is_local(alignment):
+        return None
     return geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
+
+
+def to_lonlat(alignment: dict, xy: np.ndarray) -> np.ndarray:
+    """Map xy -> lon/lat (N, 2); NaN in a local frame, which has no geographic position."""
+    frame = frame_of(alignment)
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    return frame.to_lonlat(xy) if frame is not None and len(xy) else np.full((len(xy), 2), np.nan)
 
 
 def gps_outliers(

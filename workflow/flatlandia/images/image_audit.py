@@ -226,13 +226,16 @@ MIN_GEOTAGGED = 3
 MIN_GPS_SPAN_M = 10.0
 
 
-def check_alignment_inputs(df: pd.DataFrame, folder: str | Path) -> None:
+def check_alignment_inputs(df: pd.DataFrame, folder: str | Path, align_mode: str = "gps") -> None:
     """Stop before any heavy step when the kept images cannot be placed on the map: none kept, or
-    fewer than :data:`MIN_GEOTAGGED` geotagged ones spread over :data:`MIN_GPS_SPAN_M`."""
+    (``align_mode`` ``gps``) fewer than :data:`MIN_GEOTAGGED` geotagged ones spread over
+    :data:`MIN_GPS_SPAN_M`. A local-frame run (``none``) needs no GPS."""
     kept = df[df["kept"]]
     if kept.empty:
         reasons = df["drop_reason"].value_counts().to_dict()
         raise InputError(folder, f"no image is left after the audit ({len(df)} images; dropped: {reasons})")
+    if align_mode == "none":
+        return
     tagged = kept[kept["has_gps"]]
     span = 0.0
     if len(tagged) >= 2:
@@ -243,6 +246,7 @@ def check_alignment_inputs(df: pd.DataFrame, folder: str | Path) -> None:
             folder,
             f"{len(tagged)} of the {len(kept)} kept images carry a GPS position, spread over {span:.0f} m: "
             f"aligning the model to the map needs at least {MIN_GEOTAGGED} geotagged images more than "
-            f"{MIN_GPS_SPAN_M:.0f} m apart. Give their positions in {Path(folder) / 'metadata.csv'} "
-            "(columns name, lat, lon; optional alt, heading, capture_time)",
+            f"{MIN_GPS_SPAN_M:.0f} m apart. Either give their positions in {Path(folder) / 'metadata.csv'} "
+            "(columns name, lat, lon; optional alt, heading, capture_time), or build a local-frame map "
+            "without GPS: --config 'images={align: {mode: none}}'",
         )

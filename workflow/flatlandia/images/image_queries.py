@@ -209,12 +209,14 @@ def scene_queries(
 IMAGES_ONLY_QUERY_COLUMNS = ["depth_local_xy_m", "boxes"]
 
 
-def query_table(q: pd.DataFrame, frame: geo.MetricFrame, split: dict[str, str]) -> pd.DataFrame:
-    """An images scene's queries in the published scenes' schema: lon/lat, the depth map normalised
-    to a median object range of 1, the split, the oracle depth scale; the recovery diagnostics say
-    the pose comes from SfM (resolution ``sfm``, one solution, no residual)."""
+def query_table(q: pd.DataFrame, frame: geo.MetricFrame | None, split: dict[str, str]) -> pd.DataFrame:
+    """An images scene's queries in the published scenes' schema: lon/lat (NaN in a local frame,
+    ``frame`` None), the depth map normalised to a median object range of 1, the split, the oracle
+    depth scale; the recovery diagnostics say the pose comes from SfM (resolution ``sfm``, one
+    solution, no residual)."""
     q = q.copy()
-    ll = frame.to_lonlat(q[["x_m", "y_m"]].to_numpy(float)) if len(q) else np.zeros((0, 2))
+    xy = q[["x_m", "y_m"]].to_numpy(float).reshape(-1, 2)
+    ll = frame.to_lonlat(xy) if frame is not None and len(q) else np.full((len(q), 2), np.nan)
     q["lon"], q["lat"] = ll[:, 0], ll[:, 1]
     depth = [normalise_depth_map(np.asarray(d, float).reshape(-1, 2))[0] for d in q["depth_local_xy_m"]]
     q["depth_local_xy"] = [d.tolist() for d in depth]

@@ -13,7 +13,7 @@ import pandas as pd
 
 from flatlandia import geo
 from flatlandia.classes import CLASSES, N_CLASSES
-from flatlandia.images.gps_alignment import frame_of, map_points
+from flatlandia.images.gps_alignment import map_points, to_lonlat
 from flatlandia.objects import clustering
 from flatlandia.objects.cloud import BACKGROUND, MACRO_CLASSES, macro_of_class
 
@@ -104,7 +104,8 @@ def images_scene_objects(
 ) -> tuple[pd.DataFrame, np.ndarray]:
     """Cluster the classified SfM points of an images scene into objects on the aligned map.
 
-    Returns (objects with box columns, 42-class label and lon/lat/x/y; object id per point).
+    Returns (objects with box columns, 42-class label and lon/lat/x/y; object id per point); in a
+    local-frame alignment (no GPS) x_m/y_m are in its unit and lon/lat are NaN.
     With ``instances`` (:func:`flatlandia.images.classify_points.point_instances`), each cluster is split into
     the image instances its points were seen on (:func:`flatlandia.objects.clustering.instance_parts`).
     A model without object points gives an empty table: a documented outcome (e.g. the
@@ -136,7 +137,7 @@ def images_scene_objects(
     ]
     objs["class_label"] = [class_labels[c] if c < len(class_labels) else "" for c in objs["class_id"]]
     xy = map_points(alignment, objs[["cx", "cy", "cz"]].to_numpy())
-    ll = frame_of(alignment).to_lonlat(xy)
+    ll = to_lonlat(alignment, xy)  # NaN in a local frame (no GPS)
     objs["lon"], objs["lat"], objs["x_m"], objs["y_m"] = ll[:, 0], ll[:, 1], xy[:, 0], xy[:, 1]
     objs.insert(0, "scene", scene)
     rest = [c for c in objs.columns if c not in OBJECT_MAP_COLUMNS]
