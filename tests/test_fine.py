@@ -403,3 +403,26 @@ def test_training_proposals_regimes(scene):
     assert len(proposals.training_proposals(ref, q, "coarse", np.random.default_rng(0), copies=2, keep_gtbb=False)) == 2
     with pytest.raises(ValueError, match="gtbb or coarse"):
         proposals.training_proposals(ref, q, "whole", np.random.default_rng(0))
+
+
+def test_a_new_scene_is_localized_by_the_benchmark_methods_without_its_own_priors(scene):
+    """Rule scene_localization's rows: the solver (no camera or scale prior from the new scene) and
+    each given model, on every query, per map type x proposal; no rows for a scene without queries."""
+    from flatlandia.fine import scene_eval
+
+    ref, q = scene
+    q = q.iloc[:12]
+    cfg = learned.FineConfig(model="MLP", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
+    models = {("mlp", "depth"): (learned.build_model(cfg), cfg)}
+    rows = scene_eval.scene_rows(ref, q, models, ["gt", "depth"], {"camera_prior": True, "scale_prior": True})
+    assert len(rows) == 2 * (2 + 1)  # proposals x (solver per map type + the depth model)
+    assert (rows["queries"] == 12).all() and (rows["scene"] == "9").all()
+    assert set(rows["method_slug"]) == {"geo", "mlp"} and set(rows.loc[rows["method_slug"] == "mlp", "map_type"]) == {
+        "depth"
+    }
+    exact = rows[(rows["method_slug"] == "geo") & (rows["map_type"] == "gt") & (rows["proposal"] == "gtbb")].iloc[0]
+    assert exact["median_m"] < 0.1  # GT local maps on the oracle box: the solver is exact
+    assert "| geometric solver | gt | GT-BB | 12 |" in scene_eval.render_markdown(rows, "9")
+    empty = scene_eval.scene_rows(ref, q.iloc[:0], models, ["gt"], {})
+    assert empty.empty and "queries" in empty.columns
+    assert "No rows" in scene_eval.render_markdown(empty, "9")

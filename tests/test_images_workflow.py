@@ -29,8 +29,10 @@ def lund_run(repo, flat_root, tmp_path_factory):
         "results/lund/sfm/sfm_summary.png",
         "results/lund/queries/queries.parquet",
         "results/lund/maps/reference_map.geojson",
+        "results/lund/localization/localization.parquet",
         "--config",
         f"flatlandia_root={flat_root}",
+        "fine={runs: {methods: [geo]}}",  # the solver only: no benchmark model to train here
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd
@@ -122,6 +124,9 @@ def test_lund_offline_backend_gives_a_documented_empty_map(lund_run):
     q = pd.read_parquet(wd / "results/lund/queries/queries.parquet")
     assert len(q) == 0 and {"token", "x_m", "theta_deg", "gt_local_xy_m", "split"} <= set(q.columns)
     assert "object points, 0 objects" in (wd / "logs/objects/lund.log").read_text()
+    loc = wd / "results/lund/localization/localization.parquet"
+    assert len(pd.read_parquet(loc)) == 0 and "no query" in io.read_parquet_metadata(loc)["empty_because"]
+    assert "no localization rows" in (wd / "results/summary.md").read_text()
 
 
 def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=12, min_sep_px=120, one_class=False):

@@ -16,7 +16,14 @@ def test_summary_names_empty_scenes_and_why(tmp_path):
         pd.DataFrame({"object_id": []}), res / "mine/objects/objects.parquet", {"empty_because": "no classes"}
     )
     io.write_parquet(pd.DataFrame({"obj_idx": []}), res / "mine/maps/reference_map.parquet")
-    text = summary.write_summary(res, ["12", "mine", "nothing"])
+    io.write_parquet(pd.DataFrame({"split": []}), res / "mine/queries/queries.parquet")
+    io.write_parquet(pd.DataFrame({"queries": []}), res / "mine/localization/localization.parquet")
+    io.write_parquet(
+        pd.DataFrame({"obj_idx": [0, 1, 2]}),
+        res / "nogps/maps/reference_map.parquet",
+        {"frame": "local", "unit": "SfM unit"},
+    )
+    text = summary.write_summary(res, ["12", "mine", "nogps", "nothing"])
     assert (res / "summary.md").read_text() == text
     lines = {
         line.split("|")[1].strip(): line for line in text.splitlines() if line.startswith("| ") and "---" not in line
@@ -27,4 +34,6 @@ def test_summary_names_empty_scenes_and_why(tmp_path):
         and "0 clustered objects" in lines["mine"]
         and "no classes" in lines["mine"]
     )
+    assert "0 localization rows" in lines["mine"] and "no query to localize" in lines["mine"]
+    assert "3 objects in a local frame (SfM unit, no lon/lat)" in lines["nogps"]
     assert "nothing built yet" in lines["nothing"]

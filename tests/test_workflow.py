@@ -142,6 +142,16 @@ def test_rerun_is_a_no_op(run_two_scenes, repo, flat_root):
         *two_scenes(flat_root, select="[12]"),
     )
     assert res.returncode == 0 and "Nothing to be done" in res.stdout + res.stderr
+    # a benchmark on another scene set is a named run of its own folder, never an overwrite here
+    args = ["--config", "benchmark_scenes=[12]", f"flatlandia_root={flat_root}"]
+    res = smk(repo, run_two_scenes, "-n", "all", *args)
+    errors = [line for line in res.stderr.splitlines() if line.startswith("ERROR:")]
+    assert res.returncode != 0 and len(errors) == 1 and "snakemake -d runs/<name>" in errors[0], res.stderr[-2000:]
+    assert "['12']" in errors[0] and "['12', '9']" in errors[0]
+    subset = run_two_scenes / "runs" / "subset"
+    subset.mkdir(parents=True, exist_ok=True)
+    res = smk(repo, subset, "-n", "benchmark", *args)
+    assert res.returncode == 0 and "rule fine_train:" in res.stdout, res.stderr[-2000:]
 
 
 @pytest.mark.slow

@@ -64,6 +64,11 @@ def scene_line(results: Path, scene: str) -> tuple[str, list[str]]:
         )
         if len(q) == 0 and not empty:
             empty.append("no query: no image sees enough objects (images.min_objects)")
+    loc = _rows(base / "localization" / "localization.parquet")
+    if loc is not None:
+        parts.append(f"{loc} localization rows (benchmark methods, no retraining)")
+        if loc == 0:
+            empty.append("no localization rows: the scene has no query to localize")
     return (", ".join(parts) if parts else "nothing built yet"), empty
 
 

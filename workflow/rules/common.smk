@@ -71,6 +71,22 @@ def benchmark_scenes():
     return [s for s in scenes_named("benchmark_scenes") if SCENES_SHEET.loc[s, "source"] == "flatlandia"]
 
 
+def check_benchmark_folder(record="results/tables/dataset_stats_per_scene.parquet"):
+    """Stop before any job when benchmark_scenes differs from the set the results here were built
+    on: the models, tables and label transfer would be overwritten. A benchmark on other scenes
+    (e.g. a subset) is a named run in a folder of its own."""
+    if not Path(record).exists():
+        return
+    built = sorted(map(str, pd.read_parquet(record, columns=["scene"])["scene"]))
+    wanted = sorted(benchmark_scenes())
+    if built != wanted:
+        sys.exit(
+            f"ERROR: config: benchmark_scenes {wanted} differs from the scenes {built} that the benchmark in "
+            f"results/ was built on ({record}): models and tables of another scene set go in a folder of their "
+            "own, named by you: snakemake -d runs/<name> ... (or remove results/tables to rebuild here)"
+        )
+
+
 def class_cloud_scenes(scenes=None):
     """Published scenes (the selected ones by default) that ship a class-segmented point cloud
     (the objects stage starts from it)."""
@@ -86,6 +102,12 @@ def benchmark_cities():
 
 def images_scenes():
     return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "images"]
+
+
+def localization_scenes():
+    """Images scenes whose queries the benchmark's methods localize (scene_localization), those
+    on a GPS-aligned map (a local frame has no metres to measure errors in)."""
+    return images_scenes() if config["images"]["align"]["mode"] == "gps" else []
 
 
 def scene_source(wildcards):
@@ -156,7 +178,8 @@ def map_products():
 
 
 def benchmark_products():
-    """The dataset tables, the models and the localization tables (the `benchmark` target)."""
+    """The dataset tables, the models and the localization tables (the `benchmark` target), and the
+    selected images scenes localized by the benchmark's methods."""
     return (
         [
             "results/tables/dataset_stats.parquet",
@@ -167,6 +190,7 @@ def benchmark_products():
         + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
         + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
         + (["results/tables/reference_map_reproduction.parquet"] if class_cloud_scenes(benchmark_scenes()) else [])
+        + per_scene("results/{scene}/localization/localization.parquet", localization_scenes())
     )
 
 
@@ -177,3 +201,7 @@ def products_of_the_run():
 
 def all_targets():
     return products_of_the_run() + report_figures() + ["results/manifest.parquet"]
+
+
+# before any job: never overwrite a benchmark built on other scenes
+check_benchmark_folder()

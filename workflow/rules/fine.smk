@@ -80,3 +80,26 @@ rule fine_table:
         "../../envs/flatlandia.yaml"
     script:
         "../scripts/fine_table.py"
+
+
+rule scene_localization:
+    input:
+        unpack(scene_localization_inputs),
+    output:
+        parquet="results/{scene}/localization/localization.parquet",
+        markdown="results/{scene}/localization/localization.md",
+    log:
+        "logs/scene_localization/{scene}.log",
+    benchmark:
+        "logs/benchmarks/scene_localization/{scene}.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=60,
+    params:
+        map_types=config["fine"]["runs"]["map_types"],
+        geo=config["fine"]["geo"],
+    script:
+        "../scripts/scene_localization.py"

@@ -57,3 +57,20 @@ def fine_model_name(wildcards):
 def fine_train_params(wildcards):
     """fine.train, updated by fine.train_overrides[{model}] (e.g. fewer epochs for the slower GATs)."""
     return {**config["fine"]["train"], **config["fine"]["train_overrides"][wildcards.model]}
+
+
+def scene_localization_inputs(wildcards):
+    """An images scene's map and queries, and the benchmark's gtbb checkpoints of the learned
+    methods of fine.runs (no retraining on the scene)."""
+    s = wildcards.scene
+    runs = config["fine"]["runs"]
+    return {
+        "reference_map": f"results/{s}/maps/reference_map.parquet",
+        "queries": f"results/{s}/queries/queries.parquet",
+        "checkpoints": [
+            f"results/fine/models/{m}_{t}_gtbb/checkpoint.pt"
+            for m in runs["methods"]
+            if m != "geo"
+            for t in runs["map_types"]
+        ],
+    }

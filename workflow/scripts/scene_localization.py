@@ -1,0 +1,40 @@
+"""Rule scene_localization: an images scene's queries localized by the benchmark's methods."""
+
+from pathlib import Path
+
+import pandas as pd
+import torch
+
+from flatlandia import checkpoints, io, runlog
+from flatlandia.fine import learned, scene_eval
+
+
+def main(smk, log):
+    torch.set_num_threads(int(smk.threads))
+    scene = smk.wildcards.scene
+    ref, queries = pd.read_parquet(smk.input.reference_map), pd.read_parquet(smk.input.queries)
+    meta = {"scene": scene, "models": [str(p) for p in smk.input.checkpoints], "retrained": False}
+    if len(queries) == 0:
+        meta["empty_because"] = "the scene has no query, so nothing is evaluated (see results/summary.md)"
+        log.warning("scene %s: %s", scene, meta["empty_because"])
+    models = {}
+    for path in smk.input.checkpoints:
+        model, cfg = checkpoints.load_checkpoint(path, learned.FineConfig, learned.build_model)
+        slug = Path(path).parent.name.rsplit("_", 2)[0]  # {model}_{map_type}_{train}
+        models[(slug, cfg.map_type)] = (model, cfg)
+    rows = scene_eval.scene_rows(
+        ref,
+        queries,
+        models,
+        list(smk.params.map_types),
+        dict(smk.params.geo),
+        progress=runlog.progress(log, f"scene {scene}"),
+    )
+    io.write_parquet(rows, smk.output.parquet, meta)
+    io.write_text(scene_eval.render_markdown(rows, scene), smk.output.markdown)
+    log.info(
+        "scene %s: %d queries, %d rows\n%s", scene, len(queries), len(rows), scene_eval.render_markdown(rows, scene)
+    )
+
+
+runlog.run(main, snakemake)  # noqa: F821
