@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -338,6 +341,12 @@ def test_editing_the_photo_folder_reruns_the_audit(repo, flat_root, tmp_path):
     assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
     shutil.copy(flat_root.parent / "images" / "lund" / "04.jpg", photos / "04.jpg")
     assert "images_audit" in smk(repo, tmp_path, "-n", target, *args).stdout
+    # a manifest of this run, whose target is one artifact, not `all`
+    flatlandia = str(Path(sys.executable).parent / "flatlandia")
+    res = subprocess.run([flatlandia, "audit", "--write", "m.parquet"], cwd=tmp_path, capture_output=True, text=True)
+    assert res.returncode == 0 and res.stdout.startswith("wrote m.parquet: 1 artifacts"), res.stdout + res.stderr
+    man = pd.read_parquet(tmp_path / "m.parquet")
+    assert list(man["artifact"]) == [target] and man["rule"].iloc[0] == "images_audit"
 
 
 def _photos_without_gps(src, dest, names):

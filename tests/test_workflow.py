@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -142,6 +143,22 @@ def test_rerun_is_a_no_op(run_two_scenes, repo, flat_root):
         *two_scenes(flat_root, select="[12]"),
     )
     assert res.returncode == 0 and "Nothing to be done" in res.stdout + res.stderr
+    shared = ["results/tables", "results/fine", "results/coarse"]
+    before = {
+        p: hashlib.sha256(p.read_bytes()).hexdigest()
+        for d in shared
+        for p in (run_two_scenes / d).rglob("*")
+        if p.is_file()
+    }
+    res = smk(repo, run_two_scenes, "--cores", "2", "all", *two_scenes(flat_root, select="[12]"))
+    assert res.returncode == 0, res.stderr[-2000:]
+    after = {
+        p: hashlib.sha256(p.read_bytes()).hexdigest()
+        for d in shared
+        for p in (run_two_scenes / d).rglob("*")
+        if p.is_file()
+    }
+    assert len(before) > 20 and after == before
     # a benchmark on another scene set is a named run of its own folder, never an overwrite here
     args = ["--config", "benchmark_scenes=[12]", f"flatlandia_root={flat_root}"]
     res = smk(repo, run_two_scenes, "-n", "all", *args)

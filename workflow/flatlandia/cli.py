@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import config, provenance
+from flatlandia import config, io, provenance
 
 
 def audit(args) -> int:
@@ -29,6 +29,10 @@ def audit(args) -> int:
         if df.empty:
             print(f"ERROR: no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}")
             return 1
+    if args.write:  # the manifest of any run, whatever its target (rule manifest comes with `all`)
+        io.write_parquet(df.reset_index(drop=True), args.write)
+        print(f"wrote {args.write}: {len(df)} artifacts from {df['rule'].nunique()} rules")
+        return 0
     cols = ["artifact", "rule", "sha256", "bytes", "config_hash", "git_commit", "finished_at"]
     with pd.option_context("display.max_rows", None, "display.max_colwidth", 64, "display.width", 250):
         out = df[cols].assign(sha256=df["sha256"].str[:12])
@@ -60,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--scene", help="only this scene's artifacts")
     a.add_argument("--manifest", default="results/manifest.parquet")
     a.add_argument("--provenance", default=str(provenance.PROVENANCE_DIR))
+    a.add_argument("--write", metavar="FILE", help="write the records as a manifest (Parquet) instead of printing")
     a.set_defaults(func=audit)
     c = sub.add_parser("config", help="check (or --write) the config files generated from the schema")
     c.add_argument("--write", action="store_true", help="rewrite them instead of checking")
