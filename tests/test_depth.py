@@ -40,6 +40,18 @@ def test_lift_box_puts_the_centre_at_the_median_depth():
     assert depth.lift_box(v, [0, 0, 10, 10], dm) is None  # no depth inside: no point
 
 
+def test_lifted_point_projects_back_onto_the_box_centre_at_its_depth():
+    rng = np.random.default_rng(3)
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    R = q * np.sign(np.linalg.det(q))  # a rotation
+    K = np.array([[700.0, 0, 300], [0, 710.0, 250], [0, 0, 1]])
+    v = View("b.jpg", K, R, np.array([0.3, -1.2, 4.0]), 640, 480, np.zeros(0, np.int64), np.zeros((0, 2)))
+    X = depth.lift_box(v, [410.5, 120.0, 450.5, 200.0], np.full((480, 640), 7.5))
+    cam = R @ X + v.t
+    uv = (K @ cam)[:2] / cam[2]
+    assert cam[2] == pytest.approx(7.5) and np.allclose(uv, [430.5, 160.0])
+
+
 def test_monocular_backend_needs_a_local_checkpoint(tmp_path):
     with pytest.raises(InputError, match="local checkpoint folder"):
         depth.make_lifter("transformers", {}, weights=None)

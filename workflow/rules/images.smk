@@ -60,6 +60,7 @@ rule segment:
         weights=config["segment"]["weights"],
         labels_dir=config["segment"]["labels_dir"],
         watermark_box=config["segment"]["watermark_box"],
+        dilate_px=config["segment"]["dilate_px"],
     script:
         "../scripts/segment.py"
 

@@ -14,11 +14,14 @@ def main(smk, log):
     names = list(table.loc[table["kept"], "name"])
     backend = segment.make_backend(smk.params.backend, smk.params.weights, smk.params.labels_dir)
     log.info("backend %s on %d images", backend.name, len(names))
+    if backend.name == "transformers":
+        missing = segment.missing_classes(backend.names)
+        log.info("Flatlandia classes the checkpoint cannot produce: %s", ", ".join(missing) or "none")
     rows = []
     with io.atomic_dir(smk.output.masks) as masks, io.atomic_dir(smk.output.classes) as classes:
         for name in runlog.progress(log, "segment")(names):
             ids, labels = backend.labels(Path(smk.input.images) / name)
-            mask, cls, shares = segment.mask_and_classes(ids, labels, smk.params.watermark_box)
+            mask, cls, shares = segment.mask_and_classes(ids, labels, smk.params.watermark_box, smk.params.dilate_px)
             Image.fromarray(mask).save(masks / f"{name}.png")
             Image.fromarray(cls).save(classes / f"{name}.png")
             rows.append({"name": name, "backend": backend.name, **shares})

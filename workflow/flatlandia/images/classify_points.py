@@ -114,27 +114,24 @@ def load_class_maps(folder: Path, names: list[str]) -> dict[str, np.ndarray]:
 
 
 def write_classified_ply(points: pd.DataFrame, path: Path) -> None:
-    """ASCII PLY of the points with an integer ``class_id`` property and a colour per class."""
+    """PLY of the points (x, y, z double, a colour per class, a uchar ``class_id`` property) by
+    open3d's tensor writer, which keeps the extra property for CloudCompare's scalar fields.
+
+    Binary, so coordinates keep their full precision (open3d's ASCII writer keeps 6 digits).
+    """
+    import open3d as o3d
+
     from flatlandia.io import atomic_path
 
+    if points.empty:
+        raise ValueError(f"{path}: no points to write (open3d writes no empty PLY)")
     rng = np.random.default_rng(0)
-    palette = rng.integers(40, 255, size=(256, 3))
+    palette = rng.integers(40, 255, size=(256, 3)).astype(np.uint8)
     palette[NOT_AN_OBJECT] = (51, 51, 51)  # background grey, as in the published clouds
-    lines = [
-        "ply",
-        "format ascii 1.0",
-        f"element vertex {len(points)}",
-        "property float x",
-        "property float y",
-        "property float z",
-        "property uchar red",
-        "property uchar green",
-        "property uchar blue",
-        "property uchar class_id",
-        "end_header",
-    ]
-    for r in points.itertuples(index=False):
-        col = palette[r.class_id]
-        lines.append(f"{r.x:.6f} {r.y:.6f} {r.z:.6f} {col[0]} {col[1]} {col[2]} {r.class_id}")
+    cls = points["class_id"].to_numpy().astype(np.uint8)
+    pc = o3d.t.geometry.PointCloud(o3d.core.Tensor(points[["x", "y", "z"]].to_numpy(np.float64)))
+    pc.point.colors = o3d.core.Tensor(palette[cls])
+    pc.point.class_id = o3d.core.Tensor(cls[:, None])
     with atomic_path(path) as tmp:
-        tmp.write_text("\n".join(lines) + "\n")
+        if not o3d.t.io.write_point_cloud(str(tmp), pc):
+            raise OSError(f"open3d could not write {tmp}")

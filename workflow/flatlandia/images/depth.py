@@ -7,7 +7,8 @@ Two backends behind one call, ``lift(view, box) -> world point or None``:
   ``transformers`` from a local folder the user provides (nothing is downloaded). Such models
   predict depth up to scale (or inverse depth up to scale), so each image's prediction is
   scaled to the SfM depths of the points it observes (one robust factor per image), then the
-  detection centre is lifted with the median scaled depth inside the box.
+  detection centre is lifted with the median scaled depth inside the box. The prediction is
+  upsampled to the camera's size and the centre unprojected with kornia. See docs/backends.md.
 """
 
 from __future__ import annotations
@@ -43,15 +44,26 @@ def scaled_depth(pred: np.ndarray, scale: float, inverse: bool) -> np.ndarray:
 
 def lift_box(view: View, box: list[float], depth_map: np.ndarray) -> np.ndarray | None:
     """World point of a detection: its centre pixel's ray at the box's median (scaled) depth."""
+    import torch
+    from kornia.geometry.camera import unproject_points
+
     h, w = depth_map.shape
     x0, y0, x1, y1 = (int(np.clip(round(v), 0, m)) for v, m in zip(box, (w, h, w, h)))
     patch = depth_map[y0 : max(y1, y0 + 1), x0 : max(x1, x0 + 1)]
     patch = patch[np.isfinite(patch) & (patch > 0)]
     if patch.size == 0:
         return None
-    z = float(np.median(patch))
-    ray = np.linalg.solve(view.K, np.array([(box[0] + box[2]) / 2, (box[1] + box[3]) / 2, 1.0]))
-    return view.R.T @ (ray * z / ray[2] - view.t)
+    centre = torch.tensor([[(box[0] + box[2]) / 2, (box[1] + box[3]) / 2]], dtype=torch.float64)
+    depth = torch.tensor([[float(np.median(patch))]], dtype=torch.float64)
+    cam = unproject_points(centre, depth, torch.from_numpy(np.asarray(view.K, float))[None])[0].numpy()
+    return view.R.T @ (cam - view.t)
+
+
+def upsample(pred, size: tuple[int, int]) -> np.ndarray:
+    """A (h, w) prediction resized to ``size`` (kornia, bilinear: stays positive, unlike bicubic)."""
+    from kornia.geometry.transform import resize
+
+    return resize(pred, size, interpolation="bilinear", align_corners=False).double().numpy()
 
 
 class MonocularDepth:
@@ -74,27 +86,30 @@ class MonocularDepth:
             raise InputError(
                 self.weights, f"the transformers depth backend needs `pip install transformers` ({e})"
             ) from e
-        self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True)
+        # the PIL backend preprocesses alike with or without torchvision
+        self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True, backend="pil")
         self.model = AutoModelForDepthEstimation.from_pretrained(self.weights, local_files_only=True).eval()
         self.inverse = inverse
 
-    def predict(self, image_path: str | Path) -> np.ndarray:
+    def predict(self, image_path: str | Path, size: tuple[int, int]) -> np.ndarray:
+        """The model's (relative) depth of an image, at ``size`` (the camera's height, width)."""
         import torch
         from PIL import Image
 
-        img = Image.open(image_path).convert("RGB")
+        with Image.open(image_path) as im:
+            rgb = im.convert("RGB")
         with torch.no_grad():
-            out = self.model(**self.processor(images=img, return_tensors="pt")).predicted_depth
-        out = torch.nn.functional.interpolate(out[:, None], size=img.size[::-1], mode="bicubic", align_corners=False)
-        return out[0, 0].numpy().astype(float)
+            pred = self.model(**self.processor(images=rgb, return_tensors="pt")).predicted_depth
+        return upsample(pred[0], size)
 
     def scaled_map(self, view: View, image_path: str | Path, point_xyz: dict[int, np.ndarray]) -> np.ndarray:
-        pred = self.predict(image_path)
+        """Depth map in SfM units of a view: the prediction times the factor fitted to its SfM points."""
+        pred = self.predict(image_path, (view.height, view.width))
         h, w = pred.shape
         X = np.array([point_xyz[int(i)] for i in view.obs_point_ids]).reshape(-1, 3)
         d = (X @ view.R.T + view.t)[:, 2]
-        c = np.clip(np.round(view.obs_xy[:, 0] - 0.5).astype(int), 0, w - 1)
-        r = np.clip(np.round(view.obs_xy[:, 1] - 0.5).astype(int), 0, h - 1)
+        c = np.clip(np.floor(view.obs_xy[:, 0]).astype(int), 0, w - 1)  # COLMAP: pixel k spans [k, k+1)
+        r = np.clip(np.floor(view.obs_xy[:, 1]).astype(int), 0, h - 1)
         return scaled_depth(pred, fit_scale(pred[r, c], d, self.inverse), self.inverse)
 
 

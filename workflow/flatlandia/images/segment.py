@@ -3,7 +3,8 @@
 Every backend returns, per image, a *Vistas label-name map*: an integer image plus a table
 ``id -> Mapillary Vistas label name``. From it we derive
 - the binary mask pycolmap reads (``<image name>.png``, 0 = ignore, 255 = use): people,
-  riders, vehicles, sky, vegetation and the configured watermark box are ignored;
+  riders, vehicles, animals, sky, vegetation, the capturing car and the configured watermark
+  box are ignored;
 - the Flatlandia object-class map (uint8, class id 0-41, 255 = not an object): Flatlandia's
   42 classes are Vistas labels, matched by name (see ``flatlandia_class_of``).
 
@@ -15,8 +16,14 @@ Backends:
   map of an images scene stays empty with it.
 - ``precomputed``: label PNGs in Vistas ids from a folder (``<stem>.png``) + ``labels.json``
   (a list of label names, index = id, as in the Vistas config files).
-- ``transformers``: a Vistas semantic-segmentation checkpoint (e.g. Mask2Former) loaded with
-  ``transformers`` from a local folder the user provides; nothing is downloaded.
+- ``transformers``: a Vistas semantic-segmentation checkpoint (Mask2Former, MaskFormer) loaded
+  with ``transformers`` from a local folder the user provides; nothing is downloaded. The public
+  checkpoints name their classes by the Vistas v1.2 *readable* names ("Street Light"): they are
+  translated to label names (``vistas_names``). See docs/backends.md.
+
+Masks of moving content (people, riders, vehicles, animals) can be grown by ``dilate_px``
+(kornia's morphological dilation): segmenters miss their blurred rims and shadows, whose
+features would otherwise enter SfM.
 """
 
 from __future__ import annotations
@@ -30,8 +37,10 @@ from PIL import Image
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
-#: Vistas label-name prefixes whose pixels are moving or changing content (masked out).
-DYNAMIC_PREFIXES = ("human--", "object--vehicle--", "nature--sky", "nature--vegetation", "animal--")
+#: Vistas label-name prefixes of things that move (their masks can be dilated).
+MOVING_PREFIXES = ("human--", "object--vehicle--", "animal--")
+#: Vistas label-name prefixes whose pixels are moving or changing content, or the capturing car (masked out).
+DYNAMIC_PREFIXES = (*MOVING_PREFIXES, "nature--sky", "nature--vegetation", "void--ego-vehicle", "void--car-mount")
 
 #: Flatlandia class names that are not literally Vistas v2.0 names, with the v2.0 name(s).
 #: Vistas v1.2 has none of the marking--discrete subclasses (only marking--general) and
@@ -45,15 +54,82 @@ VISTAS_ALIASES = {
     "stop-line": ["marking--discrete--stop-line"],
     "other-marking": ["marking--discrete--other-marking", "marking--general"],
     "banner": ["object--banner"],
+    "object--sign--advertisement": ["object--billboard"],  # v1.2 has one billboard class for all signs
+    "object--traffic-sign": ["object--traffic-sign--front"],
+    "object--traffic-sign--direction": ["object--traffic-sign--direction-front"],
+    "object--traffic-light--general-upright": ["object--traffic-light"],  # v1.2: one class; upright is the commonest
+    "object--traffic-light--general-other": ["object--traffic-light--other"],
 }
-VISTAS_V12_MISSING = [c for c in CLASSES if c.startswith("marking--discrete--")] + [
-    "give-way-row",
-    "give-way-single",
-    "stop-line",
-    "object--sign--information",
-    "object--traffic-sign--information-parking",
-    "object--traffic-sign--direction",
-]
+
+#: Vistas v1.2 readable names (the ``id2label`` of the public Mask2Former Vistas checkpoints) -> label names.
+VISTAS_V12_READABLE = {
+    "Bird": "animal--bird",
+    "Ground Animal": "animal--ground-animal",
+    "Curb": "construction--barrier--curb",
+    "Fence": "construction--barrier--fence",
+    "Guard Rail": "construction--barrier--guard-rail",
+    "Barrier": "construction--barrier--other-barrier",
+    "Wall": "construction--barrier--wall",
+    "Bike Lane": "construction--flat--bike-lane",
+    "Crosswalk - Plain": "construction--flat--crosswalk-plain",
+    "Curb Cut": "construction--flat--curb-cut",
+    "Parking": "construction--flat--parking",
+    "Pedestrian Area": "construction--flat--pedestrian-area",
+    "Rail Track": "construction--flat--rail-track",
+    "Road": "construction--flat--road",
+    "Service Lane": "construction--flat--service-lane",
+    "Sidewalk": "construction--flat--sidewalk",
+    "Bridge": "construction--structure--bridge",
+    "Building": "construction--structure--building",
+    "Tunnel": "construction--structure--tunnel",
+    "Person": "human--person",
+    "Bicyclist": "human--rider--bicyclist",
+    "Motorcyclist": "human--rider--motorcyclist",
+    "Other Rider": "human--rider--other-rider",
+    "Lane Marking - Crosswalk": "marking--crosswalk-zebra",
+    "Lane Marking - General": "marking--general",
+    "Mountain": "nature--mountain",
+    "Sand": "nature--sand",
+    "Sky": "nature--sky",
+    "Snow": "nature--snow",
+    "Terrain": "nature--terrain",
+    "Vegetation": "nature--vegetation",
+    "Water": "nature--water",
+    "Banner": "object--banner",
+    "Bench": "object--bench",
+    "Bike Rack": "object--bike-rack",
+    "Billboard": "object--billboard",
+    "Catch Basin": "object--catch-basin",
+    "CCTV Camera": "object--cctv-camera",
+    "Fire Hydrant": "object--fire-hydrant",
+    "Junction Box": "object--junction-box",
+    "Mailbox": "object--mailbox",
+    "Manhole": "object--manhole",
+    "Phone Booth": "object--phone-booth",
+    "Pothole": "object--pothole",
+    "Street Light": "object--street-light",
+    "Pole": "object--support--pole",
+    "Traffic Sign Frame": "object--support--traffic-sign-frame",
+    "Utility Pole": "object--support--utility-pole",
+    "Traffic Light": "object--traffic-light",
+    "Traffic Sign (Back)": "object--traffic-sign--back",
+    "Traffic Sign (Front)": "object--traffic-sign--front",
+    "Trash Can": "object--trash-can",
+    "Bicycle": "object--vehicle--bicycle",
+    "Boat": "object--vehicle--boat",
+    "Bus": "object--vehicle--bus",
+    "Car": "object--vehicle--car",
+    "Caravan": "object--vehicle--caravan",
+    "Motorcycle": "object--vehicle--motorcycle",
+    "On Rails": "object--vehicle--on-rails",
+    "Other Vehicle": "object--vehicle--other-vehicle",
+    "Trailer": "object--vehicle--trailer",
+    "Truck": "object--vehicle--truck",
+    "Wheeled Slow": "object--vehicle--wheeled-slow",
+    "Car Mount": "void--car-mount",
+    "Ego Vehicle": "void--ego-vehicle",
+    "Unlabeled": "void--unlabeled",
+}
 
 NOT_AN_OBJECT = 255
 
@@ -67,8 +143,36 @@ def flatlandia_class_of(vistas_names: list[str]) -> np.ndarray:
     return np.array([lookup.get(n, NOT_AN_OBJECT) for n in vistas_names], dtype=np.uint8)
 
 
+def missing_classes(vistas_names: list[str]) -> list[str]:
+    """Flatlandia classes that no label of a label set maps to: object maps built with it lack them."""
+    have = set(flatlandia_class_of(vistas_names).tolist())
+    return [c for cid, c in enumerate(CLASSES) if cid not in have]
+
+
+def vistas_names(id2label: dict[int, str]) -> list[str]:
+    """Vistas label names of a checkpoint's classes (index = class id), readable v1.2 names translated."""
+    return [VISTAS_V12_READABLE.get(id2label[i], id2label[i]) for i in range(len(id2label))]
+
+
 def dynamic_of(vistas_names: list[str]) -> np.ndarray:
     return np.array([n.startswith(DYNAMIC_PREFIXES) for n in vistas_names], dtype=bool)
+
+
+def moving_of(vistas_names: list[str]) -> np.ndarray:
+    return np.array([n.startswith(MOVING_PREFIXES) for n in vistas_names], dtype=bool)
+
+
+def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """A boolean mask grown by ``radius`` pixels (disk structuring element, kornia morphology)."""
+    if radius <= 0 or not mask.any():
+        return mask
+    import torch
+    from kornia.morphology import dilation
+
+    yy, xx = np.mgrid[-radius : radius + 1, -radius : radius + 1]
+    disk = torch.from_numpy((xx**2 + yy**2 <= radius**2).astype(np.float32))
+    grown = dilation(torch.from_numpy(mask.astype(np.float32))[None, None], disk)
+    return grown[0, 0].numpy() > 0.5
 
 
 def watermark_mask(shape: tuple[int, int], box: list[float] | None) -> np.ndarray:
@@ -187,20 +291,40 @@ class TransformersBackend(Backend):
         except ImportError as e:
             raise InputError(self.weights, f"the transformers backend needs `pip install transformers` ({e})") from e
         self.torch = torch
-        self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True)
+        # the PIL backend preprocesses alike with or without torchvision: same masks everywhere
+        self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True, backend="pil")
         self.model = AutoModelForUniversalSegmentation.from_pretrained(self.weights, local_files_only=True).eval()
-        id2label = self.model.config.id2label
-        self.names = [id2label[i] for i in range(len(id2label))]
+        self.names = vistas_names(self.model.config.id2label)
+        if not any("--" in n for n in self.names):
+            raise InputError(self.weights, "the checkpoint's classes are not Mapillary Vistas labels")
 
     def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
         with Image.open(path) as im:
             rgb = im.convert("RGB")
-            size = rgb.size[::-1]
-            inputs = self.processor(images=rgb, return_tensors="pt")
         with self.torch.no_grad():
-            out = self.model(**inputs)
-        seg = self.processor.post_process_semantic_segmentation(out, target_sizes=[size])[0]
-        return seg.cpu().numpy().astype(np.int32), self.names
+            out = self.model(**self.processor(images=rgb, return_tensors="pt"))
+        scores = semantic_scores(out.class_queries_logits[0], out.masks_queries_logits[0])
+        return label_map(scores, (rgb.height, rgb.width)), self.names
+
+
+def semantic_scores(class_logits, mask_logits):
+    """Per-class score maps (C, h, w) of a mask-classification model: each query's class
+    probabilities (the trailing no-object class dropped) weighted by its mask, summed over queries."""
+    import torch
+
+    return torch.einsum("qc,qhw->chw", class_logits.softmax(-1)[:, :-1], mask_logits.sigmoid())
+
+
+def label_map(scores, size: tuple[int, int]) -> np.ndarray:
+    """Class id per image pixel: scores upsampled straight to the image size (kornia), then arg-max.
+
+    Straight, not through the fixed 384 x 384 of transformers' post-processing, which drops
+    detail wherever the model's masks are larger than that.
+    """
+    from kornia.geometry.transform import resize
+
+    up = resize(scores, size, interpolation="bilinear", align_corners=False)
+    return up.argmax(0).numpy().astype(np.int32)
 
 
 def make_backend(name: str, weights: str | None = None, labels_dir: str | None = None) -> Backend:
@@ -216,10 +340,14 @@ def make_backend(name: str, weights: str | None = None, labels_dir: str | None =
 
 
 def mask_and_classes(
-    ids: np.ndarray, names: list[str], watermark_box: list[float] | None
+    ids: np.ndarray, names: list[str], watermark_box: list[float] | None, dilate_px: int = 0
 ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """(pycolmap mask uint8 0/255, Flatlandia class map uint8, pixel shares per masked kind)."""
-    dyn = dynamic_of(names)[ids]
+    """(pycolmap mask uint8 0/255, Flatlandia class map uint8, pixel shares per masked kind).
+
+    ``dilate_px`` grows the masks of moving things (people, riders, vehicles, animals) only: sky
+    and vegetation edges border buildings whose features SfM needs.
+    """
+    dyn = dynamic_of(names)[ids] | dilate(moving_of(names)[ids], dilate_px)
     wm = watermark_mask(ids.shape, watermark_box)
     ignore = dyn | wm
     cls = flatlandia_class_of(names)[ids]

@@ -1,4 +1,4 @@
-"""The published class point clouds: PLY reading, the colour -> macro-class table, metric scale.
+"""The published class point clouds: PLY reading (open3d), the colour -> macro-class table, metric scale.
 
 Measured on the published data (docs/conventions.md, "Class clouds and reference maps"; the
 audit in tests/test_objects.py):
@@ -18,7 +18,10 @@ audit in tests/test_objects.py):
 
 from __future__ import annotations
 
+import re
+from contextlib import redirect_stdout
 from dataclasses import dataclass
+from io import StringIO
 from pathlib import Path
 
 import numpy as np
@@ -134,81 +137,26 @@ def metres_per_unit(transformations: dict) -> float:
 
 # --------------------------------------------------------------------------- PLY reading
 
-_PLY_TYPES = {
-    "char": "i1",
-    "int8": "i1",
-    "uchar": "u1",
-    "uint8": "u1",
-    "short": "i2",
-    "int16": "i2",
-    "ushort": "u2",
-    "uint16": "u2",
-    "int": "i4",
-    "int32": "i4",
-    "uint": "u4",
-    "uint32": "u4",
-    "float": "f4",
-    "float32": "f4",
-    "double": "f8",
-    "float64": "f8",
-}
 
+def _read_ply_vertices(path: Path) -> dict[str, np.ndarray]:
+    """Vertex attributes of a PLY file (ascii or binary) by open3d's tensor reader, which keeps
+    custom properties such as ``class_id`` with their PLY type (``positions``, ``colors``, ...).
 
-def _read_ply_vertices(path: Path) -> pd.DataFrame:
-    """The vertex element of a PLY file (ascii or binary little/big endian) as a DataFrame."""
-    if not path.exists():
+    Open3D reports a failed read (not a PLY, a truncated body) only in its log, which its Python
+    binding prints to ``sys.stdout``: the log is captured so such a file raises instead of
+    yielding garbage.
+    """
+    import open3d as o3d
+
+    if not path.is_file():
         raise InputError(path, "file is missing")
-    raw = path.read_bytes()
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        raise InputError(path, "not a PLY file (no 'ply' magic or no end_header)")
-    nl = raw.find(b"\n", end)
-    header = raw[:end].decode("ascii", errors="replace").splitlines()
-    body = raw[nl + 1 :]
-    fmt, elements, current = None, [], None
-    for line in header:
-        tok = line.split()
-        if not tok:
-            continue
-        if tok[0] == "format":
-            fmt = tok[1]
-        elif tok[0] == "element":
-            current = {"name": tok[1], "count": int(tok[2]), "props": []}
-            elements.append(current)
-        elif tok[0] == "property" and current is not None:
-            if tok[1] == "list":
-                current["props"].append((tok[4], "list", tok[2], tok[3]))
-            else:
-                if tok[1] not in _PLY_TYPES:
-                    raise InputError(path, f"unsupported PLY property type {tok[1]!r}")
-                current["props"].append((tok[2], _PLY_TYPES[tok[1]]))
-    if not elements or elements[0]["name"] != "vertex":
-        raise InputError(path, "PLY has no leading 'vertex' element")
-    vert = elements[0]
-    if any(p[1] == "list" for p in vert["props"]):
-        raise InputError(path, "list properties on vertices are not supported")
-    names = [p[0] for p in vert["props"]]
-    for need in ("x", "y", "z"):
-        if need not in names:
-            raise InputError(path, f"PLY vertices lack property {need!r} (have {names})")
-    n = vert["count"]
-    if fmt == "ascii":
-        lines = body.decode("ascii", errors="replace").split("\n")[:n]
-        try:
-            arr = np.array([[float(v) for v in ln.split()[: len(names)]] for ln in lines], dtype=float)
-        except ValueError as e:
-            raise InputError(path, f"malformed ASCII vertex line ({e})") from e
-        if arr.shape != (n, len(names)):
-            raise InputError(path, f"header promises {n} vertices, found {len(arr)} complete lines")
-        return pd.DataFrame(arr, columns=names)
-    if fmt not in ("binary_little_endian", "binary_big_endian"):
-        raise InputError(path, f"unsupported PLY format {fmt!r}")
-    order = "<" if fmt == "binary_little_endian" else ">"
-    dt = np.dtype([(p[0], order + p[1]) for p in vert["props"]])
-    if len(body) < n * dt.itemsize:
-        raise InputError(path, f"truncated: {n} vertices need {n * dt.itemsize} bytes, file has {len(body)}")
-    v = np.frombuffer(body, dtype=dt, count=n)
-    return pd.DataFrame({k: v[k].astype(float) for k in names})
+    log = StringIO()
+    with redirect_stdout(log), o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Warning):
+        pc = o3d.t.io.read_point_cloud(str(path), format="ply")
+    failed = re.findall(r"Read PLY failed[^\x1b\n]*", log.getvalue())
+    if failed or "positions" not in pc.point:
+        raise InputError(path, f"unreadable PLY ({'; '.join(failed) or 'no x/y/z vertices'})")
+    return {k: pc.point[k].numpy() for k in pc.point}
 
 
 def read_classified_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -220,14 +168,13 @@ def read_classified_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """
     path = Path(path)
     v = _read_ply_vertices(path)
-    pts = v[["x", "y", "z"]].to_numpy(float)
-    if "class_id" in v.columns:
-        labels = macro_of_class(v["class_id"].to_numpy().astype(int))
+    pts = v["positions"].astype(float)
+    if "class_id" in v:
+        labels = macro_of_class(v["class_id"].astype(int))
     else:
-        cols = [c for c in ("red", "green", "blue") if c in v.columns]
-        if len(cols) != 3:
+        if "colors" not in v:
             raise InputError(path, "PLY has neither a class_id property nor red/green/blue colours")
-        rgb = v[cols].to_numpy().astype(int)
+        rgb = v["colors"].astype(int)
         keys, inv = np.unique(rgb, axis=0, return_inverse=True)
         names = []
         for k in map(tuple, keys):

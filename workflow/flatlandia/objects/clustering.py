@@ -275,29 +275,36 @@ _BOX_FACES = np.array(
 )
 
 
+#: A PLY of no boxes, for what open3d refuses to write (an empty mesh): an images scene whose
+#: points carry no object class still gets an ``objects.ply`` that viewers open.
+_NO_BOXES_PLY = (
+    "ply\nformat ascii 1.0\ncomment Flatlandia objects: none\nelement vertex 0\nproperty double x\n"
+    "property double y\nproperty double z\nelement face 0\nproperty list uchar uint vertex_indices\nend_header\n"
+)
+
+
+def _boxes_mesh(objects: pd.DataFrame):
+    """The boxes as one open3d triangle mesh: 8 corners + 12 triangles per box, coloured by macro-class.
+
+    Built from :func:`box_corners` rather than ``TriangleMesh.create_from_oriented_bounding_box``,
+    which refuses flat boxes (every 3-point cluster is one).
+    """
+    import open3d as o3d
+
+    corners = np.vstack([box_corners(row) for row in objects.itertuples(index=False)])
+    faces = np.vstack([_BOX_FACES + 8 * k for k in range(len(objects))])
+    rgb = [MACRO_BY_NAME[m].rgb if m in MACRO_BY_NAME else (128, 128, 128) for m in objects["macro_class"]]
+    mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(corners), o3d.utility.Vector3iVector(faces))
+    mesh.vertex_colors = o3d.utility.Vector3dVector(np.repeat(np.asarray(rgb, float) / 255.0, 8, axis=0))
+    return mesh
+
+
 def write_boxes_ply(objects: pd.DataFrame, path: str | Path) -> None:
-    """Binary PLY of the boxes (8 vertices + 12 triangles each, coloured by macro-class), atomic."""
-    n = len(objects)
-    vdt = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-    fdt = np.dtype([("n", "u1"), ("v", "<u4", (3,))])
-    verts = np.zeros(8 * n, vdt)
-    faces = np.zeros(12 * n, fdt)
-    for k, row in enumerate(objects.itertuples(index=False)):
-        corners = box_corners(row)
-        rgb = MACRO_BY_NAME[row.macro_class].rgb if row.macro_class in MACRO_BY_NAME else (128, 128, 128)
-        sl = slice(8 * k, 8 * k + 8)
-        verts["x"][sl], verts["y"][sl], verts["z"][sl] = corners.T
-        verts["red"][sl], verts["green"][sl], verts["blue"][sl] = rgb
-        faces["n"][12 * k : 12 * k + 12] = 3
-        faces["v"][12 * k : 12 * k + 12] = _BOX_FACES + 8 * k
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment Flatlandia objects: 8 vertices + 12 triangles per box\n"
-        f"element vertex {8 * n}\nproperty double x\nproperty double y\nproperty double z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-        f"element face {12 * n}\nproperty list uchar uint vertex_indices\nend_header\n"
-    )
+    """Binary PLY of the boxes (:func:`_boxes_mesh`, written by open3d: double x/y/z, uchar colours), atomic."""
+    import open3d as o3d
+
     with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(header.encode("ascii"))
-            f.write(verts.tobytes())
-            f.write(faces.tobytes())
+        if objects.empty:
+            tmp.write_text(_NO_BOXES_PLY)
+        elif not o3d.io.write_triangle_mesh(str(tmp), _boxes_mesh(objects), write_vertex_normals=False):
+            raise OSError(f"open3d could not write {tmp}")
