@@ -58,7 +58,7 @@ rule reproduction_audit:
         latex="results/tables/reference_map_reproduction.tex",
         png=report(
             "results/tables/reference_map_reproduction.png",
-            caption="../report/reference_map_reproduction.rst",
+            caption="../report/reference_map_reproduction_figure.rst",
             category="Reference maps",
         ),
     log:

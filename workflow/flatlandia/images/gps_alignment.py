@@ -3,187 +3,22 @@
 Street-level crowd photos are taken upright, so the cameras' image-down axes agree on gravity
 even when the camera centres lie on one line (a walk along a street) and a plane fit through
 them is degenerate. The ground plane is therefore the plane normal to the cameras' mean "up"
-axis; camera centres projected on it are aligned to their GPS positions by a robust scaled
-rigid transform (:func:`ransac_scaled_rigid`: Umeyama inside RANSAC; no reflection: the up
-axis fixes handedness). The result is an affine map of SfM points onto the metric map,
-``xy = A @ X + b`` (A: 2x3), as :mod:`flatlandia.images.image_queries` expects. Altitude is
-kept as a 1D fit along the up axis.
-
-- :func:`ransac_scaled_rigid` — Umeyama (closed-form scaled rigid transform) inside RANSAC with a
-  seeded rng, 2D or 3D, optional reflection (a plane's sign is arbitrary, so a mirrored map is
-  possible) and an optional heading term (camera headings must agree with the rotation).
+axis (:func:`camera_up`, :func:`plane_basis`: ours, pycolmap has no such step); camera centres
+projected on it are aligned to their GPS positions by pycolmap's robust similarity
+(:func:`flatlandia.similarity.ransac_scaled_rigid`: LO-RANSAC, no reflection: the up axis fixes
+handedness). The compass is compared with the aligned viewing directions (ours too). The result
+is an affine map of SfM points onto the metric map, ``xy = A @ X + b`` (A: 2x3), as
+:mod:`flatlandia.images.image_queries` expects. Altitude is kept as a 1D fit along the up axis.
+Without GPS (``images.align.mode: none``), :func:`local_frame` keeps the SfM frame on that plane.
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from flatlandia import geo
 from flatlandia.errors import InputError
-
-# --------------------------------------------------------------------------- scaled rigid transforms
-
-
-@dataclass
-class ScaledRigid:
-    """Rotation, uniform scale and translation:
-    dst ~= scale * src @ rotation.T + translation (rotation may be a reflection if allowed)."""
-
-    scale: float
-    rotation: np.ndarray
-    translation: np.ndarray
-    inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
-    residuals: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    def apply(self, src: np.ndarray) -> np.ndarray:
-        return self.scale * np.asarray(src, float) @ self.rotation.T + self.translation
-
-    @property
-    def reflection(self) -> bool:
-        return bool(np.linalg.det(self.rotation) < 0)
-
-    def angle_deg(self) -> float:
-        """Rotation angle of a 2D transform (of its proper part for a reflection)."""
-        r = self.rotation.copy()
-        if self.reflection:
-            r[:, 1] *= -1
-        return float(np.degrees(np.arctan2(r[1, 0], r[0, 0])))
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True, allow_reflection: bool = False) -> ScaledRigid:
-    """Closed-form least-squares scaled rigid transform (Umeyama 1991) taking src onto dst (N, d)."""
-    src, dst = np.asarray(src, float), np.asarray(dst, float)
-    d = src.shape[1]
-    ms, md = src.mean(0), dst.mean(0)
-    a, b = src - ms, dst - md
-    cov = b.T @ a / len(src)
-    u, sv, vt = np.linalg.svd(cov)
-    sgn = np.ones(d)
-    if not allow_reflection and np.linalg.det(u) * np.linalg.det(vt) < 0:
-        sgn[-1] = -1
-    r = u @ np.diag(sgn) @ vt
-    var = (a**2).sum() / len(src)
-    s = float((sv * sgn).sum() / var) if with_scale and var > 0 else 1.0
-    t = md - s * ms @ r.T
-    return ScaledRigid(scale=s, rotation=r, translation=t)
-
-
-def _heading_residual(sim: ScaledRigid, src_heading: np.ndarray, dst_heading: np.ndarray) -> np.ndarray:
-    """|angle| (rad) between mapped source headings and target headings (2D only)."""
-    v = np.column_stack([np.cos(src_heading), np.sin(src_heading)]) @ sim.rotation.T
-    pred = np.arctan2(v[:, 1], v[:, 0])
-    return np.abs(geo.wrap_angle(pred - dst_heading))
-
-
-def ransac_scaled_rigid(
-    src: np.ndarray,
-    dst: np.ndarray,
-    threshold: float = 10.0,
-    iterations: int = 1000,
-    seed: int = 0,
-    allow_reflection: bool = True,
-    src_heading: np.ndarray | None = None,
-    dst_heading: np.ndarray | None = None,
-    heading_threshold_deg: float = 30.0,
-    source: str = "cameras",
-) -> ScaledRigid:
-    """Robust scaled rigid transform src -> dst: minimal-sample Umeyama hypotheses scored by inlier count
-    (ties: lower residual sum), refit on the inliers. ``threshold`` is in dst units (metres).
-
-    With headings (radians, CCW, same frames as the points), an inlier must also agree in
-    heading within ``heading_threshold_deg``; a reflection flips headings too.
-    """
-    src_d = np.asarray(src, float)
-    dim = src_d.shape[1] if src_d.ndim == 2 else 0
-    if dim not in (2, 3):
-        raise InputError(source, f"source points must be (N, 2) or (N, 3), got shape {src_d.shape}")
-    src = geo.check_points(src, dim, 3, source, "cameras with GPS")
-    dst = geo.check_points(dst, dim, 3, source, "GPS positions")
-    if len(src) != len(dst):
-        raise InputError(source, f"{len(src)} camera positions but {len(dst)} GPS positions")
-    if geo.collinearity(src) < 1e-9 or np.ptp(src, axis=0).max() == 0:
-        raise InputError(source, "degenerate: all camera positions coincide or lie on one point")
-    use_heading = src_heading is not None and dst_heading is not None
-    if use_heading:
-        if dim != 2:
-            raise ValueError("the heading term is defined for 2D alignments only")
-        src_heading, dst_heading = np.asarray(src_heading, float), np.asarray(dst_heading, float)
-        if src_heading.shape != (len(src),) or dst_heading.shape != (len(src),):
-            raise InputError(source, "one heading per camera is needed on both sides")
-    h_thr = np.radians(heading_threshold_deg)
-    rng = np.random.default_rng(seed)
-    k = 2 if dim == 2 else 3
-
-    def score(sim: ScaledRigid) -> tuple[np.ndarray, np.ndarray]:
-        res = np.linalg.norm(sim.apply(src) - dst, axis=1)
-        inl = res <= threshold
-        if use_heading:
-            inl &= _heading_residual(sim, src_heading, dst_heading) <= h_thr
-        return inl, res
-
-    best, best_key = None, (-1, np.inf)
-    refl_options = (False, True) if allow_reflection else (False,)
-    for _ in range(iterations):
-        idx = rng.choice(len(src), k, replace=False)
-        if np.linalg.norm(src[idx[1]] - src[idx[0]]) == 0:
-            continue
-        for refl in refl_options:
-            if dim == 2:
-                sim = (
-                    umeyama(src[idx], dst[idx], allow_reflection=False)
-                    if not refl
-                    else _reflected(umeyama(src[idx] * [1, -1], dst[idx]))
-                )
-            else:
-                sim = umeyama(src[idx], dst[idx], allow_reflection=refl)
-            if not np.isfinite(sim.scale) or sim.scale <= 0:
-                continue
-            inl, res = score(sim)
-            key = (int(inl.sum()), -float(np.minimum(res, threshold).sum()))
-            if key > (best_key[0], -best_key[1]):
-                best, best_key = sim, (key[0], -key[1])
-    if best is None or best_key[0] < k:
-        raise InputError(source, f"no scaled rigid transform explains at least {k} cameras within {threshold} m")
-    inl, _ = score(best)
-    refl = best.reflection
-    for _ in range(3):  # refit on inliers until stable
-        if dim == 2 and refl:
-            sim = _reflected(umeyama(src[inl] * [1, -1], dst[inl]))
-        else:
-            sim = umeyama(src[inl], dst[inl], allow_reflection=False)
-        new_inl, res = score(sim)
-        if new_inl.sum() < k:
-            break
-        best = sim
-        if np.array_equal(new_inl, inl):
-            break
-        inl = new_inl
-    inl, res = score(best)
-    best.inliers, best.residuals = inl, res
-    return best
-
-
-def _reflected(sim: ScaledRigid) -> ScaledRigid:
-    """Fold a mirror of the source's y axis into a transform fitted on mirrored source points."""
-    r = sim.rotation @ np.diag([1.0, -1.0])
-    return ScaledRigid(scale=sim.scale, rotation=r, translation=sim.translation)
-
-
-def transform_error(est: ScaledRigid, src: np.ndarray, true_dst: np.ndarray) -> dict:
-    """Errors of an estimated transform against the truth on given points (metres)."""
-    e = np.linalg.norm(est.apply(src) - true_dst, axis=1)
-    ref = umeyama(src, true_dst, allow_reflection=True)
-    return {
-        "median_m": float(np.median(e)),
-        "max_m": float(e.max()),
-        "rms_m": float(np.sqrt(np.mean(e**2))),
-        "scale_ratio": float(est.scale / ref.scale),
-        "rotation_deg": float(abs(geo.wrap_angle(np.radians(est.angle_deg() - ref.angle_deg()))) * 180 / np.pi),
-        "reflection_correct": bool(est.reflection == ref.reflection),
-    }
-
+from flatlandia.similarity import ransac_scaled_rigid
 
 # --------------------------------------------------------------------------- GPS alignment
 

@@ -9,7 +9,7 @@
   the third *column* of Rpp. Rpp is a reflection in 18 of 20 scenes and "up" is not known, so
   normals are compared up to sign.
 - :func:`published_chain_transform` expresses the published SfM -> lon/lat chain as a metric
-  2D scaled rigid transform (:class:`flatlandia.images.gps_alignment.ScaledRigid`).
+  2D scaled rigid transform (:class:`flatlandia.similarity.ScaledRigid`, fitted by pycolmap).
 
 Degenerate input (fewer than 3 points, NaN, points on a line) raises :class:`InputError`
 naming the source.
@@ -23,7 +23,7 @@ import numpy as np
 
 from flatlandia import config, geo
 from flatlandia.errors import InputError
-from flatlandia.images.gps_alignment import ScaledRigid, umeyama
+from flatlandia.similarity import ScaledRigid, least_squares
 
 # --------------------------------------------------------------------------- plane
 
@@ -192,4 +192,4 @@ def published_chain_transform(transformations: dict, frame: geo.MetricFrame, sam
     ok = np.isfinite(xy).all(1) & (np.linalg.norm(xy, axis=1) < 1e5)  # far outliers leave the projection
     if ok.sum() < 3:
         raise ValueError("fewer than 3 sample points project into the metric frame")
-    return umeyama(project_to_plane(samples[ok], rpp), xy[ok], allow_reflection=True)
+    return least_squares(project_to_plane(samples[ok], rpp), xy[ok], allow_reflection=True)
