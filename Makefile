@@ -19,13 +19,13 @@ test: install check
 check: install
 	$(BIN)/ruff check workflow tests benchmarks
 	$(BIN)/ruff format --check workflow tests benchmarks
-	$(BIN)/snakefmt --check Snakefile workflow/rules
+	$(BIN)/snakefmt --check workflow/Snakefile workflow/rules
 	$(BIN)/snakemake --lint
 
 format: install
 	$(BIN)/ruff check --fix workflow tests benchmarks
 	$(BIN)/ruff format workflow tests benchmarks
-	$(BIN)/snakefmt Snakefile workflow/rules
+	$(BIN)/snakefmt workflow/Snakefile workflow/rules
 
 install: system-deps $(STAMP)
 

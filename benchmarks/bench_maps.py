@@ -26,7 +26,17 @@ def main() -> None:
     args = ap.parse_args()
     snakemake = str(Path(sys.executable).parent / "snakemake")
     with tempfile.TemporaryDirectory() as wd:
-        cmd = [snakemake, "-s", str(REPO / "Snakefile"), "-d", wd, "--cores", str(args.cores), "maps", "--config"]
+        cmd = [
+            snakemake,
+            "-s",
+            str(REPO / "workflow" / "Snakefile"),
+            "-d",
+            wd,
+            "--cores",
+            str(args.cores),
+            "maps",
+            "--config",
+        ]
         cmd += [f"select=[{args.city}]", f"flatlandia_root={args.flatlandia_root}"]
         t0 = time.perf_counter()
         res = subprocess.run(cmd, capture_output=True, text=True)

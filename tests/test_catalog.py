@@ -69,7 +69,7 @@ print(json.dumps(rules))
 def describe(workdir: Path, root: Path) -> dict:
     """Every rule of the workflow as Snakemake parsed it, with the data root ``root``."""
     res = subprocess.run(
-        [sys.executable, "-c", _DESCRIBE, str(REPO / "Snakefile"), str(workdir), str(root)],
+        [sys.executable, "-c", _DESCRIBE, str(REPO / "workflow" / "Snakefile"), str(workdir), str(root)],
         capture_output=True,
         text=True,
         timeout=300,
@@ -211,17 +211,17 @@ def test_every_caption_file_is_used(rules):
 
 
 def test_default_workflow_profile_is_found_beside_the_snakefile(tmp_path):
-    """Run from an unrelated folder, Snakemake finds profiles/default next to the Snakefile."""
+    """Run from an unrelated folder, Snakemake finds workflow/profiles/default next to workflow/Snakefile."""
     code = (
         "import json, sys; from snakemake.cli import parse_args; "
         "_, a = parse_args(['-s', sys.argv[1], '-n']); "
         "print(json.dumps({'cores': a.cores, 'printshellcmds': a.printshellcmds}))"
     )
     res = subprocess.run(
-        [sys.executable, "-c", code, str(REPO / "Snakefile")], cwd=tmp_path, capture_output=True, text=True
+        [sys.executable, "-c", code, str(REPO / "workflow" / "Snakefile")], cwd=tmp_path, capture_output=True, text=True
     )
     assert res.returncode == 0, res.stderr[-2000:]
-    profile = REPO / "profiles" / "default"
+    profile = REPO / "workflow" / "profiles" / "default"
     assert f"workflow specific profile {profile}" in res.stderr, res.stderr
     settings = yaml.safe_load((profile / "config.yaml").read_text())
     parsed = json.loads(res.stdout.strip().splitlines()[-1])

@@ -98,9 +98,10 @@ def test_nested_command_line_overrides_merge_deeply(repo, flat_root, tmp_path):
 
     out = tmp_path / "resolved.yaml"
     (tmp_path / "config").symlink_to(repo / "config")  # the workflow's default config, beside the probe
-    probe = tmp_path / "Snakefile"
+    probe = tmp_path / "workflow" / "Snakefile"  # where the default config is found: ../config
+    probe.parent.mkdir()
     probe.write_text(
-        f"include: {str(repo / 'Snakefile')!r}\n\n"
+        f"include: {str(repo / 'workflow' / 'Snakefile')!r}\n\n"
         f"import yaml\nopen({str(out)!r}, 'w').write(yaml.safe_dump(dict(config)))\n"
     )
     args = [

@@ -1,5 +1,6 @@
 """Fetching default inputs from their public source (here a local zip served by file:// URL)."""
 
+import hashlib
 import zipfile
 
 import pandas as pd
@@ -53,7 +54,7 @@ def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
         fetch.fetch_flatlandia(
             tmp_path / "data",
             pd.DataFrame({"scene": ["0"], "city": ["x"], "name": ["y"]}),
-            url="http://127.0.0.1:9/nothing.zip",
+            url="https://127.0.0.1:9/nothing.zip",
             timeout_s=5,
         )
     assert not (tmp_path / "data").exists()
@@ -67,9 +68,10 @@ def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
 
 def test_workflow_fetches_when_the_data_folder_is_missing(repo, upstream_zip, tmp_path):
     cfg = tmp_path / "fetch.yaml"
+    pin = hashlib.sha256(upstream_zip.read_bytes()).hexdigest()  # a pinned archive that matches unpacks
     cfg.write_text(
         f"flatlandia_root: {tmp_path / 'nowhere'}\n"
-        f"fetch: {{url: '{upstream_zip.as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
+        f"fetch: {{url: '{upstream_zip.as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5, sha256: {pin}}}\n"
     )
     res = smk(
         repo,

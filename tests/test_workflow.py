@@ -296,7 +296,7 @@ def test_missing_data_is_fetched_or_fails_fast_offline(repo, tmp_path):
     cfg = tmp_path / "offline.yaml"
     cfg.write_text(
         f"flatlandia_root: {tmp_path / 'nowhere'}\n"
-        f"fetch: {{url: 'http://127.0.0.1:9/x.zip', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
+        f"fetch: {{url: 'https://127.0.0.1:9/x.zip', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
     )
     res = smk(repo, tmp_path, "--cores", "1", "results/12/ingest/ingest.json", "--configfile", str(cfg))
     assert res.returncode != 0
@@ -310,7 +310,7 @@ def test_slurm_profile_dry_runs_with_the_expected_resources(repo, flat_root, tmp
         repo,
         tmp_path,
         "--profile",
-        str(repo / "profiles/slurm"),
+        str(repo / "workflow/profiles/slurm"),
         "-n",
         "all",
         "--config",

@@ -1,19 +1,26 @@
 """Seeding and model checkpoints, shared by the coarse and the fine stage so that both train,
 save and reload their models the same way.
 
-A checkpoint is ``torch.save`` of a dict: the weights (``state_dict``), the resolved config
-(``config``, a plain dict) and the training bookkeeping (history, best epoch, validation figure,
-seconds).
+A checkpoint is ``torch.save`` of a dict holding only tensors and plain data, so that it loads
+with ``torch.load(weights_only=True)``: a checkpoint someone shares cannot run code when loaded.
+It holds ``format`` (:data:`FORMAT`), ``state_dict`` (the weights) and ``meta`` (a JSON text: the
+resolved config, a plain dict, and the training bookkeeping: history, best epoch, validation
+figure, seconds). A file needing any other object is refused; older checkpoints are rebuilt by
+the workflow (delete them and rerun), there is no compatibility path.
 """
 
 from __future__ import annotations
 
+import json
+import pickle
+import re
 from collections.abc import Callable
 
 import numpy as np
 import torch
 from torch import nn
 
+from flatlandia.errors import InputError
 from flatlandia.io import atomic_path
 
 #: The keys of a training result that a checkpoint keeps (when present): ``best_val`` is the
@@ -37,16 +44,73 @@ def set_determinism(seed: int) -> None:
     torch.use_deterministic_algorithms(True, warn_only=True)
 
 
+#: Written into every checkpoint; a file without it is not one of this workflow's current checkpoints.
+FORMAT = "flatlandia-checkpoint/2"
+
+REBUILD = "delete it and rerun the workflow to rebuild it (the rule that trains the model writes a new one)"
+
+
+def _plain(value):
+    """JSON form of the numpy/torch scalars and arrays a training result may hold; anything else
+    is a bug in the caller and stops the save (the file must hold plain data only)."""
+    if isinstance(value, (np.generic, torch.Tensor)) and value.ndim == 0:
+        return value.item()
+    if isinstance(value, (np.ndarray, torch.Tensor)):
+        return value.tolist()
+    raise TypeError(f"a checkpoint keeps plain data only, not {type(value).__name__}")
+
+
 def save_checkpoint(result: dict, path) -> None:
-    """``torch.save`` the checkpoint keys of a training result, atomically (no half-written file)."""
+    """``torch.save`` the weights and, as JSON text, the config and bookkeeping of a training
+    result, atomically (no half-written file); loadable with ``weights_only=True``."""
+    meta = {k: result[k] for k in CHECKPOINT_KEYS if k in result and k != "state_dict"}
+    payload = {"format": FORMAT, "state_dict": result["state_dict"], "meta": json.dumps(meta, default=_plain)}
     with atomic_path(path) as tmp:
-        torch.save({k: result[k] for k in CHECKPOINT_KEYS if k in result}, tmp)
+        torch.save(payload, tmp)
+
+
+def _unsafe_global(err: Exception) -> str:
+    """What a refused checkpoint asked for, from torch's message (its 'Unsupported global' part)."""
+    found = re.search(r"Unsupported global: GLOBAL ([\w.]+)", str(err))
+    if found:
+        return f"it asks for the Python object {found.group(1)}"
+    lines = [ln.strip() for ln in str(err).splitlines() if "WeightsUnpickler error" in ln]
+    return lines[0] if lines else type(err).__name__
+
+
+def _read(path) -> dict:
+    """The checkpoint's dict, loaded with ``weights_only=True``: tensors and plain data only."""
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        raise InputError(
+            path,
+            "refused: the checkpoint needs arbitrary Python objects, not only tensors and plain data "
+            f"({_unsafe_global(e)}); loading it could run code, so it is not loaded. If it is one of "
+            f"this workflow's older checkpoints, {REBUILD}",
+        ) from None
+    except (RuntimeError, EOFError, OSError) as e:
+        raise InputError(path, f"not a readable checkpoint ({e})") from None
+    if not isinstance(ck, dict) or ck.get("format") != FORMAT:
+        raise InputError(path, f"not a checkpoint of this workflow's format {FORMAT}: {REBUILD}")
+    return ck
+
+
+def _meta(path, ck: dict) -> dict:
+    """The config and bookkeeping of a checkpoint, parsed from its JSON text."""
+    try:
+        meta = json.loads(ck["meta"])
+    except (KeyError, TypeError, json.JSONDecodeError) as e:
+        raise InputError(path, f"the checkpoint's config is not readable JSON ({e}): {REBUILD}") from None
+    if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
+        raise InputError(path, f"the checkpoint holds no config: {REBUILD}")
+    return meta
 
 
 def load_checkpoint(path, config_class, build_model: Callable) -> tuple[nn.Module, object]:
     """The model of a checkpoint, in eval mode, and its config (``config_class.from_dict``)."""
-    ck = torch.load(path, map_location="cpu", weights_only=False)
-    cfg = config_class.from_dict(ck["config"])
+    ck = _read(path)
+    cfg = config_class.from_dict(_meta(path, ck)["config"])
     model = build_model(cfg)
     model.load_state_dict(ck["state_dict"])
     model.eval()
@@ -55,8 +119,7 @@ def load_checkpoint(path, config_class, build_model: Callable) -> tuple[nn.Modul
 
 def checkpoint_info(path) -> dict:
     """The bookkeeping of a checkpoint: everything but the weights."""
-    ck = torch.load(path, map_location="cpu", weights_only=False)
-    return {k: v for k, v in ck.items() if k != "state_dict"}
+    return _meta(path, _read(path))
 
 
 def n_parameters(model: nn.Module) -> int:

@@ -25,7 +25,7 @@ def config_path(path):
     p = Path(path).expanduser()
     if p.is_absolute() or p.exists():
         return p
-    beside_repo = Path(workflow.basedir) / p
+    beside_repo = Path(workflow.basedir).parent / p
     return beside_repo if beside_repo.exists() else p
 
 

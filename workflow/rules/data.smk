@@ -16,7 +16,9 @@ if FLAT_FETCH:
         params:
             dest=config["fetch"]["dest"],
             url=config["fetch"]["url"],
+            sha256=config["fetch"]["sha256"],
             timeout_s=config["fetch"]["timeout_s"],
+            limits=FETCH_LIMITS,
             scenes=str(config_path(config["scenes"])),
         script:
             "../scripts/fetch_flatlandia.py"

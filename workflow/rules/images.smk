@@ -16,6 +16,7 @@ rule fetch_images:
     params:
         source=images_fetch_params,
         timeout_s=config["fetch"]["timeout_s"],
+        limits=FETCH_LIMITS,
     script:
         "../scripts/fetch_images.py"
 

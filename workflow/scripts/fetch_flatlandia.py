@@ -10,8 +10,16 @@ def main(smk, log):
     scenes = pd.read_csv(smk.params.scenes, sep="\t", dtype=str, keep_default_na=False)
     scenes = scenes[scenes["source"] == "flatlandia"]
     log.info("fetching %s into %s", smk.params.url, smk.params.dest)
+    log.info("pinned sha256: %s; caps %s", smk.params.sha256 or "none", smk.params.limits)
     try:
-        dest = fetch.fetch_flatlandia(smk.params.dest, scenes, smk.params.url, smk.params.timeout_s)
+        dest = fetch.fetch_flatlandia(
+            smk.params.dest,
+            scenes,
+            smk.params.url,
+            smk.params.timeout_s,
+            sha256=smk.params.sha256,
+            limits=fetch.Limits.from_config(smk.params.limits),
+        )
     except fetch.FetchError as e:
         log.error("%s", e)
         raise SystemExit(f"ERROR: {e}") from None

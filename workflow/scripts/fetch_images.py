@@ -7,8 +7,16 @@ from flatlandia.data import fetch
 def main(smk, log):
     src = smk.params.source
     log.info("fetching %s (%s) into %s", src["url"], src["subfolder"], smk.output.images)
+    log.info("pinned sha256: %s; caps %s", src.get("sha256") or "none", smk.params.limits)
     try:
-        fetch.fetch_images(src["url"], src["subfolder"], smk.output.images, smk.params.timeout_s)
+        fetch.fetch_images(
+            src["url"],
+            src["subfolder"],
+            smk.output.images,
+            smk.params.timeout_s,
+            sha256=src.get("sha256", ""),
+            limits=fetch.Limits.from_config(smk.params.limits),
+        )
     except fetch.FetchError as e:
         log.error("%s", e)
         raise SystemExit(f"ERROR: {e}") from None

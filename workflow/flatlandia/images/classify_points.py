@@ -8,6 +8,8 @@ import numpy as np
 import pandas as pd
 from PIL import Image
 
+from flatlandia.errors import InputError
+from flatlandia.images.image_audit import check_plain_name
 from flatlandia.images.segment import NOT_AN_OBJECT
 
 
@@ -81,9 +83,8 @@ def point_instances(rec, instance_maps: dict[str, np.ndarray]) -> pd.DataFrame:
 def load_instance_maps(folder: str | Path | None, names: list[str]) -> dict[str, np.ndarray]:
     """Instance-id images ``<image stem>.png`` of a folder (none when ``folder`` is None).
 
-    A folder that holds none of the model's images is a configuration error, named."""
-    from flatlandia.errors import InputError
-
+    A folder that holds none of the model's images is a configuration error, named. Image names
+    are checked plain file names: ``<stem>.png`` stays inside the folder."""
     if folder is None:
         return {}
     folder = Path(folder)
@@ -91,7 +92,7 @@ def load_instance_maps(folder: str | Path | None, names: list[str]) -> dict[str,
         raise InputError(folder, "segment.instances_dir is not a folder")
     maps = {}
     for n in names:
-        p = folder / f"{Path(n).stem}.png"
+        p = folder / f"{Path(check_plain_name(n, folder)).stem}.png"
         if p.exists():
             with Image.open(p) as im:
                 ids = np.asarray(im)
@@ -104,9 +105,10 @@ def load_instance_maps(folder: str | Path | None, names: list[str]) -> dict[str,
 
 
 def load_class_maps(folder: Path, names: list[str]) -> dict[str, np.ndarray]:
+    """Class maps ``<image name>.png`` of a folder; names checked plain, so each stays inside it."""
     maps = {}
     for n in names:
-        p = folder / f"{n}.png"
+        p = Path(folder) / f"{check_plain_name(n, folder)}.png"
         if p.exists():
             with Image.open(p) as im:
                 maps[n] = np.asarray(im)

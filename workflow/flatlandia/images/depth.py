@@ -20,6 +20,7 @@ import numpy as np
 
 from flatlandia.errors import InputError
 from flatlandia.images.image_queries import View, sparse_depth_point
+from flatlandia.images.segment import load_local_model
 
 
 def fit_scale(pred_at_points: np.ndarray, sfm_depth: np.ndarray, inverse: bool) -> float:
@@ -81,14 +82,13 @@ class MonocularDepth:
                 self.weights, "not a transformers checkpoint folder (no config.json); nothing is downloaded"
             )
         try:
-            from transformers import AutoImageProcessor, AutoModelForDepthEstimation
+            from transformers import AutoModelForDepthEstimation
         except ImportError as e:  # pragma: no cover - transformers is pinned in envs/requirements.txt
             raise InputError(
                 self.weights, f"the transformers depth backend needs `pip install transformers` ({e})"
             ) from e
-        # the PIL backend preprocesses alike with or without torchvision
-        self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True, backend="pil")
-        self.model = AutoModelForDepthEstimation.from_pretrained(self.weights, local_files_only=True).eval()
+        # local files only, remote code never trusted, safetensors weights only (see load_local_model)
+        self.processor, self.model = load_local_model(self.weights, AutoModelForDepthEstimation)
         self.inverse = inverse
 
     def predict(self, image_path: str | Path, size: tuple[int, int]) -> np.ndarray:

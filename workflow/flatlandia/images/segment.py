@@ -248,6 +248,27 @@ class OfflineBackend(Backend):
         return offline_labels(rgb), OFFLINE_NAMES
 
 
+def read_label_names(path: Path) -> list[str]:
+    """The label names of a ``labels.json`` (a list, or the Vistas config layout ``{"labels":
+    [{"name": ...}]}``), each checked: a non-empty name without path separators or control
+    characters, so no label name can ever steer a path."""
+    try:
+        names = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise InputError(path, f"not a readable JSON list of label names ({e})") from None
+    if isinstance(names, dict) and isinstance(names.get("labels"), list):  # the Vistas config file layout
+        names = [lab.get("name") if isinstance(lab, dict) else None for lab in names["labels"]]
+    if not isinstance(names, list) or not names:
+        raise InputError(path, "must be a non-empty list of Vistas label names (index = id)")
+    for i, n in enumerate(names):
+        if not isinstance(n, str) or not n.strip() or any(c in n for c in "/\\") or any(ord(c) < 32 for c in n):
+            raise InputError(
+                path,
+                f"label {i} ({n!r}) is not a label name (a non-empty text without '/', '\\' or control characters)",
+            )
+    return names
+
+
 class PrecomputedBackend(Backend):
     name = "precomputed"
 
@@ -256,10 +277,7 @@ class PrecomputedBackend(Backend):
         names_path = self.folder / "labels.json"
         if not names_path.exists():
             raise InputError(names_path, "precomputed labels need labels.json (list of Vistas label names, index = id)")
-        names = json.loads(names_path.read_text())
-        if isinstance(names, dict) and "labels" in names:  # the Vistas config file layout
-            names = [lab["name"] for lab in names["labels"]]
-        self.names = [str(n) for n in names]
+        self.names = read_label_names(names_path)
 
     def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
         lab_path = self.folder / f"{Path(path).stem}.png"
@@ -287,13 +305,11 @@ class TransformersBackend(Backend):
             )
         try:
             import torch
-            from transformers import AutoImageProcessor, AutoModelForUniversalSegmentation
+            from transformers import AutoModelForUniversalSegmentation
         except ImportError as e:
             raise InputError(self.weights, f"the transformers backend needs `pip install transformers` ({e})") from e
         self.torch = torch
-        # the PIL backend preprocesses alike with or without torchvision: same masks everywhere
-        self.processor = AutoImageProcessor.from_pretrained(self.weights, local_files_only=True, backend="pil")
-        self.model = AutoModelForUniversalSegmentation.from_pretrained(self.weights, local_files_only=True).eval()
+        self.processor, self.model = load_local_model(self.weights, AutoModelForUniversalSegmentation)
         self.names = vistas_names(self.model.config.id2label)
         if not any("--" in n for n in self.names):
             raise InputError(self.weights, "the checkpoint's classes are not Mapillary Vistas labels")
@@ -305,6 +321,39 @@ class TransformersBackend(Backend):
             out = self.model(**self.processor(images=rgb, return_tensors="pt"))
         scores = semantic_scores(out.class_queries_logits[0], out.masks_queries_logits[0])
         return label_map(scores, (rgb.height, rgb.width)), self.names
+
+
+def load_local_model(folder: Path, model_class) -> tuple[object, object]:
+    """(image processor, model in eval mode) of a local ``transformers`` checkpoint folder.
+
+    The folder is untrusted data, never code: local files only (``local_files_only=True``:
+    nothing is downloaded), remote code never trusted (``trust_remote_code=False``: a folder whose
+    config asks for its own Python code, ``auto_map``, is refused, that code never imported), and
+    weights from ``*.safetensors`` only (``use_safetensors=True``: no pickled ``.bin`` weights).
+    The PIL processor backend preprocesses alike with or without torchvision: same outputs everywhere.
+    """
+    from transformers import AutoImageProcessor
+
+    folder = Path(folder)
+    if not any(folder.glob("*.safetensors")):
+        raise InputError(
+            folder,
+            "no *.safetensors weights: only safetensors checkpoints are loaded (pickled .bin weights can "
+            "run code); save the model with save_pretrained, which writes model.safetensors",
+        )
+    try:
+        processor = AutoImageProcessor.from_pretrained(
+            folder, local_files_only=True, trust_remote_code=False, backend="pil"
+        )
+        model = model_class.from_pretrained(
+            folder, local_files_only=True, trust_remote_code=False, use_safetensors=True
+        ).eval()
+    except (OSError, ValueError, KeyError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise InputError(
+            folder, f"not loadable as a local transformers checkpoint without remote code ({first})"
+        ) from None
+    return processor, model
 
 
 def semantic_scores(class_logits, mask_logits):

@@ -1,6 +1,9 @@
 # Input functions and settings of the rules in rules/data.smk (kept apart: Snakemake's linter
 # wants rules and functions in separate files). No lambdas in rules.
 
+#: Caps on every download and unpacking (config `fetch`): rules fetch_flatlandia and fetch_images.
+FETCH_LIMITS = {key: config["fetch"][key] for key in ("max_download_mb", "max_unpacked_mb", "max_members")}
+
 
 def reference_map_inputs(wildcards):
     """A published scene's map is built from the published files; an images scene's from its objects."""

@@ -18,8 +18,10 @@ def images_dir(wildcards):
 
 
 def images_fetch_params(wildcards):
+    """Where rule fetch_images downloads a scene's images from, and the archive's pinned sha256
+    (the sheet's optional sha256 column; empty = not pinned)."""
     row = SCENES_SHEET.loc[wildcards.scene]
-    return {"url": row.get("url", ""), "subfolder": row.get("subfolder", "")}
+    return {"url": row.get("url", ""), "subfolder": row.get("subfolder", ""), "sha256": row.get("sha256", "")}
 
 
 def images_folder_fingerprint(wildcards):
