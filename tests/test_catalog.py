@@ -8,6 +8,7 @@ process: loading a workflow changes the working directory and sets up Snakemake'
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -73,6 +74,7 @@ def describe(workdir: Path, root: Path) -> dict:
         capture_output=True,
         text=True,
         timeout=300,
+        env={k: v for k, v in os.environ.items() if k != "FLATLANDIA_ROOT"},  # it would override ``root``
     )
     assert res.returncode == 0, res.stderr[-3000:]
     return json.loads(res.stdout.strip().splitlines()[-1])

@@ -1,8 +1,9 @@
 """Rule fine_table: every fine run's summary in one schema-checked table, and Tables 4-5 in markdown.
 
 Writes ``results/tables/fine_localization.parquet`` through ``tables.write_table`` (schema
-``fine_localization``: Parquet + flat markdown + LaTeX) and the paper-style layout (ours beside
-the paper's Tables 4 and 5) as ``fine_localization.md``.
+``fine_localization``: Parquet + flat markdown + LaTeX, every column: the paper's thresholds and
+the field's recalls) and the paper-style layout (ours beside the paper's Tables 4 and 5, then the
+recalls beside OrienterNet's published MGL figures, another task) as ``fine_localization.md``.
 """
 
 import json

@@ -30,6 +30,12 @@ GROSS_M = 30.0
 #: the paper's convention (local-map units x 215)
 THRESHOLD_COLUMNS = [f"pct_{m:g}m_{d:g}deg" for m, d in paper.THRESHOLDS]
 PAPER_UNIT_THRESHOLD_COLUMNS = [f"pct_pu_{m:g}m_{d:g}deg" for m, d in paper.THRESHOLDS]
+#: the field's recall thresholds (visual localization, e.g. OrienterNet): position and heading
+#: apart, true metres and degrees, so that our rows read against the field's published figures
+RECALL_M = (1.0, 3.0, 5.0)
+RECALL_DEG = (1.0, 3.0, 5.0)
+#: summary keys of the % of queries under each recall threshold: positions, then headings
+RECALL_COLUMNS = [f"recall_{m:g}m" for m in RECALL_M] + [f"recall_{d:g}deg" for d in RECALL_DEG]
 
 
 def training_priors(queries: pd.DataFrame, geo_config: dict | None = None):
@@ -80,10 +86,12 @@ def paper_metres(error_m, lat: float):
 
 
 def summarise(errors: pd.DataFrame) -> dict:
-    """Median errors, % under the paper's thresholds, F%, gross share, mean/median query time.
+    """Median errors, % under the paper's thresholds, the field's recalls (position and heading
+    apart), F%, gross share, mean/median query time.
 
-    Failed queries (no pose) count with infinite error. ``F%`` is the share of queries whose
-    proposal cannot hold a solution (fewer than 3 objects of the query's classes).
+    Failed queries (no pose) count with infinite error and a 180 deg heading: misses at every
+    threshold. ``F%`` is the share of queries whose proposal cannot hold a solution (fewer than 3
+    objects of the query's classes).
     """
     e = errors
     em = e["error_m"].to_numpy(float)
@@ -95,6 +103,8 @@ def summarise(errors: pd.DataFrame) -> dict:
     }
     for column, (m, d) in zip(THRESHOLD_COLUMNS, paper.THRESHOLDS):
         out[column] = float(100 * np.mean((em < m) & (ed < d))) if len(e) else float("nan")
+    for column, (err, t) in zip(RECALL_COLUMNS, [(em, m) for m in RECALL_M] + [(ed, d) for d in RECALL_DEG]):
+        out[column] = float(100 * np.mean(err < t)) if len(e) else float("nan")
     out["failure_pct"] = float(100 * np.mean(~e["solvable"].to_numpy(bool))) if len(e) else float("nan")
     out["no_pose_pct"] = float(100 * np.mean(~np.isfinite(em))) if len(e) else float("nan")
     out["gross_pct"] = float(100 * np.mean(em > GROSS_M)) if len(e) else float("nan")

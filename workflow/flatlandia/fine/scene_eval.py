@@ -66,11 +66,13 @@ def _row(scene, method, slug, map_type, proposal, label, errors: pd.DataFrame) -
 
 
 def render_markdown(rows: pd.DataFrame, scene: str) -> str:
-    """The scene's rows as a Markdown table (true metres; % under the paper's thresholds)."""
+    """The scene's rows as a Markdown table (true metres; % under the paper's thresholds, then the
+    field's recalls: position and heading apart)."""
     head = f"# Scene {scene}: localization with the benchmark's methods (no retraining)\n\n"
     if rows.empty:
         return head + "No rows: the scene has no query (see results/summary.md for why).\n"
-    cols = ["method", "map_type", "strategy", "queries", "median_m", "median_deg"] + evaluation.THRESHOLD_COLUMNS
+    cols = ["method", "map_type", "strategy", "queries", "median_m", "median_deg"]
+    cols += evaluation.THRESHOLD_COLUMNS + evaluation.RECALL_COLUMNS
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows[cols].to_dict("records"):
         cells = [f"{r[c]:.2f}" if isinstance(r[c], float) else str(r[c]) for c in cols]
