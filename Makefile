@@ -29,7 +29,8 @@ format: install
 
 install: system-deps $(STAMP)
 
-# open3d needs libusb-1.0 from Debian; install it when missing (as root), else say how.
+# open3d needs libusb-1.0 from Debian, the map viewer's browser test Debian's Chromium and its
+# driver; install them when missing (as root), else say how (without Chromium that test skips).
 system-deps:
 	@if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
@@ -37,6 +38,15 @@ system-deps:
 	    (apt-get install -y -q libusb-1.0-0 || (apt-get update -q && apt-get install -y -q libusb-1.0-0)) >/dev/null; \
 	  else \
 	    echo "open3d needs libusb-1.0: run 'sudo apt-get install libusb-1.0-0'" >&2; exit 1; \
+	  fi; \
+	fi
+	@if ! command -v chromium >/dev/null || ! command -v chromedriver >/dev/null; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing chromium and chromium-driver (the map viewer's browser test)"; \
+	    export DEBIAN_FRONTEND=noninteractive; \
+	    (apt-get install -y -q chromium chromium-driver || (apt-get update -q && apt-get install -y -q chromium chromium-driver)) >/dev/null; \
+	  else \
+	    echo "the map viewer's browser test needs Chromium: run 'sudo apt-get install chromium chromium-driver'" >&2; \
 	  fi; \
 	fi
 

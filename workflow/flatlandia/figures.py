@@ -1,15 +1,20 @@
 """Report figures: training curves, error distributions (CDFs, the paper's Fig. 8), coarse-score heat maps.
 
-Pure plotting from the run's tables; each function writes one PNG atomically (matplotlib Agg).
+Pure plotting from the run's tables; each ``plot_*`` function writes one PNG atomically (matplotlib
+Agg), each ``*_figure`` function returns the figure it draws, so tests can read its panels and
+legend. Fine runs are styled alike everywhere (a colour per method, a line style per local-map
+type, a panel per proposal setting), the query figures and the map viewer included.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from flatlandia import paper
 from flatlandia.io import atomic_path
 
 
@@ -24,9 +29,10 @@ def pyplot():
     return plt
 
 
-def _save(fig, path: str | Path) -> None:
+def save(fig, path: str | Path, dpi: int = 110) -> None:
+    """Write a figure as a PNG atomically and free it."""
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format="png")
     pyplot().close(fig)
 
 
@@ -67,31 +73,167 @@ def plot_training_curves(curves: dict[str, pd.DataFrame], path: str | Path) -> N
     for ax in axes.ravel()[len(curves) :]:
         ax.axis("off")
     fig.tight_layout()
-    _save(fig, path)
+    save(fig, path)
 
 
-def plot_error_cdfs(
-    errors: dict[str, pd.DataFrame], path: str | Path, max_m: float = 100.0, max_deg: float = 180.0
-) -> None:
-    """CDF of position (m) and orientation (deg) error per run; failures never reach the top."""
+# ----------------------------------------------------------------------------- fine runs, styled alike
+
+#: one colour per method, the same in every figure and in the map viewer
+METHOD_COLOURS = {"geo": "#000000", "mlp": "#1f77b4", "mlp_att": "#9467bd", "gat": "#ff7f0e", "gat_att": "#8c564b"}
+#: the methods' names as the paper writes them (its tables' keys); ``geo`` is our solver
+METHOD_LABELS = {"geo": "solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+#: one line style per local-map type (matplotlib, and the viewer's SVG dash pattern)
+MAP_TYPE_STYLES = {"gt": "-", "depth": "--"}
+MAP_TYPE_DASHES = {"gt": "", "depth": "6 3"}
+MAP_TYPE_LABELS = {"gt": "GT local map", "depth": "depth local map"}
+#: proposal settings in panel order
+PROPOSAL_LABELS = {
+    "gtbb": "GT-BB proposals",
+    "coarse-sim": "coarse proposals (Sim)",
+    "coarse-trip": "coarse proposals (Trip)",
+    "coarse-simtrip": "coarse proposals (Sim+Trip)",
+    "coarse-solver": "coarse proposals (solver)",
+    "whole": "whole reference map",
+}
+#: the colour of the true pose in the query figures and the viewer
+TRUTH_COLOUR = "#00b050"
+
+
+@dataclass(frozen=True)
+class Run:
+    """A fine run named ``{method}_{map_type}_{proposal}`` (config fine.runs), with its style."""
+
+    name: str
+    method: str
+    map_type: str
+    proposal: str
+
+    @classmethod
+    def parse(cls, name: str) -> Run:
+        method, map_type, proposal = name.rsplit("_", 2)
+        return cls(name, method, map_type, proposal)
+
+    def sort_key(self) -> tuple:
+        """Panel order: proposal setting (one unknown here last, by name), method, local-map type."""
+        known = list(PROPOSAL_LABELS)
+        rank = known.index(self.proposal) if self.proposal in known else len(known)
+        return (
+            rank,
+            self.proposal,
+            list(METHOD_COLOURS).index(self.method),
+            list(MAP_TYPE_STYLES).index(self.map_type),
+        )
+
+    @property
+    def setting(self) -> str:
+        """The proposal setting in words (its name where this module does not know it)."""
+        return PROPOSAL_LABELS.get(self.proposal, self.proposal)
+
+    @property
+    def colour(self) -> str:
+        return METHOD_COLOURS[self.method]
+
+    @property
+    def short_label(self) -> str:
+        """Method and local-map type: the run's name within its proposal setting's panel."""
+        return f"{METHOD_LABELS[self.method]}, {MAP_TYPE_LABELS[self.map_type]}"
+
+    @property
+    def label(self) -> str:
+        return f"{self.short_label}, {self.setting}"
+
+
+def paper_median(run: Run, strategy: str) -> tuple[float, float] | None:
+    """The paper's median error of a run, (its "m" = local-map units x 215, degrees), where it
+    publishes one: Table 4 (GT-BB proposals), Table 5 (Sim+Trip coarse proposals, 2N_LM)."""
+    model = METHOD_LABELS[run.method]
+    if run.proposal == "gtbb" and (model, run.map_type) in paper.TABLE4:
+        return paper.TABLE4[(model, run.map_type)][4:6]
+    key = (model, "Sim+Trip", run.map_type)
+    if run.proposal == "coarse-simtrip" and "2N_LM" in strategy and key in paper.TABLE5:
+        return paper.TABLE5[key]
+    return None
+
+
+def _groups(errors: dict[str, pd.DataFrame]) -> dict[tuple[str, str], list[Run]]:
+    """Runs by (proposal setting, local-map type), in panel order: one method per curve of a panel."""
+    out = {}
+    for run in sorted((Run.parse(name) for name in errors), key=Run.sort_key):
+        out.setdefault((run.proposal, run.map_type), []).append(run)
+    return out
+
+
+def _panel_title(run: Run, what: str) -> str:
+    return f"{run.setting}, {MAP_TYPE_LABELS[run.map_type]}s:\n{what}"
+
+
+def _style_legend(fig, runs: list[Run], paper_marks: bool) -> None:
+    """One legend for the figure: a colour per method, a line style per local-map type."""
+    from matplotlib.lines import Line2D
+
+    methods = [m for m in METHOD_COLOURS if any(r.method == m for r in runs)]
+    types = [t for t in MAP_TYPE_STYLES if any(r.map_type == t for r in runs)]
+    handles = [Line2D([], [], c=METHOD_COLOURS[m], lw=2, label=METHOD_LABELS[m]) for m in methods]
+    handles += [Line2D([], [], c="0.3", ls=MAP_TYPE_STYLES[t], lw=1.5, label=MAP_TYPE_LABELS[t]) for t in types]
+    if paper_marks:
+        handles.append(Line2D([], [], c="0.3", marker="*", ms=10, ls="", label="paper's median (Tables 4, 5)"))
+    fig.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.0, 0.95), fontsize=9, frameon=False)
+
+
+def _paper_star(a, b, run: Run, e: pd.DataFrame) -> bool:
+    """The paper's median of ``run`` as a star at 0.5 on its position (a) and orientation (b)
+    panels; its "m" (local-map units x 215) in true metres with the run's own ratio of the two."""
+    med = paper_median(run, str(e["strategy"].iloc[0]) if len(e) else "")
+    ok = np.isfinite(e["error_m"]) & (e["error_paper_m"] > 0)
+    if med is None or not ok.any():
+        return False
+    to_m = float(np.median(e.loc[ok, "error_m"] / e.loc[ok, "error_paper_m"]))
+    a.plot(med[0] * to_m, 0.5, marker="*", ms=12, c=run.colour, mec="w", ls="", zorder=5)
+    b.plot(med[1], 0.5, marker="*", ms=12, c=run.colour, mec="w", ls="", zorder=5)
+    return True
+
+
+def error_cdf_figure(errors: dict[str, pd.DataFrame], max_m: float = 100.0, max_deg: float = 180.0):
+    """CDFs of position (m) and orientation (deg) error: a row per proposal setting, for each
+    local-map type a position and an orientation panel, a colour per method (so a panel holds at
+    most one curve per method), dashed for depth local maps; the paper's medians as stars at 0.5."""
     plt = pyplot()
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
-    for label, e in errors.items():
-        x, y = ecdf(e["error_m"])
-        a.step(x, y, where="post", lw=1.2, label=label)
-        x, y = ecdf(e["error_deg"])
-        b.step(x, y, where="post", lw=1.2, label=label)
-    for ax, lim, unit in ((a, max_m, "position error (m)"), (b, max_deg, "orientation error (deg)")):
-        ax.set_xscale("symlog", linthresh=1.0)
-        ax.set_xlim(0, lim)
-        ax.set_ylim(0, 1)
-        ax.set_xlabel(unit)
-        ax.set_ylabel("share of test queries")
-        ax.grid(alpha=0.3)
-    a.legend(fontsize=7, loc="lower right")
-    fig.suptitle("Fine localization: error CDFs on the test split", fontsize=10)
+    groups = _groups(errors)
+    proposals = list(dict.fromkeys(p for p, _ in groups))
+    types = [t for t in MAP_TYPE_STYLES if any(mt == t for _, mt in groups)]
+    fig, axes = plt.subplots(len(proposals), 2 * len(types), figsize=(4.6 * len(types) * 2, 3.4 * len(proposals)))
+    axes = np.asarray(axes).reshape(len(proposals), 2 * len(types))
+    marked = False
+    for (proposal, map_type), runs in groups.items():
+        i, j = proposals.index(proposal), 2 * types.index(map_type)
+        a, b = axes[i, j], axes[i, j + 1]
+        for run in runs:
+            e = errors[run.name]
+            for ax, column in ((a, "error_m"), (b, "error_deg")):
+                x, y = ecdf(e[column])
+                style = {"c": run.colour, "ls": MAP_TYPE_STYLES[run.map_type], "lw": 1.5, "where": "post"}
+                ax.step(np.r_[0.0, x], np.r_[0.0, y], label=run.name, **style)
+            marked |= _paper_star(a, b, run, e)
+        n = max(len(errors[r.name]) for r in runs)
+        for ax, lim, unit in ((a, max_m, "position error (m)"), (b, max_deg, "orientation error (deg)")):
+            ax.set_xscale("symlog", linthresh=1.0)
+            ax.set_xlim(-0.1, lim)  # a curve at zero error stays off the axis
+            ax.set_ylim(0, 1)
+            ax.set_xlabel(unit)
+            ax.set_ylabel("share of test queries")
+            ax.set_title(_panel_title(runs[0], f"{unit.split(' (')[0]}, {n} queries"), fontsize=9)
+            ax.grid(alpha=0.3)
+    for ax in axes.ravel():
+        if not ax.has_data():
+            ax.axis("off")
+    _style_legend(fig, [r for g in groups.values() for r in g], marked)
+    fig.suptitle("Fine localization on the test split: error CDFs (higher and further left is better)", fontsize=11)
     fig.tight_layout()
-    _save(fig, path)
+    return fig
+
+
+def plot_error_cdfs(errors: dict[str, pd.DataFrame], path: str | Path) -> None:
+    save(error_cdf_figure(errors), path)
 
 
 def errors_by(errors: pd.DataFrame, column: str) -> pd.DataFrame:
@@ -102,35 +244,48 @@ def errors_by(errors: pd.DataFrame, column: str) -> pd.DataFrame:
     ).reset_index()
 
 
-def plot_error_vs_objects(errors: dict[str, pd.DataFrame], path: str | Path) -> None:
-    """The paper's Fig. 8: median error against the number of objects and of distinct classes."""
+#: the columns of the error-vs-content figure: (count column, its axis name, median column, its axis name)
+CONTENT_PANELS = [
+    ("n_objects", "objects in the local map", "median_m", "median position error (m)"),
+    ("n_classes", "distinct classes", "median_m", "median position error (m)"),
+    ("n_objects", "objects in the local map", "median_deg", "median orientation error (deg)"),
+    ("n_classes", "distinct classes", "median_deg", "median orientation error (deg)"),
+]
+
+
+def error_vs_objects_figure(errors: dict[str, pd.DataFrame], min_queries: int = 3):
+    """The paper's Fig. 8: median error against the number of objects and of distinct classes,
+    a row per (proposal setting, local-map type), styled as the CDFs; counts on integer axes."""
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7))
-    for label, e in errors.items():
-        for col, (ax_m, ax_d) in (("n_objects", axes[:, 0]), ("n_classes", axes[:, 1])):
-            if col not in e:
-                continue
-            t = errors_by(e, col)
-            t = t[t["queries"] >= 3]
-            ax_m.plot(t[col], t["median_m"], "-o", ms=3, lw=1, label=label)
-            ax_d.plot(t[col], t["median_deg"], "-o", ms=3, lw=1, label=label)
-    for ax, (xl, yl) in zip(
-        axes.ravel(),
-        [
-            ("objects in the local map", "median position error (m)"),
-            ("distinct classes", "median position error (m)"),
-            ("objects in the local map", "median orientation error (deg)"),
-            ("distinct classes", "median orientation error (deg)"),
-        ],
-    ):
-        ax.set_xlabel(xl)
-        ax.set_ylabel(yl)
-        ax.set_yscale("symlog", linthresh=1.0)
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle("Error vs local-map content (values with >= 3 queries), test split", fontsize=10)
+    groups = _groups(errors)
+    fig, axes = plt.subplots(len(groups), 4, figsize=(16, 2.9 * len(groups)), squeeze=False)
+    for runs, row in zip(groups.values(), axes):
+        for run in runs:
+            for ax, (col, _, med, _) in zip(row, CONTENT_PANELS):
+                if col not in errors[run.name]:
+                    continue
+                t = errors_by(errors[run.name], col)
+                t = t[t["queries"] >= min_queries]
+                ax.plot(t[col], t[med], marker="o", ms=3, lw=1.3, c=run.colour, ls=MAP_TYPE_STYLES[run.map_type])
+        for ax, (_, xl, _, yl) in zip(row, CONTENT_PANELS):
+            ax.set_xlabel(xl)
+            ax.set_ylabel(yl, fontsize=8)
+            ax.set_yscale("symlog", linthresh=1.0)
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+            ax.set_title(_panel_title(runs[0], yl.split(" (")[0]), fontsize=9)
+            ax.grid(alpha=0.3)
+    _style_legend(fig, [r for g in groups.values() for r in g], False)
+    fig.suptitle(
+        f"Median error vs local-map content, test split (values shared by >= {min_queries} queries)", fontsize=11
+    )
     fig.tight_layout()
-    _save(fig, path)
+    return fig
+
+
+def plot_error_vs_objects(errors: dict[str, pd.DataFrame], path: str | Path) -> None:
+    save(error_vs_objects_figure(errors), path)
 
 
 def plot_score_heatmap(
@@ -174,4 +329,4 @@ def plot_score_heatmap(
     axes[0, 0].legend(fontsize=7, loc="lower left")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    _save(fig, path)
+    save(fig, path)

@@ -118,7 +118,7 @@ def scene_source(wildcards):
 wildcard_constraints:
     scene="|".join(map(str, SCENES_SHEET["scene"])),
     map_type="gt|depth",
-    proposal="gtbb|whole|coarse-sim|coarse-trip|coarse-simtrip",
+    proposal="gtbb|whole|coarse-sim|coarse-trip|coarse-simtrip|coarse-solver",
 
 
 # ---------------------------------------------------------------- data root
@@ -200,7 +200,7 @@ def products_of_the_run():
 
 
 def all_targets():
-    return products_of_the_run() + report_figures() + ["results/manifest.parquet"]
+    return products_of_the_run() + report_figures() + scene_viewers() + ["results/manifest.parquet"]
 
 
 # before any job: never overwrite a benchmark built on other scenes

@@ -69,3 +69,53 @@ rule figures_coarse_heatmap:
         map_type=config["report"]["heatmap_map_type"],
     script:
         "../scripts/figures_coarse_heatmap.py"
+
+
+rule query_figures:
+    input:
+        reference_map="results/{scene}/maps/reference_map.parquet",
+        queries="results/{scene}/queries/queries.parquet",
+        errors=expand("results/fine/{run}/errors.parquet", run=fine_runs()),
+    output:
+        figures=report(
+            directory("results/{scene}/queries/figures"),
+            patterns=["{token}.png"],
+            caption="../report/query_figures.rst",
+            category="Queries",
+            subcategory="scene {scene}",
+            labels={"scene": "{scene}", "query": "{token}"},
+        ),
+        worst=report(
+            "results/{scene}/queries/worst_queries.png",
+            caption="../report/worst_queries.rst",
+            category="Worst queries",
+            labels={"scene": "{scene}"},
+        ),
+    log:
+        "logs/query_figures/{scene}.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    params:
+        runs=fine_runs(),
+    script:
+        "../scripts/query_figures.py"
+
+
+rule viewer:
+    input:
+        unpack(viewer_inputs),
+    output:
+        html=report(
+            "results/{scene}/maps/viewer.html",
+            caption="../report/viewer.rst",
+            category="Map viewer",
+            labels={"scene": "{scene}"},
+        ),
+    log:
+        "logs/viewer/{scene}.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    params:
+        runs=viewer_runs,
+    script:
+        "../scripts/viewer.py"

@@ -21,6 +21,8 @@ def heatmap_scene():
 
 
 def report_figures():
+    """The benchmark's figures: training, errors, the coarse heat map, and per benchmark scene a
+    figure per test query and a gallery of its worst queries."""
     if not benchmark_scenes():
         return []
     out = [
@@ -28,4 +30,24 @@ def report_figures():
         "results/figures/fine_error_cdf.png",
         "results/figures/fine_error_vs_objects.png",
     ]
-    return out + [f"results/figures/coarse_scores_{heatmap_scene()}.png"]
+    out += [f"results/figures/coarse_scores_{heatmap_scene()}.png"]
+    return out + per_scene("results/{scene}/queries/worst_queries.png", benchmark_scenes())
+
+
+def scene_viewers():
+    """A map viewer per selected scene (those of the benchmark show its runs' estimates)."""
+    return per_scene("results/{scene}/maps/viewer.html", selected_scenes())
+
+
+def viewer_runs(wildcards):
+    """The fine runs a scene's viewer shows: all of them on a benchmark scene, none elsewhere."""
+    return fine_runs() if wildcards.scene in benchmark_scenes() else []
+
+
+def viewer_inputs(wildcards):
+    s = wildcards.scene
+    return {
+        "reference_map": f"results/{s}/maps/reference_map.parquet",
+        "queries": f"results/{s}/queries/queries.parquet",
+        "errors": [f"results/fine/{run}/errors.parquet" for run in viewer_runs(wildcards)],
+    }

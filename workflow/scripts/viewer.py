@@ -1,0 +1,22 @@
+"""Rule viewer: a self-contained HTML map viewer of one scene."""
+
+from flatlandia import runlog
+from flatlandia.viewer import page, scene
+
+
+def main(smk, log):
+    errors = dict(zip(smk.params.runs, smk.input.errors))
+    view = scene.read_view(smk.wildcards.scene, smk.input.reference_map, smk.input.queries, errors)
+    size = page.write_page(view, smk.output.html)
+    log.info(
+        "scene %s: %d objects, %d queries, %d runs; %s: %.1f kB",
+        view.scene,
+        len(view.ref),
+        len(view.queries),
+        len(view.runs),
+        smk.output.html,
+        size / 1000,
+    )
+
+
+runlog.run(main, snakemake)  # noqa: F821
