@@ -30,7 +30,8 @@ class PriorGate:
         pad = radius + 2 * self.CELL
         self.lo = cams.min(0) - pad
         shape = np.ceil((cams.max(0) + pad - self.lo) / self.CELL).astype(int) + 1
-        if shape.prod() > 4_000_000:  # cameras spread over kilometres: the tree alone
+        self.tree_only = bool(shape.prod() > 4_000_000)  # cameras spread over kilometres: the tree alone
+        if self.tree_only:
             shape = np.array([1, 1])
         gx, gy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
         centres = self.lo + (np.stack([gx, gy], -1).reshape(-1, 2) + 0.5) * self.CELL
@@ -40,6 +41,8 @@ class PriorGate:
 
     def near(self, t: np.ndarray) -> np.ndarray:
         """(C,) True where a prior camera is within ``radius``."""
+        if self.tree_only:
+            return self.tree.query(t, k=1, distance_upper_bound=self.radius + 1e-9)[0] <= self.radius
         ij = np.floor((t - self.lo) / self.CELL).astype(np.int64)
         inside = (ij >= 0).all(1) & (ij[:, 0] < self.state.shape[0]) & (ij[:, 1] < self.state.shape[1])
         st = np.zeros(len(t), np.int8)
