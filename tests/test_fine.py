@@ -36,6 +36,9 @@ def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
     e = evaluation.evaluate_solver(ref, q, props, "gt")
     assert len(e) == len(q)
     assert (e["error_m"] < 0.1).mean() >= 0.99
+    # the solver's matches, per local-map object, are the published ones (the figures link them)
+    same = [list(m) == [int(i) for i in t] for m, t in zip(e["matched_obj_idx"], q["ref_idx"])]
+    assert np.mean(same) >= 0.99
     assert e["error_deg"].median() < 1e-6
 
 

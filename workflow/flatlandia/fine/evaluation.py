@@ -188,9 +188,12 @@ def evaluate_solver(
             else None
         )
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        matched = [-1] * len(q)  # per local-map object, the reference obj_idx it was matched to
         if sol is None:
             pose, errors, fit = (np.nan, np.nan, np.nan), (np.inf, 180.0), (0.0, 0, 0)
         else:
+            for k, c in sol.inliers:
+                matched[k] = int(obj[idx[c]])
             pose = (sol.x, sol.y, sol.theta)
             errors = pose_errors(sol.x, sol.y, sol.theta, r.x_m, r.y_m, np.radians(r.theta_deg))
             truth = [int(o) for o in r.ref_idx]
@@ -209,6 +212,7 @@ def evaluate_solver(
                 fit=fit,
                 seconds=dt,
                 cpu_seconds=dc,
+                matches=matched,
             )
         )
     return pd.DataFrame(rows)
@@ -271,12 +275,15 @@ def error_row(
     fit: tuple,
     seconds: float,
     cpu_seconds: float,
+    matches: list[int] | None = None,
 ) -> dict:
     """One query's row of an errors table. Why one function: the solver's and the learned models'
     rows must share their columns, which fine_table reads alike.
 
     ``query``: the query row; ``pose``: (x, y, heading in radians), NaN without a pose;
-    ``errors``: (metres, degrees); ``fit``: the solver's (confidence, inliers, correct inliers).
+    ``errors``: (metres, degrees); ``fit``: the solver's (confidence, inliers, correct inliers);
+    ``matches``: the solver's reference ``obj_idx`` per local-map object (-1: unmatched), for the
+    figures and the viewer; empty for learned models, which match nothing.
     """
     x, y, theta = pose
     error_m, error_deg = errors
@@ -301,4 +308,5 @@ def error_row(
         "n_correct_inliers": int(n_correct_inliers),
         "seconds": float(seconds),
         "cpu_seconds": float(cpu_seconds),
+        "matched_obj_idx": [int(m) for m in (matches or [])],
     }
