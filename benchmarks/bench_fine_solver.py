@@ -1,9 +1,13 @@
 """Geometric solver experiments on the real test (or validation: --split val) split (reads results/ or a copy of it).
 
     python benchmarks/bench_fine_solver.py --root results --map depth --proposal gtbb [--every 2] [--set key=value ...]
+    python benchmarks/bench_fine_solver.py --root results --map depth --proposal whole --verify-seeds 0 1 2
 
-Prints median m / deg, thresholds, gross, query time median / mean, and the per-scene medians.
-One CPU thread; no training (priors from the training split, as rule fine_eval does).
+Prints median m / deg, the recalls at 1/3/5 m and 1/3/5 deg, % within (5 m, 5 deg) and the paper's
+thresholds, gross and no-pose shares, and the query time (CPU of the process and wall, median and
+p90). One CPU thread; priors and, on depth maps, the verifier from the training split, as rule
+fine_eval has them; ``--verify-seeds``: one run per verifier learned from a random share of the
+training queries (the spread over seeds).
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import yaml
 
@@ -20,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
 from flatlandia import proposals  # noqa: E402
 from flatlandia.data import localmaps  # noqa: E402
-from flatlandia.fine import evaluation, solver  # noqa: E402
+from flatlandia.fine import evaluation, solver, solver_verify_fit  # noqa: E402
 
 
 def load(root: Path):
@@ -30,6 +35,90 @@ def load(root: Path):
         if r.exists() and q.exists():
             scenes.append((s, pd.read_parquet(r), pd.read_parquet(q)))
     return scenes
+
+
+def describe(e: pd.DataFrame) -> str:
+    """One line: median errors, recalls at 1/3/5 m and 1/3/5 deg, % within (5 m, 5 deg) and the
+    paper's thresholds, gross and no-pose shares, query time (CPU of the process and wall) median / p90."""
+    s = evaluation.summarise(e)
+    em, ed = e["error_m"].to_numpy(float), e["error_deg"].to_numpy(float)
+    ms = 1000 * e[["cpu_seconds", "seconds"]].quantile([0.5, 0.9])
+    return (
+        f"n={s['queries']} median {s['median_m']:.2f} m / {s['median_deg']:.2f} deg; "
+        f"% within {'/'.join(f'{m:g}' for m in evaluation.RECALL_M)} m "
+        + " / ".join(f"{s[c]:.1f}" for c in evaluation.RECALL_COLUMNS[: len(evaluation.RECALL_M)])
+        + f", {'/'.join(f'{d:g}' for d in evaluation.RECALL_DEG)} deg "
+        + " / ".join(f"{s[c]:.1f}" for c in evaluation.RECALL_COLUMNS[len(evaluation.RECALL_M) :])
+        + f", (5 m, 5 deg) {100 * ((em < 5) & (ed < 5)).mean():.1f}; paper thresholds "
+        + " / ".join(f"{s[c]:.1f}" for c in evaluation.THRESHOLD_COLUMNS)
+        + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; query CPU median "
+        f"{ms.loc[0.5, 'cpu_seconds']:.1f} ms p90 {ms.loc[0.9, 'cpu_seconds']:.1f} ms (wall "
+        f"{ms.loc[0.5, 'seconds']:.1f} / {ms.loc[0.9, 'seconds']:.1f} ms)"
+    )
+
+
+def solver_errors(
+    scenes, split: str, map_type: str, proposal: str, geo_cfg: dict, every: int = 1, root: Path | None = None, **fit
+) -> pd.DataFrame:
+    """Per-query errors of the solver as rule fine_eval computes them (priors and, on depth maps,
+    the verifier from the training split); ``fit``: ``fraction`` and ``rng`` of the verifier's
+    examples (``solver_verify_fit.fit_verifier``)."""
+    scale_prior = None
+    if map_type == "depth" and geo_cfg.get("scale_prior", True):
+        scale_prior = solver.fit_priors(
+            [localmaps.xy(c) for _, _, q in scenes for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
+        )
+    verifier = None
+    if (
+        map_type == "depth"
+        and proposal in solver_verify_fit.REGIONS
+        and geo_cfg.get("verify", True)
+        and geo_cfg.get("camera_prior", True)
+    ):
+        c0 = time.process_time()
+        verifier = solver_verify_fit.fit_verifier(
+            [(ref, q) for _, ref, q in scenes], geo_cfg, scale_prior, proposal, **fit
+        )
+        print(f"verifier learned from the training split in {time.process_time() - c0:.0f} s CPU")
+    coarse = None
+    if proposal.startswith("coarse-"):
+        coarse = pd.read_parquet(root / "coarse" / proposal.split("-", 1)[1] / "proposals.parquet")
+    parts = []
+    for s, ref, q in scenes:
+        test = q[q["split"] == split].iloc[::every]
+        if not len(test):
+            continue
+        if proposal == "gtbb":
+            props = proposals.gtbb_proposals(ref, test)
+        elif proposal == "whole":
+            props = proposals.whole_map_proposals(ref, test)
+        else:
+            p = coarse[(coarse["scene"].astype(str) == s) & (coarse["strategy"] == geo_cfg.get("strategy", "2N_LM"))]
+            props = p[p["token"].astype(str).isin(test["token"].astype(str))]
+        prior, seen = evaluation.training_priors(q, geo_cfg)
+        parts.append(
+            evaluation.evaluate_solver(
+                ref,
+                test,
+                props,
+                map_type,
+                geo_cfg,
+                prior_xy=prior,
+                scale_prior=scale_prior,
+                prior_seen=seen,
+                verifier=verifier,
+            )
+        )
+    return pd.concat(parts, ignore_index=True)
+
+
+def geo_config(path: str, overrides: list[str]) -> dict:
+    """The ``fine.geo`` section of a config file with ``key=value`` overrides (YAML values)."""
+    geo_cfg = dict((yaml.safe_load(open(path)) or {}).get("fine", {}).get("geo", {}))
+    for kv in overrides:
+        k, v = kv.split("=", 1)
+        geo_cfg[k] = yaml.safe_load(v)
+    return geo_cfg
 
 
 def main(argv=None):
@@ -44,50 +133,27 @@ def main(argv=None):
     ap.add_argument("--split", default="test", help="queries to evaluate: test, or val to tune without the test split")
     ap.add_argument("--config", default="config/config.yaml")
     ap.add_argument("--set", nargs="*", default=[], help="solver overrides key=value (YAML values)")
+    ap.add_argument("--verify-seeds", type=int, nargs="*", default=[], help="verifiers from random training subsets")
+    ap.add_argument("--verify-fraction", type=float, default=0.8, help="share of training queries per seed")
     ap.add_argument("--save", default="")
     a = ap.parse_args(argv)
-    geo_cfg = dict((yaml.safe_load(open(a.config)) or {}).get("fine", {}).get("geo", {}))
-    for kv in a.set:
-        k, v = kv.split("=", 1)
-        geo_cfg[k] = yaml.safe_load(v)
+    geo_cfg = geo_config(a.config, a.set)
     root = Path(a.root)
     scenes = load(root)
-    scale_prior = None
-    if a.map == "depth" and geo_cfg.get("scale_prior", True):
-        scale_prior = solver.fit_priors(
-            [localmaps.xy(c) for _, _, q in scenes for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
-        )
-    coarse = None
-    if a.proposal.startswith("coarse-"):
-        coarse = pd.read_parquet(root / "coarse" / a.proposal.split("-", 1)[1] / "proposals.parquet")
-    parts = []
-    t0 = time.perf_counter()
-    for s, ref, q in scenes:
-        test = q[q["split"] == a.split].iloc[:: a.every]
-        if not len(test):
-            continue
-        if a.proposal == "gtbb":
-            props = proposals.gtbb_proposals(ref, test)
-        elif a.proposal == "whole":
-            props = proposals.whole_map_proposals(ref, test)
-        else:
-            p = coarse[(coarse["scene"].astype(str) == s) & (coarse["strategy"] == geo_cfg.get("strategy", "2N_LM"))]
-            props = p[p["token"].astype(str).isin(test["token"].astype(str))]
-        prior, seen = evaluation.training_priors(q, geo_cfg)
-        e = evaluation.evaluate_solver(
-            ref, test, props, a.map, geo_cfg, prior_xy=prior, scale_prior=scale_prior, prior_seen=seen
-        )
-        parts.append(e)
-    e = pd.concat(parts, ignore_index=True)
-    s = evaluation.summarise(e)
-    print(
-        f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}: n={s['queries']} median {s['median_m']:.2f} m / "
-        f"{s['median_deg']:.2f} deg; % "
-        + " / ".join(f"{s[c]:.1f}" for c in evaluation.THRESHOLD_COLUMNS)
-        + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; QT median "
-        f"{1000 * s['median_query_s']:.1f} ms (CPU {1000 * s['median_query_cpu_s']:.1f} ms) mean {1000 * s['mean_query_s']:.1f} ms p90 "
-        f"{1000 * e['seconds'].quantile(0.9):.0f} ms; wall {time.perf_counter() - t0:.0f} s"
+    runs = (
+        {"": {}}
+        if not a.verify_seeds
+        else {
+            f" verifier seed {seed}": {"fraction": a.verify_fraction, "rng": np.random.default_rng(seed)}
+            for seed in a.verify_seeds
+        }
     )
+    for label, fit in runs.items():
+        t0 = time.perf_counter()
+        e = solver_errors(scenes, a.split, a.map, a.proposal, geo_cfg, a.every, root, **fit)
+        print(
+            f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}{label}: {describe(e)}; wall {time.perf_counter() - t0:.0f} s"
+        )
     if a.save:
         e.to_parquet(a.save)
 

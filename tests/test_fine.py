@@ -7,24 +7,16 @@ import pandas as pd
 import pytest
 import torch
 
-from flatlandia import checkpoints, geo, io, proposals
-from flatlandia.classes import CLASSES
-from flatlandia.data import queries, recover, reference_map
+from flatlandia import checkpoints, geo, proposals
 from flatlandia.fine import evaluation, learned, report, solver, solver_problem, solver_scoring, training
 
 torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="module")
-def scene(flat_root):
+def scene(scene9):
     """Scene 9's reference map and queries, built from the published data."""
-    lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
-    frame = geo.frame_for(lonlat)
-    ref = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(flat_root / "local_maps.json", "9")
-    rec = recover.recover_scene("9", lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt="9")
-    return ref, queries.build_queries("9", rec, ref, local, frame, split)
+    return scene9
 
 
 # ----------------------------------------------------------------------------- solver

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from flatlandia.fine import solver_priors
 from flatlandia.fine.solver_priors import PriorGate
 
 
@@ -20,3 +21,15 @@ def test_gate_equals_the_exact_query_at_any_extent(spread_m):
     exact = cKDTree(cams).query(pts)[0] <= 15.0
     np.testing.assert_array_equal(gate.near(pts), exact)
     assert exact[: len(cams)].mean() > 0.4  # points near the cameras are kept, wherever they are
+
+
+def test_a_camera_set_gets_its_grid_on_second_use_with_the_same_answers():
+    rng = np.random.default_rng(3)
+    cams = rng.uniform(0, 200, (50, 2))
+    pts = rng.uniform(-20, 220, (2000, 2))
+    solver_priors._GATES.clear()
+    first = solver_priors.prior_gate(cams, 15.0)
+    assert first.tree_only  # met once: no grid built
+    second = solver_priors.prior_gate(cams, 15.0)
+    assert not second.tree_only and solver_priors.prior_gate(cams, 15.0) is second  # built once, then cached
+    np.testing.assert_array_equal(first.near(pts), second.near(pts))

@@ -79,10 +79,30 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
     assert (wd / "results/fine/models/mlp_depth_coarse/checkpoint.pt").exists()
     coarse = pd.read_parquet(wd / "results/tables/coarse_localization.parquet")
     assert len(coarse) > 0 and coarse["success"].between(0, 1).all()
+    solver_rows = coarse[coarse["loss"] == "Solver"].set_index(["map_type", "strategy"])
+    assert {"N_LM", "2N_LM", "R_30", "BB"} <= set(solver_rows.index.get_level_values("strategy"))
+    assert solver_rows.loc[("gt", "N_LM"), "precision"] > 0.9  # GT maps: the solver's matches are the true ones
+    assert fine.loc["mlp_depth_coarse-solver", "trained_on"] == "GT-BB"  # the box feeds the GT-BB-trained model
     avail = pd.read_parquet(wd / "results/tables/availability.parquet").set_index("scene")
     assert avail.loc["12"].drop("queries").all() and not avail.loc["9", "sfm_images"]
     rec = pd.read_parquet(wd / "results/tables/recovery.parquet")
     assert rec.set_index("scene").loc["all", "recovered"] == 15
+
+
+@pytest.mark.slow
+def test_city_target_tiles_the_benchmark_scenes_and_writes_the_table(run_two_scenes, repo, flat_root):
+    """`snakemake city` on the two-scene benchmark: cities of 1 and 2 scenes, a small simulated one;
+    the table has both methods at each tiled size, every test query localized at every size."""
+    city = "city={'scene_counts': [1, 2], 'simulate': {'objects': [150]}}"
+    res = smk(repo, run_two_scenes, "--cores", "2", "city", *two_scenes(flat_root), city)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    df = pd.read_parquet(run_two_scenes / "results/tables/city_scale.parquet")
+    tiled = df[df["map"] == "tiled"].set_index(["scenes", "method"])
+    assert set(tiled.index) == {(n, m) for n in (1, 2) for m in ("whole-map solver", "index + solver")}
+    assert (tiled["queries"] == tiled["queries"].iloc[0]).all() and tiled["queries"].iloc[0] > 0
+    assert tiled.loc[(2, "whole-map solver"), "objects"] == 13 + 44  # scenes 9 and 12 in one map
+    assert (df[df["map"] == "simulated"]["objects"] >= 150).all()
+    assert "City scale" in (run_two_scenes / "results/tables/city_scale.md").read_text()
 
 
 @pytest.mark.slow

@@ -1,11 +1,12 @@
 """Region proposals shared by the coarse and the fine stage.
 
 A proposal table has the columns ``scene, token, strategy, proposal`` (``proposal``: a list of
-reference ``obj_idx``); coarse localization writes the same shape (rule coarse_eval). Here: the
-oracle GT-BB box (:func:`gtbb_indices`, :func:`gtbb_proposals`: the reference objects inside the
-axis-aligned box around the query's matched objects and the true camera, enlarged 10%), the
-whole reference map, and the proposals the learned fine models train on (simulated coarse
-proposals, cut to their densest objects like the real ones at evaluation).
+reference ``obj_idx``); coarse localization writes the same shape (rules coarse_eval and
+coarse_solver, the solver's training-free proposals). Here: the oracle GT-BB box
+(:func:`gtbb_indices`, :func:`gtbb_proposals`: the reference objects inside the axis-aligned box
+around the query's matched objects and the true camera, enlarged 10%), the whole reference map,
+and the proposals the learned fine models train on (simulated coarse proposals, cut to their
+densest objects like the real ones at evaluation).
 """
 
 from __future__ import annotations

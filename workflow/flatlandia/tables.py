@@ -26,7 +26,12 @@ class Column:
 
 SCHEMAS: dict[str, list[Column]] = {
     "coarse_localization": [
-        Column("loss", "str", "", "Sim | Trip | Sim+Trip; '-' for the oracle GT-BB; 'random' / 'S oracle' baselines"),
+        Column(
+            "loss",
+            "str",
+            "",
+            "Sim | Trip | Sim+Trip; 'Solver' for the training-free proposals of the geometric solver; '-' for the oracle GT-BB; 'random' / 'S oracle' baselines",
+        ),
         Column("strategy", "str", "", "region proposal: N_LM | 2N_LM | R_30 | GT-BB"),
         Column("map_type", "str", "", "gt or depth local maps"),
         Column("queries", "int", "", "test queries"),
@@ -69,7 +74,10 @@ SCHEMAS: dict[str, list[Column]] = {
             "gtbb (oracle box) | whole (whole reference map) | coarse-sim | coarse-trip | coarse-simtrip",
         ),
         Column(
-            "strategy", "str", "", "GT-BB | whole map | {Sim, Trip, Sim+Trip} {N_LM, 2N_LM, R_30} (coarse proposals)"
+            "strategy",
+            "str",
+            "",
+            "GT-BB | whole map | {Sim, Trip, Sim+Trip} {N_LM, 2N_LM, R_30} (coarse proposals) | Solver BB (the solver's training-free box)",
         ),
         Column("queries", "int", "", "test queries"),
         Column("median_m", "float", "m", "median position error, true metres (failed queries count as infinite)"),
@@ -131,6 +139,37 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("paper_median_pu", "float", "paper m", "the paper's median position error (units x 215), Tables 4-5"),
         Column("paper_median_deg", "float", "deg", "the paper's median orientation error, Tables 4-5"),
         Column("paper_query_ms", "float", "ms", "the paper's query time (GPU; MLP only)"),
+    ],
+    "city_scale": [
+        Column(
+            "map", "str", "", "tiled (the benchmark scenes, 1 km apart) | simulated (a scene among synthetic tiles)"
+        ),
+        Column("scenes", "int", "", "scenes (tiles) per city"),
+        Column("cities", "int", "", "cities of that size; every test query is localized in one"),
+        Column("objects", "int", "", "mean objects per city map"),
+        Column(
+            "method",
+            "str",
+            "",
+            "whole-map solver (the per-scene solver on the whole city) | index + solver (the city search, then the solver on its regions)",
+        ),
+        Column("queries", "int", "", "depth queries localized"),
+        Column("median_m", "float", "m", "median position error"),
+        Column("median_deg", "float", "deg", "median orientation error"),
+        Column("recall_1m", "float", "%", "queries under 1 m; no pose counts as a miss"),
+        Column("recall_3m", "float", "%", "queries under 3 m"),
+        Column("recall_5m", "float", "%", "queries under 5 m"),
+        Column("recall_1deg", "float", "%", "queries under 1 deg"),
+        Column("recall_3deg", "float", "%", "queries under 3 deg"),
+        Column("recall_5deg", "float", "%", "queries under 5 deg"),
+        Column("within_5m_5deg", "float", "%", "queries within (5 m, 5 deg)"),
+        Column("wrong_scene_pct", "float", "%", "poses more than 500 m off (in another tile)"),
+        Column("no_pose_pct", "float", "%", "queries without a pose"),
+        Column("cpu_median_ms", "float", "ms", "CPU per query on one core, median"),
+        Column("cpu_p90_ms", "float", "ms", "CPU per query on one core, 90th percentile"),
+        Column("region_hit_pct", "float", "%", "index: the true place among the regions handed to the solver"),
+        Column("index_mb", "float", "MB", "index size, mean per city"),
+        Column("index_build_s", "float", "s", "index build CPU time, mean per city"),
     ],
     "reference_map_reproduction": [
         Column("scene", "str", "", "class-cloud scene id, or 'all'"),

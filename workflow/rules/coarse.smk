@@ -1,7 +1,8 @@
 # Coarse map localization: the neighbourhood similarity target per scene -> one GAT per loss
 # (Sim | Trip | Sim+Trip) over every scene's train split -> proposals (N_LM | 2N_LM | R_30 | GT-BB)
-# and Table 3 on the test split. Settings: the `coarse:` section of config/config.yaml (a short
-# default run); config/paper.yaml has the paper's 800 epochs. No lambdas in rules.
+# and Table 3 on the test split; beside them the training-free proposals of the geometric solver
+# (coarse_solver, rows "Solver" of Table 3). Settings: the `coarse:` section of config/config.yaml
+# (a short default run); config/paper.yaml has the paper's 800 epochs. No lambdas in rules.
 
 
 include: "inputs/coarse.smk"
@@ -55,9 +56,33 @@ rule coarse_train:
         "../scripts/coarse_train.py"
 
 
+rule coarse_solver:
+    input:
+        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
+        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+    output:
+        proposals="results/coarse/solver/proposals.parquet",
+    log:
+        "logs/coarse_solver/all.log",
+    benchmark:
+        "logs/benchmarks/coarse_solver/all.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+        runtime=20,
+    params:
+        solver=config["coarse"]["solver"],
+        geo=config["fine"]["geo"],
+    script:
+        "../scripts/coarse_solver.py"
+
+
 rule coarse_eval:
     input:
         models=expand("results/coarse/{loss}/model.pt", loss=coarse_losses()),
+        solver="results/coarse/solver/proposals.parquet",
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
         queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
         similarity=per_scene("results/{scene}/coarse/target.parquet", benchmark_scenes()),

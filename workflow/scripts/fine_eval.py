@@ -1,7 +1,7 @@
 """Rule fine_eval: per-query errors of one run (method x map type x proposal) on the test split.
 
-Methods: ``geo`` (the geometric solver, priors from the training split) or a trained model
-checkpoint. Proposals: ``gtbb`` (oracle), ``whole`` (whole reference map), or a coarse proposal
+Methods: ``geo`` (the geometric solver, priors and, on depth maps, its verifier from the training
+split) or a trained model checkpoint. Proposals: ``gtbb`` (oracle), ``whole`` (whole reference map), or a coarse proposal
 table (columns scene, token, strategy, proposal) filtered on the configured strategy; a learned
 model trained on simulated coarse proposals gets the real ones cut to their densest objects
 (config fine.coarse_training.crop_m), as in its training.
@@ -14,8 +14,7 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints, io, proposals, runlog
-from flatlandia.data import localmaps
-from flatlandia.fine import evaluation, learned, solver
+from flatlandia.fine import evaluation, learned, solver_verify, solver_verify_fit
 
 
 def proposals_for(smk, ref, queries, coarse):
@@ -25,7 +24,11 @@ def proposals_for(smk, ref, queries, coarse):
     if kind == "whole":
         return proposals.whole_map_proposals(ref, queries)
     scene = str(ref["scene"].iloc[0])
-    p = coarse[(coarse["scene"].astype(str) == scene) & (coarse["strategy"] == smk.params.p["strategy"])]
+    p = coarse[
+        (coarse["scene"].astype(str) == scene)
+        & (coarse["strategy"] == smk.params.p["strategy"])
+        & (coarse["map_type"] == smk.wildcards.map_type)
+    ]
     return p[p["token"].astype(str).isin(queries["token"].astype(str))]
 
 
@@ -40,18 +43,21 @@ def main(smk, log):
     coarse = pd.read_parquet(smk.input.coarse) if smk.input.get("coarse") else None
     qs = {p: pd.read_parquet(p) for p in smk.input.queries}
     geo_cfg = dict(smk.params.geo)
-    scale_prior = None
-    if method == "geo" and mt == "depth" and geo_cfg["scale_prior"]:
-        scale_prior = solver.fit_priors(
-            [localmaps.xy(c) for q in qs.values() for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
-        )
+    refs = {r: pd.read_parquet(r) for r in smk.input.reference_maps}
+    scale_prior = verifier = None
+    if method == "geo" and mt == "depth":  # the verifier learns on the region the test queries get
+        scenes = [(refs[r], qs[q]) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
+        scale_prior, verifier = solver_verify_fit.depth_priors(scenes, geo_cfg, smk.params.p["proposal"])
         log.info("depth scale prior (log metres per unit): %s", scale_prior)
+        if verifier is not None:
+            weights = {f: round(float(w), 3) for f, w in zip(solver_verify.FEATURES, verifier.weights)}
+            log.info("solver verifier, weights of the standardised features: %s", weights)
     model = cfg = None
     if method != "geo":
         model, cfg = checkpoints.load_checkpoint(smk.input.checkpoint, learned.FineConfig, learned.build_model)
     parts, map_kb = [], []
     for ref_path, q_path in zip(smk.input.reference_maps, smk.input.queries):
-        ref, q = pd.read_parquet(ref_path), qs[q_path]
+        ref, q = refs[ref_path], qs[q_path]
         map_kb.append(evaluation.ref_map_kb(ref))
         test = q[q["split"] == "test"]
         props = proposals_for(smk, ref, test, coarse)
@@ -67,6 +73,7 @@ def main(smk, log):
                     prior_xy=prior,
                     scale_prior=scale_prior,
                     prior_seen=seen,
+                    verifier=verifier,
                     method="geometric solver",
                     progress=runlog.progress(log, f"scene {ref['scene'].iloc[0]}"),
                 )

@@ -176,7 +176,7 @@ def _fmt(p, r, s) -> str:
 
 def render_markdown(table: pd.DataFrame, title: str = "Coarse map localization (Table 3)", note: str = "") -> str:
     """Rows loss x strategy; columns GT maps and depth maps, ours beside the paper's (P / R / S)."""
-    order_loss = ["-", "Sim", "Trip", "Sim+Trip", "random", "S oracle"]
+    order_loss = ["-", "Sim", "Trip", "Sim+Trip", "Solver", "random", "S oracle"]
     order_strat = {s: i for i, s in enumerate(STRATEGIES)}
     t = table.copy()
     t["_l"] = t["loss"].map(lambda v: order_loss.index(v) if v in order_loss else len(order_loss))

@@ -51,6 +51,29 @@ def training_priors(queries: pd.DataFrame, geo_config: dict | None = None):
     return prior, seen
 
 
+def seen_mask(obj_idx, prior_seen) -> np.ndarray | None:
+    """(P, N) booleans: prior camera p saw the reference object of row n (``obj_idx``: the rows'
+    ids; ``prior_seen``: per prior camera the ``obj_idx`` it saw, from :func:`training_priors`);
+    None without co-visibility sets. Ids outside ``obj_idx`` are ignored."""
+    if prior_seen is None:
+        return None
+    pos = {int(o): k for k, o in enumerate(obj_idx)}
+    seen = np.zeros((len(prior_seen), len(pos)), bool)
+    for k, objs in enumerate(prior_seen):
+        seen[k, [pos[int(o)] for o in objs if int(o) in pos]] = True
+    return seen
+
+
+def depth_scale_prior(queries, geo_config: dict | None = None) -> tuple[float, float] | None:
+    """The solver's log-scale prior of depth maps (:func:`solver.fit_priors`) from the training
+    split of every scene's queries, or None when ``fine.geo.scale_prior`` is off."""
+    cfg = {**config.section_defaults("fine.geo"), **(geo_config or {})}
+    if not cfg["scale_prior"]:
+        return None
+    train = [localmaps.xy(c) for q in queries for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
+    return solver.fit_priors(train)
+
+
 def solvable(query_classes, proposal_classes, min_objects: int = 3) -> bool:
     """Can the proposal hold a solution: at least ``min_objects`` objects of the query's classes.
 
@@ -144,13 +167,15 @@ def evaluate_solver(
     method: str = "solver",
     progress: Callable | None = None,
     prior_seen: list | None = None,
+    verifier: solver.Verifier | None = None,
 ) -> pd.DataFrame:
     """Run the geometric solver on every query of one scene; one row of errors per query.
 
     ``proposals`` has the shape scene, token, strategy, proposal (reference obj_idx); queries
     without a proposal row get an empty proposal (counted as failures). ``prior_seen``: per prior
     camera (rows of ``prior_xy``), the reference ``obj_idx`` it saw (training queries' ``ref_idx``),
-    for the solver's co-visibility cost.
+    for the solver's co-visibility cost. ``verifier``: the solver's verifier for depth maps
+    (``solver_verify_fit.fit_verifier``), or None to keep the cheapest hypothesis.
     """
     cfg = solver.SolverConfig.from_dict(config)
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
@@ -159,11 +184,7 @@ def evaluate_solver(
     pos = {int(o): k for k, o in enumerate(obj)}
     lat = float(ref["lat"].mean())
     props = {str(t): (s, p) for t, s, p in zip(proposals["token"], proposals["strategy"], proposals["proposal"])}
-    seen = None
-    if prior_seen is not None and prior_xy is not None:
-        seen = np.zeros((len(prior_seen), len(ref_xy)), bool)
-        for k, objs in enumerate(prior_seen):
-            seen[k, [pos[int(o)] for o in objs if int(o) in pos]] = True
+    seen = seen_mask(obj, prior_seen) if prior_xy is not None else None
     solver.warm_up()  # query times without the kernels' compilation
     rows = []
     items = list(queries.itertuples(index=False))
@@ -183,6 +204,7 @@ def evaluate_solver(
                 prior_xy=prior_xy,
                 scale_prior=scale_prior,
                 prior_seen=seen[:, idx] if seen is not None else None,
+                verifier=verifier,
             )
             if len(idx) >= 2
             else None

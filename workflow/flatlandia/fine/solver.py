@@ -1,6 +1,7 @@
 """Geometric 3DoF solver: pose of a camera from a local object map and a reference object map.
 
-No training. Given the query's local map (camera at the origin looking along +x, +y left), the
+No training of the geometry (a verifier of depth-map hypotheses may be learned from the training
+split, step 4). Given the query's local map (camera at the origin looking along +x, +y left), the
 classes of its objects (known) and candidate reference objects (a region proposal or the whole
 map, metric frame), find (x, y, theta) such that the query objects land on same-class reference
 objects.
@@ -16,12 +17,17 @@ Two kinds of local map:
 
 Steps: (1) hypotheses from pairs of query objects x same-class ordered pairs of candidate
 objects (2-point similarity: position, heading, scale), optionally kept only near a prior
-(training-split cameras) and within a plausible scale; (2) MSAC scoring: each query
+(training-split cameras) and within a plausible scale; on depth maps, a region of more than
+``covis_gate_above`` candidates hypothesises only from candidate pairs and triples that a
+training camera saw together (the co-visibility gate: a whole-map query scores about a thousand
+hypotheses instead of up to 300,000); (2) MSAC scoring: each query
 object costs the smallest normalised squared residual over same-class candidates, truncated at
 ``tau**2``, plus prior costs (distance [and heading difference] to the nearest training camera,
 log-scale for depth maps, co-visibility) when priors are given; (3) the ``top_k`` distinct
 hypotheses are refined (robust Gauss-Newton on their matches, with re-association), re-scored,
-and the best wins. The inner loops (hypotheses, scoring, refinement) are compiled with numba in
+and the cheapest wins; (4) or, given a verifier (depth maps with priors), the ``verify_top_k``
+best are refined and the verifier's highest score wins (``solver_verify``: near-tie hypotheses
+that the cost ranks wrongly, told apart by what the training cameras near each pose saw). The inner loops (hypotheses, scoring, refinement) are compiled with numba in
 ``solver_kernels``; ``solver_scoring.padded_costs`` keeps the padded numpy form as the reference
 they are tested against. For depth maps hypotheses come from 3-bearing resections (range-free)
 and then 2-point similarities. The result holds the pose, the inlier matches (query index,
@@ -29,7 +35,9 @@ candidate index) and a confidence in [0, 1].
 
 Where each step lives: ``solver_problem`` (the query's derived arrays), ``solver_priors`` (the
 training-split priors), ``solver_hypotheses`` (generation, gating, chunked scoring, the distinct
-best), ``solver_scoring`` (MSAC cost and refinement), ``solver_kernels`` (the compiled loops).
+best), ``solver_scoring`` (MSAC cost and refinement), ``solver_verify`` (the verifier's features
+and score) and ``solver_verify_fit`` (learning it), ``solver_kernels`` (the compiled loops);
+``solver_bound`` refines on the true matches (the bound the choice of hypotheses is held to).
 """
 
 from __future__ import annotations
@@ -40,9 +48,10 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from flatlandia import config
-from flatlandia.fine import solver_hypotheses, solver_scoring
+from flatlandia.fine import solver_hypotheses, solver_scoring, solver_verify
 from flatlandia.fine.solver_priors import Priors
 from flatlandia.fine.solver_problem import Problem
+from flatlandia.fine.solver_verify import Verifier
 
 #: Defaults of the solver: the `fine.geo` section of workflow/schemas/config.schema.yaml.
 _GEO = config.section_defaults("fine.geo")
@@ -74,6 +83,8 @@ class SolverConfig:
     covis_weight: float = _GEO["covis_weight"]
     covis_radius_m: float = _GEO["covis_radius_m"]
     covis_metric: bool = _GEO["covis_metric"]
+    covis_gate_above: int = _GEO["covis_gate_above"]
+    verify_top_k: int = _GEO["verify_top_k"]
     pair_len_tol_m: float = _GEO["pair_len_tol_m"]
     chunk: int = _GEO["chunk"]
     early_stop: bool = _GEO["early_stop"]
@@ -109,6 +120,7 @@ def solve(
     prior_xy: np.ndarray | None = None,
     scale_prior: tuple[float, float] | None = None,
     prior_seen: np.ndarray | None = None,
+    verifier: Verifier | None = None,
 ) -> Solution | None:
     """Camera pose in the reference frame, or None when no hypothesis can be formed.
 
@@ -120,37 +132,80 @@ def solve(
     dropped and the distance to the nearest one is a soft cost; ``scale_prior``: (mean, std) of
     log(metres per local unit) for depth maps (see :func:`fit_priors`); ``prior_seen``: (P, N)
     booleans, prior camera p saw reference row n (the matched objects of training queries), for
-    the co-visibility cost (``covis_weight``). Inlier indices refer to rows of ``ref_xy``.
+    the co-visibility cost (``covis_weight``) and gate (``covis_gate_above``); ``verifier``: picks
+    among the ``verify_top_k`` best hypotheses of a depth map (``solver_verify``; needs both
+    priors), else the cheapest of the ``top_k`` best wins. Inlier indices refer to rows of ``ref_xy``.
     """
+    pool = candidates(
+        query_xy, query_cls, ref_xy, ref_cls, metric, config, prior_xy, scale_prior, prior_seen, verifier is not None
+    )
+    return None if pool is None else _best_refined(pool, verifier)
+
+
+@dataclass
+class Pool:
+    """The refined distinct best hypotheses of one query, with what scored them."""
+
+    problem: Problem
+    priors: Priors
+    t: np.ndarray  # (C, 2)
+    theta: np.ndarray  # (C,)
+    s: np.ndarray  # (C,)
+    n_hypotheses: int
+    verified: bool  # a verifier chooses among them
+
+
+def candidates(
+    query_xy,
+    query_cls,
+    ref_xy,
+    ref_cls,
+    metric: bool = False,
+    config: SolverConfig | dict | None = None,
+    prior_xy: np.ndarray | None = None,
+    scale_prior: tuple[float, float] | None = None,
+    prior_seen: np.ndarray | None = None,
+    verify: bool = False,
+) -> Pool | None:
+    """The refined distinct best hypotheses (arguments as :func:`solve`): ``verify_top_k`` of them
+    when a verifier will choose (``verify``) and can, else ``top_k``."""
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
     problem = Problem(query_xy, query_cls, ref_xy, ref_cls, metric, cfg)
     priors = Priors(cfg, metric, prior_xy, scale_prior, prior_seen, n_ref=len(problem.r))
     if not problem.solvable():
         return None
-    scored = solver_hypotheses.score_hypotheses(problem, priors)
+    verified = verify and solver_verify.usable(problem, priors)
+    keep = cfg.verify_top_k if verified else cfg.top_k
+    scored = solver_hypotheses.score_hypotheses(problem, priors, keep)
     kept = scored.arrays()
     if kept is None:
         return None
     cost, t, theta, s = kept
-    chosen = solver_hypotheses.distinct_best(cost, t, theta, cfg.top_k)
+    chosen = solver_hypotheses.distinct_best(cost, t, theta, keep)
     t, theta, s = solver_scoring.refine(problem, priors, t[chosen], theta[chosen], s[chosen])
-    return _best_refined(problem, priors, t, theta, s, scored.n_hypotheses)
+    return Pool(problem, priors, t, theta, s, scored.n_hypotheses, verified)
 
 
-def _best_refined(problem: Problem, priors: Priors, t, theta, s, n_hypotheses: int) -> Solution | None:
-    """The cheapest refined pose that stayed finite and near the prior cameras, with its inliers and
-    a confidence: the share of explained objects, lowered when a distinct pose is nearly as good."""
-    cost, inl, match = solver_scoring.score(problem, priors, t, theta, s)
+def _best_refined(pool: Pool, verifier: Verifier | None) -> Solution | None:
+    """The best refined pose that stayed finite and near the prior cameras (the cheapest, or the
+    verifier's highest score), with its inliers and a confidence: the share of explained objects,
+    lowered when a distinct pose is nearly as good (cost / 2 or score gap, a log-likelihood ratio)."""
+    problem, priors, t, theta, s = pool.problem, pool.priors, pool.t, pool.theta, pool.s
+    data, cost, inl, match = solver_scoring.score_terms(problem, priors, t, theta, s)
     ok = [k for k in range(len(t)) if np.all(np.isfinite(t[k])) and not priors.too_far(t[k])]
     if not ok:
         return None
-    ok.sort(key=lambda k: float(cost[k]))
+    if pool.verified:
+        key = -verifier.score(solver_verify.features(problem, priors, t, theta, s, data, inl, match))
+    else:
+        key = cost / 2.0
+    ok.sort(key=lambda k: float(key[k]))
     best = ok[0]
     inliers = [(int(k), int(match[best, k])) for k in range(problem.m) if inl[best, k]]
     conf = len(inliers) / problem.m
     for other in ok[1:]:
         if np.hypot(*(t[other] - t[best])) > 2.0:
-            conf *= float(1 - np.exp(-(float(cost[other]) - float(cost[best])) / 2.0))
+            conf *= float(1 - np.exp(-(float(key[other]) - float(key[best]))))
             break
     return Solution(
         float(t[best, 0]),
@@ -160,7 +215,7 @@ def _best_refined(problem: Problem, priors: Priors, t, theta, s, n_hypotheses: i
         inliers,
         float(conf),
         float(cost[best]),
-        n_hypotheses,
+        pool.n_hypotheses,
     )
 
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from flatlandia import geo
 from flatlandia.fine import solver_kernels, solver_scoring
+from flatlandia.fine.solver_kernels import CoSeen
 from flatlandia.fine.solver_priors import Priors
 from flatlandia.fine.solver_problem import Problem
 
@@ -55,7 +56,19 @@ def query_triples(problem: Problem) -> list[tuple[int, int, int]]:
     return [triples[o] for o in order]
 
 
-def pair_hypotheses(problem: Problem, i: int, j: int):
+#: the kernels' placeholder when the gate is off
+_NO_COSEEN = CoSeen(np.zeros((1, 1), np.bool_), np.zeros(2, np.int64), np.zeros(0, np.int64))
+
+
+def _coseen(problem: Problem, priors: Priors):
+    """The co-visibility gate of the kernels, (lists, on): on for regions of more than
+    ``covis_gate_above`` candidates when the priors know what the training cameras saw together."""
+    if priors.coseen is None or len(problem.r) <= problem.cfg.covis_gate_above:
+        return _NO_COSEEN, False
+    return priors.coseen, True
+
+
+def pair_hypotheses(problem: Problem, priors: Priors, i: int, j: int):
     """2-point fits of query objects (i, j) onto every same-class ordered candidate pair (a, b)."""
     a, b = problem.same[i], problem.same[j]
     if not len(a) or not len(b):
@@ -67,6 +80,7 @@ def pair_hypotheses(problem: Problem, i: int, j: int):
     return solver_kernels.pair_fits(
         a.astype(np.int64),
         b.astype(np.int64),
+        *_coseen(problem, priors),
         problem.rx,
         problem.ry,
         float(problem.q[i, 0]),
@@ -80,7 +94,7 @@ def pair_hypotheses(problem: Problem, i: int, j: int):
     )
 
 
-def triple_hypotheses(problem: Problem, i: int, j: int, k: int, limit: int):
+def triple_hypotheses(problem: Problem, priors: Priors, i: int, j: int, k: int, limit: int):
     """3-bearing resections (range-free) of query objects (i, j, k) onto same-class candidate triples.
 
     With u = 1 / (A - z) (complex, z the camera), the bearing condition
@@ -88,13 +102,16 @@ def triple_hypotheses(problem: Problem, i: int, j: int, k: int, limit: int):
     in u; the two conditions for P = B, C fix u and so z; theta follows from A.
     """
     ca, cb, cc = problem.same[i], problem.same[j], problem.same[k]
-    if min(len(ca), len(cb), len(cc)) == 0 or len(ca) * len(cb) * len(cc) > limit:
+    co, use_co = _coseen(problem, priors)
+    if min(len(ca), len(cb), len(cc)) == 0 or (not use_co and len(ca) * len(cb) * len(cc) > limit):
         return None
     qb, qr, cfg = problem.q_bear, problem.q_range, problem.cfg
     return solver_kernels.triple_resections(
         ca.astype(np.int64),
         cb.astype(np.int64),
         cc.astype(np.int64),
+        co,
+        use_co,
         problem.rx,
         problem.ry,
         float(qb[i]),
@@ -110,23 +127,23 @@ def triple_hypotheses(problem: Problem, i: int, j: int, k: int, limit: int):
     )
 
 
-def hypothesis_batches(problem: Problem) -> Iterator:
+def hypothesis_batches(problem: Problem, priors: Priors) -> Iterator:
     """(t, theta, s) batches, or None where a query tuple has no candidates: resections of the
     first ``max_triples`` triples (depth maps), then fits of the first ``max_pairs`` pairs."""
     cfg = problem.cfg
     if not problem.metric:
         for i, j, k in query_triples(problem)[: cfg.max_triples]:
-            yield triple_hypotheses(problem, i, j, k, cfg.max_triple_hyp)
+            yield triple_hypotheses(problem, priors, i, j, k, cfg.max_triple_hyp)
     for i, j in query_pairs(problem)[: cfg.max_pairs]:
-        yield pair_hypotheses(problem, i, j)
+        yield pair_hypotheses(problem, priors, i, j)
 
 
 class ScoredHypotheses:
     """Hypotheses scored in chunks of ``chunk`` (fewer, larger array operations); of each batch
-    chunk only the ``top_k`` cheapest are kept, as if every batch were scored on its own."""
+    chunk only the ``keep`` cheapest are kept, as if every batch were scored on its own."""
 
-    def __init__(self, problem: Problem, priors: Priors):
-        self.problem, self.priors = problem, priors
+    def __init__(self, problem: Problem, priors: Priors, keep: int):
+        self.problem, self.priors, self.keep = problem, priors, keep
         self.pending: list[tuple] = []  # gated batches waiting to be scored together
         self.n_pending = 0
         self.kept: list[tuple] = []  # (cost, t, theta, s) of the kept hypotheses, per chunk
@@ -134,29 +151,36 @@ class ScoredHypotheses:
         self.n_hypotheses = 0
 
     def add(self, t, theta, s) -> None:
-        t, theta, s = self.priors.keep_near(t, theta, s)
+        """Queue a batch; it is gated by the prior cameras and scored at the next :meth:`flush`."""
         if len(t):
             self.pending.append((t, theta, s))
             self.n_pending += len(t)
-        self.n_hypotheses += len(t)
 
     def flush(self) -> None:
-        """Score the pending batches in one pass and keep each batch chunk's ``top_k``."""
+        """Gate the pending batches together, score them in one pass and keep each batch chunk's
+        ``keep`` cheapest."""
         self.n_pending = 0
         if not self.pending:
             return
-        chunk, top_k = self.problem.cfg.chunk, self.problem.cfg.top_k
+        chunk, top_k = self.problem.cfg.chunk, self.keep
+        sizes = [len(b[0]) for b in self.pending]
         t, th, s = (np.concatenate([b[n] for b in self.pending]) for n in range(3))
+        self.pending.clear()
+        near = self.priors.near(t)
+        batch = np.repeat(np.arange(len(sizes)), sizes)[near]
+        t, th, s = t[near], th[near], s[near]
+        self.n_hypotheses += len(t)
+        if not len(t):
+            return
         cost = self._chunked_cost(t, th, s)
         start = 0
-        for bt, _, _ in self.pending:
-            for o in range(0, len(bt), chunk):
-                lo, hi = start + o, start + min(o + chunk, len(bt))
+        for size in np.bincount(batch, minlength=len(sizes)).tolist():
+            for o in range(0, size, chunk):
+                lo, hi = start + o, start + min(o + chunk, size)
                 top = lo + np.argsort(cost[lo:hi], kind="stable")[:top_k]
                 self.kept.append((cost[top], t[top], th[top], s[top]))
                 self.best = min(self.best, float(cost[top[0]]) if len(top) else np.inf)
-            start += len(bt)
-        self.pending.clear()
+            start += size
 
     def _chunked_cost(self, t, theta, s) -> np.ndarray:
         """(C,) MSAC cost, scored ``chunk`` hypotheses at a time (bounded temporaries)."""
@@ -174,12 +198,13 @@ class ScoredHypotheses:
         return tuple(np.concatenate([k[n] for k in self.kept]) for n in range(4))
 
 
-def score_hypotheses(problem: Problem, priors: Priors) -> ScoredHypotheses:
-    """Generate, gate and score hypotheses until ``max_hyp``; GT maps score every batch at once and
-    stop early once a hypothesis explains every object within a sigma (``early_stop``)."""
+def score_hypotheses(problem: Problem, priors: Priors, keep: int) -> ScoredHypotheses:
+    """Generate, gate and score hypotheses until ``max_hyp``, keeping the ``keep`` cheapest of each
+    batch chunk; GT maps score every batch at once and stop early once a hypothesis explains every
+    object within a sigma (``early_stop``)."""
     cfg = problem.cfg
-    scored = ScoredHypotheses(problem, priors)
-    for n_batch, batch in enumerate(hypothesis_batches(problem)):
+    scored = ScoredHypotheses(problem, priors, keep)
+    for n_batch, batch in enumerate(hypothesis_batches(problem, priors)):
         if scored.n_hypotheses >= cfg.max_hyp:
             break
         if batch is None:

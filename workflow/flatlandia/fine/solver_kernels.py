@@ -316,12 +316,96 @@ def covis_counts(d, j, seen, match, inl, radius):
     return out
 
 
+class CoSeen(NamedTuple):
+    """Which candidates some prior camera saw together: a matrix and, per candidate, the list."""
+
+    pair: np.ndarray  # (N, N) bool
+    ptr: np.ndarray  # (N + 1,) int64: candidate a's co-seen candidates are idx[ptr[a]:ptr[a + 1]]
+    idx: np.ndarray  # int64
+
+
 @njit(cache=True)
-def triple_resections(ca, cb, cc, rx, ry, bi, bj, bk, ri, rj, rk, eps, min_scale, max_scale, metric):
+def coseen_pairs(cam, obj, n):
+    """The :class:`CoSeen` fields of objects ``a`` and ``b`` seen by one camera (``a`` with itself
+    when seen at all); ``cam``/``obj`` list who saw what, grouped by camera (as ``np.nonzero`` of a
+    (P, n) matrix gives them)."""
+    pair = np.zeros((n, n), np.bool_)
+    start = 0
+    for end in range(1, len(cam) + 1):
+        if end == len(cam) or cam[end] != cam[start]:
+            for u in range(start, end):
+                for v in range(start, end):
+                    pair[obj[u], obj[v]] = True
+            start = end
+    ptr = np.zeros(n + 1, np.int64)
+    for a in range(n):
+        ptr[a + 1] = ptr[a] + pair[a].sum()
+    idx = np.empty(ptr[n], np.int64)
+    for a in range(n):
+        h = ptr[a]
+        for b in range(n):
+            if pair[a, b]:
+                idx[h] = b
+                h += 1
+    return pair, ptr, idx
+
+
+@njit(cache=True)
+def _member(cands, n):
+    """(n,) bool mask of the rows in ``cands``."""
+    out = np.zeros(n, np.bool_)
+    for a in cands:
+        out[a] = True
+    return out
+
+
+@njit(cache=True)
+def _candidate_triples(ca, cb, cc, co, use_co):
+    """(H, 3) triples of distinct candidates from ``ca`` x ``cb`` x ``cc``; with ``use_co`` only those
+    whose three pairs were seen together (:class:`CoSeen`), walked along the co-seen lists."""
+    pair, ptr, idx = co
+    if not use_co:
+        out = np.empty((len(ca) * len(cb) * len(cc), 3), np.int64)
+        h = 0
+        for a in ca:
+            for b in cb:
+                for c in cc:
+                    if b != a and c != a and c != b:
+                        out[h, 0], out[h, 1], out[h, 2] = a, b, c
+                        h += 1
+        return out[:h]
+    n = pair.shape[0]
+    in_b, in_c = _member(cb, n), _member(cc, n)
+    total = 0
+    for a in ca:
+        nb = nc = 0
+        for u in range(ptr[a], ptr[a + 1]):
+            nb += in_b[idx[u]]
+            nc += in_c[idx[u]]
+        total += nb * nc
+    out = np.empty((total, 3), np.int64)
+    h = 0
+    for a in ca:
+        for u in range(ptr[a], ptr[a + 1]):
+            b = idx[u]
+            if b == a or not in_b[b]:
+                continue
+            for v in range(ptr[a], ptr[a + 1]):
+                c = idx[v]
+                if c != a and c != b and in_c[c] and pair[b, c]:
+                    out[h, 0], out[h, 1], out[h, 2] = a, b, c
+                    h += 1
+    return out[:h]
+
+
+@njit(cache=True)
+def triple_resections(ca, cb, cc, co, use_co, rx, ry, bi, bj, bk, ri, rj, rk, eps, min_scale, max_scale, metric):
     """3-bearing resections of query bearings (bi, bj, bk) (ranges ri, rj, rk + ``eps`` give the
-    scale) onto every triple of distinct candidates from ``ca`` x ``cb`` x ``cc``. See
-    ``solver_hypotheses.triple_hypotheses`` for the algebra. Returns t (H, 2), theta (H,), scale (H,)."""
-    n = len(ca) * len(cb) * len(cc)
+    scale) onto every triple of distinct candidates from ``ca`` x ``cb`` x ``cc`` (with ``use_co``,
+    only triples seen together pairwise, ``co`` a :class:`CoSeen`). See ``solver_hypotheses.triple_hypotheses``
+    for the algebra. Returns t (H, 2), theta (H,), scale (H,)."""
+    abc = _candidate_triples(ca, cb, cc, co, use_co)
+    n = abc.shape[0]
     t = np.empty((n, 2))
     th = np.empty(n)
     sc = np.empty(n)
@@ -329,50 +413,44 @@ def triple_resections(ca, cb, cc, rx, ry, bi, bj, bk, ri, rj, rk, eps, min_scale
     e_k = complex(math.cos(bk - bi), -math.sin(bk - bi))
     lq = (math.log(ri + eps) + math.log(rj + eps) + math.log(rk + eps)) / 3.0
     h = 0
-    for a in ca:
-        A = complex(rx[a], ry[a])
-        for b in cb:
-            if b == a:
+    for w in range(n):
+        a, b, c = abc[w, 0], abc[w, 1], abc[w, 2]
+        A, B, C = complex(rx[a], ry[a]), complex(rx[b], ry[b]), complex(rx[c], ry[c])
+        k1 = e_j * (B - A)
+        k2 = e_k * (C - A)
+        a11, a12, b1 = k1.imag, k1.real, -e_j.imag
+        a21, a22, b2 = k2.imag, k2.real, -e_k.imag
+        det = a11 * a22 - a12 * a21
+        if abs(det) <= 1e-12:
+            continue
+        u = complex((b1 * a22 - a12 * b2) / det, (a11 * b2 - b1 * a21) / det)
+        if abs(u) <= 1e-12:
+            continue
+        z = A - 1.0 / u
+        theta = math.atan2((A - z).imag, (A - z).real) - bi
+        zb, zc = B - z, C - z
+        if abs(_wrap(math.atan2(zb.imag, zb.real) - theta - bj)) >= 1e-3:
+            continue
+        if abs(_wrap(math.atan2(zc.imag, zc.real) - theta - bk)) >= 1e-3:
+            continue
+        s = 1.0
+        if not metric:
+            ld = (math.log(abs(A - z) + 1e-9) + math.log(abs(zb) + 1e-9) + math.log(abs(zc) + 1e-9)) / 3.0
+            s = math.exp(ld - lq)
+            if s < min_scale or s > max_scale:
                 continue
-            B = complex(rx[b], ry[b])
-            k1 = e_j * (B - A)
-            for c in cc:
-                if c == a or c == b:
-                    continue
-                C = complex(rx[c], ry[c])
-                k2 = e_k * (C - A)
-                a11, a12, b1 = k1.imag, k1.real, -e_j.imag
-                a21, a22, b2 = k2.imag, k2.real, -e_k.imag
-                det = a11 * a22 - a12 * a21
-                if abs(det) <= 1e-12:
-                    continue
-                u = complex((b1 * a22 - a12 * b2) / det, (a11 * b2 - b1 * a21) / det)
-                if abs(u) <= 1e-12:
-                    continue
-                z = A - 1.0 / u
-                theta = math.atan2((A - z).imag, (A - z).real) - bi
-                zb, zc = B - z, C - z
-                if abs(_wrap(math.atan2(zb.imag, zb.real) - theta - bj)) >= 1e-3:
-                    continue
-                if abs(_wrap(math.atan2(zc.imag, zc.real) - theta - bk)) >= 1e-3:
-                    continue
-                s = 1.0
-                if not metric:
-                    ld = (math.log(abs(A - z) + 1e-9) + math.log(abs(zb) + 1e-9) + math.log(abs(zc) + 1e-9)) / 3.0
-                    s = math.exp(ld - lq)
-                    if s < min_scale or s > max_scale:
-                        continue
-                t[h, 0], t[h, 1] = z.real, z.imag
-                th[h] = _wrap(theta)
-                sc[h] = s
-                h += 1
+        t[h, 0], t[h, 1] = z.real, z.imag
+        th[h] = _wrap(theta)
+        sc[h] = s
+        h += 1
     return t[:h], th[:h], sc[:h]
 
 
 @njit(cache=True)
-def pair_fits(ca, cb, rx, ry, qix, qiy, dqx, dqy, metric, len_tol, min_scale, max_scale):
+def pair_fits(ca, cb, co, use_co, rx, ry, qix, qiy, dqx, dqy, metric, len_tol, min_scale, max_scale):
     """2-point fits of a query pair (object i at (qix, qiy), offset (dqx, dqy) to object j) onto every
-    ordered pair of distinct candidates (a in ``ca``, b in ``cb``). Returns t (H, 2), theta (H,), scale (H,)."""
+    ordered pair of distinct candidates (a in ``ca``, b in ``cb``; with ``use_co`` only pairs seen
+    together, ``co`` a :class:`CoSeen`). Returns t (H, 2), theta (H,), scale (H,)."""
     n = len(ca) * len(cb)
     t = np.empty((n, 2))
     th = np.empty(n)
@@ -382,7 +460,7 @@ def pair_fits(ca, cb, rx, ry, qix, qiy, dqx, dqy, metric, len_tol, min_scale, ma
     h = 0
     for a in ca:
         for b in cb:
-            if a == b:
+            if a == b or (use_co and not co.pair[a, b]):
                 continue
             drx, dry = rx[b] - rx[a], ry[b] - ry[a]
             lr = math.hypot(drx, dry)

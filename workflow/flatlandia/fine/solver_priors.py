@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 
 from flatlandia import geo
 from flatlandia.fine import solver_kernels
-from flatlandia.fine.solver_kernels import PriorTerms
+from flatlandia.fine.solver_kernels import CoSeen, PriorTerms
 
 
 class PriorGate:
@@ -24,13 +24,16 @@ class PriorGate:
 
     CELL = 1.0
 
-    def __init__(self, cams: np.ndarray, radius: float):
+    def __init__(self, cams: np.ndarray, radius: float, grid: bool = True):
         self.tree = cKDTree(cams)
         self.radius = float(radius)
+        self.uses = 0  # queries served (prior_gate builds the grid on the second)
         pad = radius + 2 * self.CELL
         self.lo = cams.min(0) - pad
         shape = np.ceil((cams.max(0) + pad - self.lo) / self.CELL).astype(int) + 1
-        self.tree_only = bool(shape.prod() > 4_000_000)  # cameras spread over kilometres: the tree alone
+        # cameras spread over kilometres, or a set met once: the tree alone (the grid costs 16 ms at
+        # 230 m, 0.3 s at 1 km, and pays off only over the many queries of one scene)
+        self.tree_only = bool(shape.prod() > 4_000_000) or not grid
         if self.tree_only:
             shape = np.array([1, 1])
         gx, gy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
@@ -58,14 +61,24 @@ _GATES: dict = {}
 
 
 def prior_gate(cams: np.ndarray, radius: float) -> PriorGate:
-    """The gate of a set of prior cameras, cached (every query of a scene shares its cameras)."""
+    """The gate of a set of prior cameras, cached. A set met for the first time gets the tree alone,
+    its second use builds the grid: every query of a scene shares its cameras, while the city
+    search hands each query a camera set of its own (there a grid per query cost up to 0.5 s)."""
     cams = np.ascontiguousarray(cams, dtype=float)
     key = (cams.shape, hash(cams.tobytes()), float(radius))
-    if key not in _GATES:
-        if len(_GATES) >= 64:
+    gate = _GATES.get(key)
+    if gate is None or gate.tree_only and gate.uses == 1:
+        if len(_GATES) >= 256:
             _GATES.clear()
-        _GATES[key] = PriorGate(cams, radius)
-    return _GATES[key]
+        gate = _GATES[key] = PriorGate(cams, radius, grid=gate is not None)
+    gate.uses += 1
+    return gate
+
+
+def coseen(seen: np.ndarray) -> CoSeen:
+    """Which candidates some prior camera saw together (the co-visibility gate of hypotheses)."""
+    cam, obj = np.nonzero(seen)
+    return CoSeen(*solver_kernels.coseen_pairs(cam, obj, seen.shape[1]))
 
 
 class Priors:
@@ -83,14 +96,15 @@ class Priors:
         self.seen = None  # (P, N) bool: prior camera p saw candidate n, or None
         if has_cams and prior_seen is not None:
             self.seen = np.ascontiguousarray(np.asarray(prior_seen, bool).reshape(len(cams), n_ref))
+        #: the candidates some prior camera saw together (the hypothesis gate), or None
+        self.coseen = coseen(self.seen) if self.seen is not None and not metric else None
 
     # ------------------------------------------------------------------ gating
-    def keep_near(self, t, theta, s):
-        """The hypotheses within ``prior_radius_m`` of a prior camera (all without cameras)."""
+    def near(self, t) -> np.ndarray:
+        """(C,) True for the positions within ``prior_radius_m`` of a prior camera (all without cameras)."""
         if self.gate is None or not len(t):
-            return t, theta, s
-        near = self.gate.near(t)
-        return t[near], theta[near], s[near]
+            return np.ones(len(t), bool)
+        return self.gate.near(t)
 
     def too_far(self, t) -> bool:
         """A refined pose that drifted beyond twice the gate radius from every prior camera."""

@@ -31,9 +31,14 @@ def data_cost(problem: Problem, t, theta, s):
 
 def score(problem: Problem, priors: Priors, t, theta, s):
     """MSAC cost (C,), inlier mask (C, M) and best candidate (C, M) per hypothesis."""
-    total, inl, match = data_cost(problem, t, theta, s)
+    return score_terms(problem, priors, t, theta, s)[1:]
+
+
+def score_terms(problem: Problem, priors: Priors, t, theta, s):
+    """Data cost (C,), MSAC cost with the priors (C,), inlier mask (C, M) and best candidate (C, M)."""
+    data, inl, match = data_cost(problem, t, theta, s)
     nb = priors.neighbours(t)
-    return total + priors.cost(t, s, theta, nb) + priors.covis_cost(t, inl, match, nb), inl, match
+    return data, data + priors.cost(t, s, theta, nb) + priors.covis_cost(t, inl, match, nb), inl, match
 
 
 def padded_candidates(problem: Problem) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,101 @@
+"""Errors of a city's queries under the two methods, and their summary row.
+
+``solver``: today's geometric solver on the whole city map (every object a candidate, every view
+a prior), through ``fine.evaluation.evaluate_solver``. ``index``: the city search
+(:mod:`flatlandia.city.search`). Both rows share ``fine.evaluation.error_row``'s columns; the
+index adds whether the true place was among its regions (``region_hit``).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pandas as pd
+
+from flatlandia import proposals
+from flatlandia.city import search
+from flatlandia.city.index import ViewIndex
+from flatlandia.data import localmaps
+from flatlandia.fine import evaluation, solver
+
+#: a pose farther than this from the truth is in the wrong scene (scenes are < 300 m across and
+#: tiled 1 km apart)
+WRONG_SCENE_M = 500.0
+
+
+def solver_errors(
+    ref: pd.DataFrame, queries: pd.DataFrame, split: str, geo: dict, scale_prior, verifier
+) -> pd.DataFrame:
+    """Today's solver on the whole map of one city: the ``split`` queries, priors from its training split."""
+    prior, seen = evaluation.training_priors(queries, geo)
+    test = queries[queries["split"] == split]
+    return evaluation.evaluate_solver(
+        ref,
+        test,
+        proposals.whole_map_proposals(ref, test),
+        "depth",
+        geo,
+        prior_xy=prior,
+        scale_prior=scale_prior,
+        prior_seen=seen,
+        verifier=verifier,
+        method="whole-map solver",
+    )
+
+
+def index_errors(
+    ix: ViewIndex, queries: pd.DataFrame, split: str, cfg: search.SearchConfig, geo: dict, scale_prior, verifier
+) -> pd.DataFrame:
+    """The city search on the ``split`` queries of one city (the index holds its training views)."""
+    geo_cfg = solver.SolverConfig.from_dict(geo)
+    solver.warm_up()
+    rows = []
+    for r in queries[queries["split"] == split].itertuples(index=False):
+        q = localmaps.local_map(r, "depth")
+        t0, c0 = time.perf_counter(), time.process_time()
+        found = search.localize(ix, q, np.asarray(r.classes), cfg, geo_cfg, scale_prior, verifier)
+        dt, dc = time.perf_counter() - t0, time.process_time() - c0
+        sol = found.solution
+        if sol is None:
+            pose, errors, fit = (np.nan, np.nan, np.nan), (np.inf, 180.0), (0.0, 0, 0)
+        else:
+            pose = (sol.x, sol.y, sol.theta)
+            errors = evaluation.pose_errors(sol.x, sol.y, sol.theta, r.x_m, r.y_m, np.radians(r.theta_deg))
+            truth = [int(o) for o in r.ref_idx]
+            correct = sum(int(ix.obj_id[found.rows[c]]) == truth[k] for k, c in sol.inliers)
+            fit = (sol.confidence, len(sol.inliers), correct)
+        row = evaluation.error_row(
+            r,
+            method="index + solver",
+            map_type="depth",
+            strategy="city index",
+            proposal_classes=ix.obj_cls[found.rows],
+            lat=float(r.lat),
+            pose=pose,
+            errors=errors,
+            fit=fit,
+            seconds=dt,
+            cpu_seconds=dc,
+        )
+        near = np.hypot(*(found.centres - [r.x_m, r.y_m]).T) if len(found.centres) else np.zeros(0)
+        row["region_hit"] = bool(np.any(near <= cfg.nms_m))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def summary(errors: pd.DataFrame) -> dict:
+    """The table's figures of one method at one city size (``fine.evaluation.summarise`` plus the
+    city's own: within (5 m, 5 deg), wrong scene, CPU p90, region hits)."""
+    s = evaluation.summarise(errors)
+    em, ed = errors["error_m"].to_numpy(float), errors["error_deg"].to_numpy(float)
+    cpu = errors["cpu_seconds"].to_numpy(float)
+    out = {k: s[k] for k in ["queries", "median_m", "median_deg", *evaluation.RECALL_COLUMNS, "no_pose_pct"]}
+    out.update(
+        within_5m_5deg=float(100 * np.mean((em < 5) & (ed < 5))),
+        wrong_scene_pct=float(100 * np.mean(np.isfinite(em) & (em > WRONG_SCENE_M))),
+        cpu_median_ms=float(1000 * np.median(cpu)),
+        cpu_p90_ms=float(1000 * np.percentile(cpu, 90)),
+        region_hit_pct=float(100 * errors["region_hit"].mean()) if "region_hit" in errors else float("nan"),
+    )
+    return out

@@ -1,0 +1,108 @@
+"""Learning the solver's verifier from the training split.
+
+Why leave-one-out: a training query's own camera and objects are in the priors, so solving it with
+them would make its right hypothesis trivially recognisable. Each training query is solved on its
+depth local map with the priors of the *other* training queries, which places it as a test query
+is placed (its nearest other training camera is as close as a test query's: median about 1.2 m),
+on the region the test queries get (the whole map, or its own GT-BB box: the hypotheses of a
+small region differ from those of the whole map), and its refined hypotheses are labelled right
+when within (``RIGHT_M``, ``RIGHT_DEG``) of its pose.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+import pandas as pd
+
+from flatlandia import proposals
+from flatlandia.data import localmaps
+from flatlandia.fine import evaluation, solver, solver_scoring, solver_verify
+
+#: a hypothesis within this of the true pose is right (the target the verifier is tuned for)
+RIGHT_M, RIGHT_DEG = 5.0, 5.0
+
+
+#: the regions a verifier can learn on: the training queries' own proposals of each kind
+REGIONS = {"whole": proposals.whole_map_proposals, "gtbb": proposals.gtbb_proposals}
+
+
+def scene_groups(
+    ref: pd.DataFrame, queries: pd.DataFrame, geo_config: dict, scale_prior, region: str = "whole", chosen=None
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(features (C, F), right (C,)) of the training queries of one scene (those where ``chosen``,
+    a boolean per training query, or all), each solved on its ``region`` with the priors of the
+    scene's other training queries."""
+    cfg = solver.SolverConfig.from_dict(geo_config)
+    prior, seen_objs = evaluation.training_priors(queries, geo_config)
+    if prior is None or seen_objs is None:
+        return []
+    ref_xy, ref_cls = ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy()
+    pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}
+    seen = evaluation.seen_mask(ref["obj_idx"].to_numpy(), seen_objs)
+    train = queries[queries["split"] == "train"]
+    regions = dict(zip(train["token"].astype(str), REGIONS[region](ref, train)["proposal"]))
+    groups = []
+    for i in range(len(train)) if chosen is None else np.flatnonzero(chosen):
+        r = train.iloc[i]
+        idx = np.array([pos[int(o)] for o in regions[str(r["token"])] if int(o) in pos], int)
+        others = np.arange(len(train)) != i
+        pool = solver.candidates(
+            localmaps.local_map(r, "depth"),
+            np.asarray(r["classes"]),
+            ref_xy[idx],
+            ref_cls[idx],
+            metric=False,
+            config=cfg,
+            prior_xy=prior[others],
+            scale_prior=scale_prior,
+            prior_seen=seen[np.ix_(others, idx)],
+            verify=True,
+        )
+        if pool is None or not pool.verified:
+            continue
+        data, _, inl, match = solver_scoring.score_terms(pool.problem, pool.priors, pool.t, pool.theta, pool.s)
+        f = solver_verify.features(pool.problem, pool.priors, pool.t, pool.theta, pool.s, data, inl, match)
+        e_m, e_deg = evaluation.pose_errors(
+            pool.t[:, 0], pool.t[:, 1], pool.theta, r["x_m"], r["y_m"], np.radians(r["theta_deg"])
+        )
+        ok = np.isfinite(f).all(1)
+        groups.append((f[ok], ((e_m < RIGHT_M) & (e_deg < RIGHT_DEG))[ok]))
+    return groups
+
+
+def fit_verifier(
+    scenes: Iterable[tuple[pd.DataFrame, pd.DataFrame]],
+    geo_config: dict,
+    scale_prior,
+    region: str = "whole",
+    fraction: float = 1.0,
+    rng: np.random.Generator | None = None,
+) -> solver_verify.Verifier | None:
+    """The verifier learned from the training split of ``scenes`` (reference map, queries), each
+    training query solved on its ``region`` (a key of :data:`REGIONS`): from every training query,
+    or from a random ``fraction`` of them drawn with ``rng`` (to measure how much the verifier
+    depends on its examples; the priors always hold every training query). None when nothing can
+    be learned (no co-visibility sets: ``covis_weight`` 0, or no right hypothesis)."""
+    solver.warm_up()
+    groups = []
+    for ref, q in scenes:
+        n = int((q["split"] == "train").sum())
+        chosen = None if rng is None else rng.random(n) < fraction
+        groups += scene_groups(ref, q, geo_config, scale_prior, region, chosen)
+    return solver_verify.fit(groups) if any(np.any(right) for _, right in groups) else None
+
+
+def depth_priors(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]], geo_config: dict, region: str | None = "whole"
+) -> tuple[tuple[float, float] | None, solver_verify.Verifier | None]:
+    """What the solver learns from the training split for depth maps, as every rule that runs it
+    uses it (fine_eval, coarse_solver, city_priors): the log-scale prior and, when ``fine.geo.verify``
+    and ``camera_prior`` are on and ``region`` is a key of :data:`REGIONS`, the verifier learned
+    on that region (None for a region no training query has, e.g. a coarse proposal)."""
+    scale = evaluation.depth_scale_prior([q for _, q in scenes], geo_config)
+    verifier = None
+    if geo_config["verify"] and geo_config["camera_prior"] and region in REGIONS:
+        verifier = fit_verifier(scenes, geo_config, scale, region)
+    return scale, verifier

@@ -1,0 +1,132 @@
+# City scale (target `city`, not in `all`): the benchmark scenes tiled into cities of 1-20 scenes,
+# an index per city map, today's whole-map solver beside the city search, synthetic cities up to
+# 100,000 objects, and the table results/tables/city_scale.{parquet,md}.
+
+
+include: "inputs/city.smk"
+
+
+rule city_maps:
+    input:
+        unpack(city_scene_inputs),
+    output:
+        map="results/city/{n}/map.parquet",
+        queries="results/city/{n}/queries.parquet",
+    log:
+        "logs/city_maps/{n}.log",
+    wildcard_constraints:
+        n="[0-9]+",
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
+    params:
+        scenes=benchmark_scenes(),
+        spacing_m=config["city"]["spacing_m"],
+    script:
+        "../scripts/city_maps.py"
+
+
+rule city_index:
+    input:
+        map="results/city/{n}/map.parquet",
+        queries="results/city/{n}/queries.parquet",
+    output:
+        index=directory("results/city/{n}/index"),
+    log:
+        "logs/city_index/{n}.log",
+    wildcard_constraints:
+        n="[0-9]+",
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
+    script:
+        "../scripts/city_index.py"
+
+
+rule city_priors:
+    input:
+        unpack(city_scene_inputs),
+    output:
+        priors="results/city/priors.json",
+    log:
+        "logs/city_priors/all.log",
+    benchmark:
+        "logs/benchmarks/city_priors/all.tsv"
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
+    params:
+        geo=config["fine"]["geo"],
+    script:
+        "../scripts/city_priors.py"
+
+
+rule city_eval:
+    input:
+        unpack(city_eval_inputs),
+    output:
+        errors="results/city/{n}/errors_{method}.parquet",
+        summary="results/city/{n}/summary_{method}.json",
+    log:
+        "logs/city_eval/{n}_{method}.log",
+    benchmark:
+        "logs/benchmarks/city_eval/{n}_{method}.tsv"
+    wildcard_constraints:
+        n="[0-9]+",
+        method="|".join(CITY_METHODS),
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
+    params:
+        geo=config["fine"]["geo"],
+        split=config["city"]["split"],
+        search=config["city"]["search"],
+    script:
+        "../scripts/city_eval.py"
+
+
+rule city_simulate:
+    input:
+        unpack(city_scene_inputs),
+        priors="results/city/priors.json",
+    output:
+        errors="results/city/simulated/{objects}/errors.parquet",
+        summary="results/city/simulated/{objects}/summary.json",
+    log:
+        "logs/city_simulate/{objects}.log",
+    benchmark:
+        "logs/benchmarks/city_simulate/{objects}.tsv"
+    wildcard_constraints:
+        objects="[0-9]+",
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
+    resources:
+        mem_mb=4000,
+    params:
+        scenes=benchmark_scenes(),
+        seed=config["seed"],
+        spacing_m=config["city"]["spacing_m"],
+        split=config["city"]["split"],
+        geo=config["fine"]["geo"],
+        search=config["city"]["search"],
+        simulate=config["city"]["simulate"],
+    script:
+        "../scripts/city_simulate.py"
+
+
+rule city_table:
+    input:
+        summaries=city_summaries(),
+    output:
+        parquet="results/tables/city_scale.parquet",
+        markdown="results/tables/city_scale.md",
+    log:
+        "logs/city_table/all.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    params:
+        split=config["city"]["split"],
+        spacing_m=config["city"]["spacing_m"],
+    script:
+        "../scripts/city_table.py"
