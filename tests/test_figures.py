@@ -60,7 +60,9 @@ def test_the_default_runs_get_a_panel_per_setting_with_a_curve_per_method(errors
     fig = figures.error_cdf_figure(errors)
     groups = {(Run.parse(r).proposal, Run.parse(r).map_type) for r in errors}
     proposals = sorted({p for p, _ in groups}, key=list(PROPOSAL_LABELS).index)
-    assert len(fig.axes) == 4 * len(proposals) == 12  # a row per proposal: GT and depth, position and orientation
+    assert (
+        len(fig.axes) == 4 * len(proposals) == 16
+    )  # a row per proposal (GT-BB, Sim+Trip, Solver, whole map): GT and depth, position and orientation
     seen = set()
     for k, ax in enumerate(fig.axes):
         runs = _panel_runs(ax)
@@ -101,7 +103,9 @@ def test_the_papers_medians_are_marked_where_it_publishes_them(errors):
 def test_error_vs_objects_has_integer_count_axes_and_a_row_per_setting(errors):
     fig = figures.error_vs_objects_figure(errors)
     rows = {(Run.parse(r).proposal, Run.parse(r).map_type) for r in errors}
-    assert len(fig.axes) == 4 * len(rows) == 24
+    assert (
+        len(fig.axes) == 4 * len(rows) == 32
+    )  # 8 (proposal, map type) rows: GT-BB, Sim+Trip, Solver, whole map x GT, depth
     fig.canvas.draw()
     for ax in fig.axes:
         lo, hi = ax.get_xlim()
@@ -125,6 +129,6 @@ def test_the_figures_are_written_as_pngs(errors, tmp_path):
 def test_a_proposal_setting_unknown_here_gets_a_row_of_its_own_last(errors):
     more = {**errors, "geo_depth_coarse-new": errors["geo_depth_gtbb"]}
     fig = figures.error_cdf_figure(more)
-    assert len(fig.axes) == 16
+    assert len(fig.axes) == 20  # the 4 default settings, then the new one
     assert fig.axes[-2].get_title().startswith("coarse-new, depth local maps")
     assert not fig.axes[-4].has_data()  # no GT-map run on it: that panel is left blank

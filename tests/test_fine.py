@@ -6,6 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from snakemake_runner import smk
 
 from flatlandia import checkpoints, geo, proposals
 from flatlandia.fine import evaluation, learned, report, solver, solver_problem, solver_scoring, training
@@ -313,6 +314,31 @@ def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
     model, cfg2 = checkpoints.load_checkpoint(path, learned.FineConfig, learned.build_model)
     assert cfg2 == cfg
     assert np.allclose(learned.predict(model, val), learned.predict(res["model"], val), atol=1e-6)
+
+
+def test_warm_start_continues_from_the_given_weights(tmp_path):
+    """Training on simulated coarse proposals starts from the GT-BB model (fine.coarse_training.warm_start):
+    with a vanishing step it keeps that model's predictions; without the weights it does not."""
+    cfg = learned.FineConfig(model="MLP", map_type="gt", hidden=32, epochs=30, batch_size=16, lr=3e-3, augment=False)
+    train, val = _toy_samples(64, cfg, seed=1), _toy_samples(16, cfg, seed=2)
+    first = training.train(train, val, cfg)
+    short = learned.FineConfig(**{**cfg.to_dict(), "epochs": 1, "lr": 1e-12})
+    cold = training.train(train, val, short)
+    warm = training.train(train, val, short, init_state=first["state_dict"])
+    assert np.allclose(learned.predict(warm["model"], val), learned.predict(first["model"], val), atol=1e-4)
+    assert warm["history"][0]["val_median_m"] == pytest.approx(first["best_val_median_m"], rel=1e-3)
+    assert not np.allclose(learned.predict(cold["model"], val), learned.predict(first["model"], val), atol=1e-2)
+
+
+def test_coarse_training_starts_from_the_gtbb_model_unless_told_otherwise(repo, flat_root, tmp_path):
+    target = "results/fine/models/mlp_depth_coarse/checkpoint.pt"
+    res = smk(repo, tmp_path, "-n", "-p", target, "--config", f"flatlandia_root={flat_root}")
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "results/fine/models/mlp_depth_gtbb/checkpoint.pt" in res.stdout
+    off = "fine={'coarse_training': {'warm_start': False}}"
+    res = smk(repo, tmp_path, "-n", target, "--config", f"flatlandia_root={flat_root}", off)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "mlp_depth_gtbb/checkpoint.pt" not in res.stdout
 
 
 def test_learned_model_on_real_scene_samples(scene):

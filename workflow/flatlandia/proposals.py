@@ -155,3 +155,16 @@ def training_label(regime: str, crop_m: float = 0.0) -> str:
     if regime == "gtbb":
         return "GT-BB"
     return "simulated coarse" + (f", cut to {crop_m:g} m" if crop_m > 0 else "")
+
+
+def proposal_metrics(proposal, truth) -> dict:
+    """Precision, recall, success (>= 3 correct) of one proposal against the matched objects."""
+    p, t = set(int(i) for i in proposal), set(int(i) for i in truth)
+    hit = len(p & t)
+    return {
+        "n_proposed": len(p),
+        "n_correct": hit,
+        "precision": hit / len(p) if p else 0.0,
+        "recall": hit / len(t) if t else float("nan"),
+        "success": hit >= 3,
+    }

@@ -10,8 +10,7 @@ include: "inputs/fine.smk"
 
 rule fine_train:
     input:
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        unpack(fine_train_inputs),
     output:
         checkpoint="results/fine/models/{model}_{map_type}_{train}/checkpoint.pt",
         history="results/fine/models/{model}_{map_type}_{train}/history.parquet",

@@ -12,7 +12,7 @@ import time
 import pandas as pd
 
 from flatlandia import io, runlog
-from flatlandia.coarse import retrieval, solver_proposals
+from flatlandia.coarse import solver_proposals
 from flatlandia.fine import evaluation, solver
 
 
@@ -29,7 +29,7 @@ def main(smk, log):
         prior, seen = evaluation.training_priors(q, geo_cfg)
         cand = solver_proposals.scene_candidates(ref, prior, seen)
         test = q[q["split"] == "test"]
-        for mt in retrieval.MAP_TYPES:
+        for mt in solver_proposals.MAP_TYPES:
             parts.append(
                 solver_proposals.scene_proposals(
                     ref, test, mt, cand, cfg, solver_cfg, scale_prior if mt == "depth" else None

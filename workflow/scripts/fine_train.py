@@ -3,7 +3,8 @@ type and one training regime.
 
 Trains on the train split of every scene with GT-BB proposals (``gtbb``, the paper's training) or
 with simulated coarse proposals (``coarse``, config fine.coarse_training; for the runs evaluated on
-coarse proposals), keeps the best-on-validation weights and saves them with the resolved config
+coarse proposals; by default it starts from the ``gtbb`` model and trains fine.coarse_training.epochs
+more, sharing that training), keeps the best-on-validation weights and saves them with the resolved config
 (torch.save({'state_dict', 'config', ...})).
 """
 
@@ -48,7 +49,14 @@ def main(smk, log):
             f"{len(train)} training and {len(val)} validation samples for {cfg.model} on {cfg.map_type} maps: "
             "the benchmark scenes (config benchmark_scenes) hold too few queries to train on",
         )
-    res = training.train(train, val, cfg, log=log, progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"))
+    init = None
+    if smk.input.get("init"):  # warm start: the GT-BB-trained model of the same model and map type
+        start, _ = checkpoints.load_checkpoint(smk.input.init, learned.FineConfig, learned.build_model)
+        init = start.state_dict()
+        log.info("starting from %s", smk.input.init)
+    res = training.train(
+        train, val, cfg, log=log, progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"), init_state=init
+    )
     checkpoints.save_checkpoint(res, smk.output.checkpoint)
     hist = pd.DataFrame(res["history"])
     io.write_parquet(
@@ -59,6 +67,7 @@ def main(smk, log):
             "best_epoch": res["best_epoch"],
             "train_proposals": regime,
             "coarse_training": ct if regime == "coarse" else None,
+            "warm_start": smk.input.get("init") or None,
             "n_parameters": checkpoints.n_parameters(res["model"]),
             "train_seconds": res["seconds"],
         },

@@ -18,6 +18,7 @@ import torch
 
 from flatlandia import paper, proposals, tables
 from flatlandia.coarse import retrieval
+from flatlandia.proposals import proposal_metrics  # noqa: F401  (this module's API too)
 
 STRATEGIES = ["N_LM", "2N_LM", "R_30", "GT-BB"]
 
@@ -68,19 +69,6 @@ def propose(
             raise ValueError("GT-BB needs the matched rows and the true camera")
         return proposals.gtbb_indices(ref_xy, matched_rows, cam_xy, enlarge)
     raise ValueError(f"unknown strategy {strategy!r}; known: {STRATEGIES}")
-
-
-def proposal_metrics(proposal, truth) -> dict:
-    """Precision, recall, success (>= 3 correct) of one proposal against the matched objects."""
-    p, t = set(int(i) for i in proposal), set(int(i) for i in truth)
-    hit = len(p & t)
-    return {
-        "n_proposed": len(p),
-        "n_correct": hit,
-        "precision": hit / len(p) if p else 0.0,
-        "recall": hit / len(t) if t else float("nan"),
-        "success": hit >= 3,
-    }
 
 
 def evaluate_scores(

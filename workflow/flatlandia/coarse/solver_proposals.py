@@ -26,12 +26,12 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import config, geo, proposals
-from flatlandia.coarse import evaluation
 from flatlandia.data import localmaps
 from flatlandia.fine import evaluation as fine_evaluation
 from flatlandia.fine import solver
 
 STRATEGIES = ["N_LM", "2N_LM", "R_30", "BB"]
+MAP_TYPES = list(localmaps.LOCAL_MAP_COLUMNS)  # gt, depth
 #: the label of its rows in Table 3 (column ``loss``) and of its fine runs
 LABEL = "Solver"
 
@@ -148,7 +148,7 @@ def scene_proposals(
     scale_prior=None,
 ) -> pd.DataFrame:
     """One row per (query, strategy) of one scene: the proposal (reference ``obj_idx``), its metrics
-    against the query's matched objects (:func:`flatlandia.coarse.evaluation.proposal_metrics`),
+    against the query's matched objects (:func:`flatlandia.proposals.proposal_metrics`),
     the best pose's position error (m) and the seconds the query's poses took."""
     obj = ref["obj_idx"].to_numpy()
     pos = {int(o): k for k, o in enumerate(obj)}
@@ -170,7 +170,7 @@ def scene_proposals(
                     "map_type": map_type,
                     "strategy": strategy,
                     "proposal": [int(o) for o in obj[prop]],
-                    **evaluation.proposal_metrics(prop, truth),
+                    **proposals.proposal_metrics(prop, truth),
                     "pose_error_m": pose_error,
                     "hypotheses": len(hyps),
                     "seconds": seconds,

@@ -13,16 +13,19 @@ import functools
 import math
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
-import torch
-from torch import nn
-from torch_geometric.data import Batch
 
 from flatlandia import config, geo, paper
 from flatlandia.data import localmaps
-from flatlandia.fine import learned, solver
+from flatlandia.fine import solver
+
+if TYPE_CHECKING:  # torch and torch-geometric load in 4 s: only the learned models' evaluation needs them
+    from torch import nn
+
+    from flatlandia.fine import learned
 
 #: errors above this many metres count as gross
 GROSS_M = 30.0
@@ -251,6 +254,11 @@ def evaluate_model(
     """Run a learned model on every query of one scene; one row of errors per query (the solver's
     columns). Query time is the single-query inference time (batch of one, after building the
     sample)."""
+    import torch
+    from torch_geometric.data import Batch
+
+    from flatlandia.fine import learned
+
     samples, kept = learned.samples_from_queries(ref, queries, proposals, cfg)
     ref_cls = ref["class_id"].to_numpy()
     pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}

@@ -65,13 +65,23 @@ def augment(batch, cfg: learned.FineConfig, gen: torch.Generator):
     return b
 
 
-def train(train_samples: list[Data], val_samples: list[Data], cfg: learned.FineConfig, log=None, progress=None) -> dict:
+def train(
+    train_samples: list[Data],
+    val_samples: list[Data],
+    cfg: learned.FineConfig,
+    log=None,
+    progress=None,
+    init_state: dict | None = None,
+) -> dict:
     """Adam on batches; the best-on-validation (median position error) weights are kept.
+    ``init_state``: weights to start from (a warm start) instead of the seeded initialisation.
 
     Returns {'model', 'state_dict', 'config', 'history', 'best_epoch', 'best_val_median_m', 'seconds'}.
     """
     checkpoints.set_determinism(cfg.seed)
     model = learned.build_model(cfg)
+    if init_state is not None:
+        model.load_state_dict(init_state)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     sched = (
         torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.epochs, 1), eta_min=0.01 * cfg.lr)

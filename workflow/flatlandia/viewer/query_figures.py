@@ -138,6 +138,6 @@ def write_query_figures(view: SceneView, folder: str | Path) -> list[Path]:
     for q in view.test_queries():
         if q.estimates:
             path = Path(folder) / f"{q.token}.png"
-            figures.save(query_figure(view, q), path, dpi=80)
+            figures.save(query_figure(view, q), path, dpi=80, tight=False)
             out.append(path)
     return out

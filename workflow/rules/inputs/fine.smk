@@ -66,8 +66,25 @@ def fine_model_name(wildcards):
 
 
 def fine_train_params(wildcards):
-    """fine.train, updated by fine.train_overrides[{model}] (e.g. fewer epochs for the slower GATs)."""
-    return {**config["fine"]["train"], **config["fine"]["train_overrides"][wildcards.model]}
+    """fine.train, updated by fine.train_overrides[{model}] (e.g. fewer epochs for the slower GATs),
+    and for training on simulated coarse proposals by fine.coarse_training.epochs."""
+    p = {**config["fine"]["train"], **config["fine"]["train_overrides"][wildcards.model]}
+    epochs = config["fine"]["coarse_training"]["epochs"]
+    if wildcards.train == "coarse" and epochs:
+        p["epochs"] = epochs
+    return p
+
+
+def fine_train_inputs(wildcards):
+    """The benchmark scenes' maps and queries; for training on simulated coarse proposals with
+    fine.coarse_training.warm_start, the GT-BB-trained model it starts from."""
+    inp = {
+        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
+        "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+    }
+    if wildcards.train == "coarse" and config["fine"]["coarse_training"]["warm_start"]:
+        inp["init"] = f"results/fine/models/{wildcards.model}_{wildcards.map_type}_gtbb/checkpoint.pt"
+    return inp
 
 
 def scene_localization_inputs(wildcards):
