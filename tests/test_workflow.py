@@ -240,7 +240,7 @@ def test_dry_run_lists_the_full_dag(repo, flat_root, tmp_path):
 @pytest.mark.slow
 def test_paper_config_merges_over_the_default(repo, flat_root, tmp_path):
     """config/paper.yaml only names what differs: the default's other keys survive the merge and
-    its runs widen the DAG (5 methods x 2 map types x 4 proposals + 4 whole-map runs)."""
+    its runs widen the DAG (5 methods x 2 map types x 5 proposals + 4 whole-map runs)."""
     res = smk(
         repo,
         tmp_path,
@@ -255,7 +255,7 @@ def test_paper_config_merges_over_the_default(repo, flat_root, tmp_path):
     out = res.stdout + res.stderr
     counts = {
         "fine_train": 16,
-        "fine_eval": 44,
+        "fine_eval": 54,
         "coarse_train": 3,
         "coarse_target": 20,
     }  # 4 models x 2 maps x 2 trainings
