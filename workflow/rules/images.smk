@@ -53,6 +53,7 @@ rule segment:
         "logs/benchmarks/segment/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    priority: 10
     resources:
         mem_mb=4000,
         runtime=30,
@@ -81,7 +82,8 @@ rule sfm:
         "logs/benchmarks/sfm/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 2
+    threads: sfm_threads()
+    priority: 10
     resources:
         mem_mb=8000,
         runtime=120,

@@ -36,3 +36,9 @@ def images_folder_fingerprint(wildcards):
         f"{p.relative_to(folder)}:{p.stat().st_size}:{p.stat().st_mtime_ns}" for p in folder.rglob("*") if p.is_file()
     )
     return hashlib.sha256("\n".join(entries).encode()).hexdigest()
+
+
+def sfm_threads():
+    """Cores for SfM: 1 when sfm.deterministic (pycolmap then runs single-threaded;
+    asking for 2 only kept it waiting for a second free core, to the end of a 2-core run), else 2."""
+    return 1 if config["sfm"]["deterministic"] else 2
