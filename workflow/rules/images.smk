@@ -51,9 +51,9 @@ rule segment:
         "logs/segment/{scene}.log",
     benchmark:
         "logs/benchmarks/segment/{scene}.tsv"
+    priority: 10
     conda:
         "../../envs/flatlandia.yaml"
-    priority: 10
     resources:
         mem_mb=4000,
         runtime=30,
@@ -80,10 +80,10 @@ rule sfm:
         "logs/sfm/{scene}.log",
     benchmark:
         "logs/benchmarks/sfm/{scene}.tsv"
+    priority: 10
     conda:
         "../../envs/flatlandia.yaml"
     threads: sfm_threads()
-    priority: 10
     resources:
         mem_mb=8000,
         runtime=120,
