@@ -21,15 +21,26 @@ def test_gate_equals_the_exact_query_at_any_extent(spread_m):
     exact = cKDTree(cams).query(pts)[0] <= 15.0
     np.testing.assert_array_equal(gate.near(pts), exact)
     assert exact[: len(cams)].mean() > 0.4  # points near the cameras are kept, wherever they are
+    if gate.cells <= PriorGate.MAX_CELLS:  # enough queries for the grid, where the extent allows one
+        gate.near(np.zeros((int(PriorGate.GRID_AFTER * gate.cells) + 1, 2)))
+    assert gate.tree_only == (spread_m > 1_000)
+    np.testing.assert_array_equal(gate.near(pts), exact)  # the grid answers as the tree does
 
 
-def test_a_camera_set_gets_its_grid_on_second_use_with_the_same_answers():
+def test_the_grid_is_built_only_once_the_tree_has_answered_enough_points():
+    """A camera set used for one query (the city search's) keeps the tree alone; a scene's, queried
+    again and again, gets its grid once the points queried reach GRID_AFTER of its cells."""
     rng = np.random.default_rng(3)
     cams = rng.uniform(0, 200, (50, 2))
     pts = rng.uniform(-20, 220, (2000, 2))
     solver_priors._GATES.clear()
-    first = solver_priors.prior_gate(cams, 15.0)
-    assert first.tree_only  # met once: no grid built
-    second = solver_priors.prior_gate(cams, 15.0)
-    assert not second.tree_only and solver_priors.prior_gate(cams, 15.0) is second  # built once, then cached
-    np.testing.assert_array_equal(first.near(pts), second.near(pts))
+    gate = solver_priors.prior_gate(cams, 15.0)
+    first = gate.near(pts)
+    assert gate.tree_only and solver_priors.prior_gate(cams, 15.0) is gate  # cached
+    needed = int(np.ceil(PriorGate.GRID_AFTER * gate.cells))
+    while gate.queried + len(pts) < needed:
+        gate.near(pts)
+    assert gate.tree_only
+    np.testing.assert_array_equal(gate.near(pts), first)
+    assert not gate.tree_only  # built now, same answers
+    np.testing.assert_array_equal(gate.near(pts), first)

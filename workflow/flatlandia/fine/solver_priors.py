@@ -18,34 +18,51 @@ from flatlandia.fine.solver_kernels import CoSeen, PriorTerms
 
 
 class PriorGate:
-    """Which points lie within ``radius`` of a prior camera: a 1 m grid of sure-inside / sure-outside
-    cells, an exact tree query only for cells on the boundary. Same answer as the tree query alone;
-    built once per set of prior cameras (a scene) and cached, as every query of a scene shares it."""
+    """Which points lie within ``radius`` of a prior camera: an exact tree query, and once the tree
+    has answered about as many points as a 1 m grid over the cameras has cells (``GRID_AFTER``), a
+    grid of sure-inside / sure-outside cells with the tree only for boundary cells. Same answer
+    either way; cached per set of prior cameras. Why lazily: the grid costs 16 ms at 230 m and
+    0.3 s at 1 km, which pays off over the many queries of a scene, not for the camera set the
+    city search hands one query (a grid per query took its p90 to 0.5 s)."""
 
     CELL = 1.0
+    GRID_AFTER = 0.125  # build the grid once the points queried exceed this share of its cells
+    MAX_CELLS = 4_000_000  # cameras spread wider (kilometres): the tree alone
 
-    def __init__(self, cams: np.ndarray, radius: float, grid: bool = True):
+    def __init__(self, cams: np.ndarray, radius: float):
         self.tree = cKDTree(cams)
         self.radius = float(radius)
-        self.uses = 0  # queries served (prior_gate builds the grid on the second)
         pad = radius + 2 * self.CELL
         self.lo = cams.min(0) - pad
-        shape = np.ceil((cams.max(0) + pad - self.lo) / self.CELL).astype(int) + 1
-        # cameras spread over kilometres, or a set met once: the tree alone (the grid costs 16 ms at
-        # 230 m, 0.3 s at 1 km, and pays off only over the many queries of one scene)
-        self.tree_only = bool(shape.prod() > 4_000_000) or not grid
-        if self.tree_only:
-            shape = np.array([1, 1])
-        gx, gy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+        self.shape = np.ceil((cams.max(0) + pad - self.lo) / self.CELL).astype(int) + 1
+        self.cells = int(self.shape.prod())
+        self.queried = 0  # points answered by the tree alone so far
+        self.state = None  # the grid, once built
+
+    @property
+    def tree_only(self) -> bool:
+        """No grid (yet, or ever for cameras spread over kilometres)."""
+        return self.state is None
+
+    def _build_grid(self) -> None:
+        gx, gy = np.meshgrid(np.arange(self.shape[0]), np.arange(self.shape[1]), indexing="ij")
         centres = self.lo + (np.stack([gx, gy], -1).reshape(-1, 2) + 0.5) * self.CELL
         half_diag = self.CELL * math.sqrt(0.5)
-        d = self.tree.query(centres, k=1, distance_upper_bound=radius + half_diag + 1e-9)[0].reshape(shape)
-        self.state = np.where(d <= radius - half_diag, 1, np.where(d <= radius + half_diag, 2, 0)).astype(np.int8)
+        bound = self.radius + half_diag + 1e-9
+        d = self.tree.query(centres, k=1, distance_upper_bound=bound)[0].reshape(tuple(self.shape))
+        r = self.radius
+        self.state = np.where(d <= r - half_diag, 1, np.where(d <= r + half_diag, 2, 0)).astype(np.int8)
+
+    def _tree_near(self, t: np.ndarray) -> np.ndarray:
+        return self.tree.query(t, k=1, distance_upper_bound=self.radius + 1e-9)[0] <= self.radius
 
     def near(self, t: np.ndarray) -> np.ndarray:
         """(C,) True where a prior camera is within ``radius``."""
-        if self.tree_only:
-            return self.tree.query(t, k=1, distance_upper_bound=self.radius + 1e-9)[0] <= self.radius
+        if self.state is None:
+            self.queried += len(t)
+            if self.cells > self.MAX_CELLS or self.queried < self.GRID_AFTER * self.cells:
+                return self._tree_near(t)
+            self._build_grid()
         ij = np.floor((t - self.lo) / self.CELL).astype(np.int64)
         inside = (ij >= 0).all(1) & (ij[:, 0] < self.state.shape[0]) & (ij[:, 1] < self.state.shape[1])
         st = np.zeros(len(t), np.int8)
@@ -53,7 +70,7 @@ class PriorGate:
         out = st == 1
         edge = np.flatnonzero(st == 2)
         if len(edge):
-            out[edge] = self.tree.query(t[edge], k=1, distance_upper_bound=self.radius + 1e-9)[0] <= self.radius
+            out[edge] = self._tree_near(t[edge])
         return out
 
 
@@ -61,18 +78,14 @@ _GATES: dict = {}
 
 
 def prior_gate(cams: np.ndarray, radius: float) -> PriorGate:
-    """The gate of a set of prior cameras, cached. A set met for the first time gets the tree alone,
-    its second use builds the grid: every query of a scene shares its cameras, while the city
-    search hands each query a camera set of its own (there a grid per query cost up to 0.5 s)."""
+    """The gate of a set of prior cameras, cached (every query of a scene shares its cameras)."""
     cams = np.ascontiguousarray(cams, dtype=float)
     key = (cams.shape, hash(cams.tobytes()), float(radius))
-    gate = _GATES.get(key)
-    if gate is None or gate.tree_only and gate.uses == 1:
+    if key not in _GATES:
         if len(_GATES) >= 256:
             _GATES.clear()
-        gate = _GATES[key] = PriorGate(cams, radius, grid=gate is not None)
-    gate.uses += 1
-    return gate
+        _GATES[key] = PriorGate(cams, radius)
+    return _GATES[key]
 
 
 def coseen(seen: np.ndarray) -> CoSeen:
