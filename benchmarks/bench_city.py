@@ -29,20 +29,14 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_fine_solver import load  # noqa: E402
 
 from flatlandia import config, proposals  # noqa: E402
 from flatlandia.city import evaluate, index, priors, search, simulate  # noqa: E402
 from flatlandia.data import localmaps  # noqa: E402
 from flatlandia.fine import evaluation, solver  # noqa: E402
-
-
-def load(root: Path):
-    scenes = []
-    for s in sorted((p.name for p in root.iterdir() if p.name.isdigit()), key=int):
-        r, q = root / s / "maps/reference_map.parquet", root / s / "queries/queries.parquet"
-        if r.exists() and q.exists():
-            scenes.append((s, pd.read_parquet(r), pd.read_parquet(q)))
-    return scenes
 
 
 def stages(ix, queries, cfg, geo, scale, verifier) -> pd.DataFrame:

@@ -24,8 +24,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
 from flatlandia import proposals  # noqa: E402
-from flatlandia.data import localmaps  # noqa: E402
-from flatlandia.fine import evaluation, solver, solver_verify_fit  # noqa: E402
+from flatlandia.fine import evaluation, solver_verify_fit  # noqa: E402
 
 
 def load(root: Path):
@@ -63,23 +62,14 @@ def solver_errors(
     """Per-query errors of the solver as rule fine_eval computes them (priors and, on depth maps,
     the verifier from the training split); ``fit``: ``fraction`` and ``rng`` of the verifier's
     examples (``solver_verify_fit.fit_verifier``)."""
-    scale_prior = None
-    if map_type == "depth" and geo_cfg.get("scale_prior", True):
-        scale_prior = solver.fit_priors(
-            [localmaps.xy(c) for _, _, q in scenes for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
-        )
-    verifier = None
-    if (
-        map_type == "depth"
-        and proposal in solver_verify_fit.REGIONS
-        and geo_cfg.get("verify", True)
-        and geo_cfg.get("camera_prior", True)
-    ):
+    scale_prior = verifier = None
+    if map_type == "depth":  # the scale prior and the verifier as rule fine_eval learns them
         c0 = time.process_time()
-        verifier = solver_verify_fit.fit_verifier(
-            [(ref, q) for _, ref, q in scenes], geo_cfg, scale_prior, proposal, **fit
+        scale_prior, verifier = solver_verify_fit.depth_priors(
+            [(ref, q) for _, ref, q in scenes], geo_cfg, proposal, **fit
         )
-        print(f"verifier learned from the training split in {time.process_time() - c0:.0f} s CPU")
+        if verifier is not None:
+            print(f"verifier learned from the training split in {time.process_time() - c0:.0f} s CPU")
     coarse = None
     if proposal.startswith("coarse-"):
         coarse = pd.read_parquet(root / "coarse" / proposal.split("-", 1)[1] / "proposals.parquet")

@@ -30,9 +30,7 @@ from flatlandia.fine import evaluation, solver, solver_bound  # noqa: E402
 
 def bound_errors(scenes, split: str, ranges: bool, priors: bool, geo_cfg: dict) -> pd.DataFrame:
     """Per-query errors of the true-match refinement, in the solver's error columns."""
-    scale_prior = solver.fit_priors(
-        [localmaps.xy(c) for _, _, q in scenes for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
-    )
+    scale_prior = evaluation.depth_scale_prior([q for _, _, q in scenes], {**geo_cfg, "scale_prior": True})
     cfg = solver.SolverConfig.from_dict(geo_cfg)
     rows = []
     for _, ref, q in scenes:

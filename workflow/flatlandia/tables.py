@@ -24,6 +24,16 @@ class Column:
     meaning: str
 
 
+#: the field's recall at 1 / 3 / 5 m and 1 / 3 / 5 deg, in the fine and the city tables
+RECALL_COLUMNS = [
+    Column("recall_1m", "float", "%", "field's recall: queries under 1 m, any heading; failures are misses"),
+    Column("recall_3m", "float", "%", "queries under 3 m, any heading"),
+    Column("recall_5m", "float", "%", "queries under 5 m, any heading"),
+    Column("recall_1deg", "float", "%", "field's recall: queries under 1 deg, any position; failures are misses"),
+    Column("recall_3deg", "float", "%", "queries under 3 deg, any position"),
+    Column("recall_5deg", "float", "%", "queries under 5 deg, any position"),
+]
+
 SCHEMAS: dict[str, list[Column]] = {
     "coarse_localization": [
         Column(
@@ -86,12 +96,7 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("pct_1m_5deg", "float", "%", "queries under 1 m and 5 deg"),
         Column("pct_5m_10deg", "float", "%", "queries under 5 m and 10 deg"),
         Column("pct_10m_20deg", "float", "%", "queries under 10 m and 20 deg"),
-        Column("recall_1m", "float", "%", "field's recall: queries under 1 m, any heading; failures are misses"),
-        Column("recall_3m", "float", "%", "queries under 3 m, any heading"),
-        Column("recall_5m", "float", "%", "queries under 5 m, any heading"),
-        Column("recall_1deg", "float", "%", "field's recall: queries under 1 deg, any position; failures are misses"),
-        Column("recall_3deg", "float", "%", "queries under 3 deg, any position"),
-        Column("recall_5deg", "float", "%", "queries under 5 deg, any position"),
+        *RECALL_COLUMNS,
         Column("failure_pct", "float", "%", "F%: proposal holds fewer than 3 objects of the query's classes"),
         Column("no_pose_pct", "float", "%", "queries for which the method returned no pose"),
         Column("gross_pct", "float", "%", "position error over 30 m (true metres)"),
@@ -156,12 +161,7 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("queries", "int", "", "depth queries localized"),
         Column("median_m", "float", "m", "median position error"),
         Column("median_deg", "float", "deg", "median orientation error"),
-        Column("recall_1m", "float", "%", "queries under 1 m; no pose counts as a miss"),
-        Column("recall_3m", "float", "%", "queries under 3 m"),
-        Column("recall_5m", "float", "%", "queries under 5 m"),
-        Column("recall_1deg", "float", "%", "queries under 1 deg"),
-        Column("recall_3deg", "float", "%", "queries under 3 deg"),
-        Column("recall_5deg", "float", "%", "queries under 5 deg"),
+        *RECALL_COLUMNS,
         Column("within_5m_5deg", "float", "%", "queries within (5 m, 5 deg)"),
         Column("wrong_scene_pct", "float", "%", "poses more than 500 m off (in another tile)"),
         Column("no_pose_pct", "float", "%", "queries without a pose"),

@@ -170,8 +170,13 @@ class Priors:
         ``covis_radius_m`` of the pose saw together with the most of the others (best single camera)."""
         if not self.covis_on():
             return np.zeros(len(t))
+        return self.cfg.covis_weight * (inl.sum(1) - self.covis_counts(nb, match, inl))
+
+    def covis_counts(self, nb, match, inl) -> np.ndarray:
+        """(C,) inliers that the best single prior camera within ``covis_radius_m`` among ``nb``
+        (distances, indices (C, k)) saw together."""
         d, j = nb
-        cnt = solver_kernels.covis_counts(
+        return solver_kernels.covis_counts(
             np.ascontiguousarray(d),
             np.ascontiguousarray(j, dtype=np.int64),
             self.seen,
@@ -179,7 +184,6 @@ class Priors:
             inl,
             float(self.cfg.covis_radius_m),
         )
-        return self.cfg.covis_weight * (inl.sum(1) - cnt)
 
     # ------------------------------------------------------------------ refinement
     def refine_terms(self, p: np.ndarray) -> PriorTerms:

@@ -18,7 +18,6 @@ import numpy as np
 from scipy.optimize import minimize
 
 from flatlandia import geo
-from flatlandia.fine import solver_kernels
 from flatlandia.fine.solver_priors import Priors
 from flatlandia.fine.solver_problem import Problem
 
@@ -87,14 +86,7 @@ def features(problem: Problem, priors: Priors, t, theta, s, data, inl, match) ->
     n_inl = inl.sum(1)
     visibility = np.where(n_inl > 0, (at_match * inl).sum(1) / np.maximum(n_inl, 1), np.log(VISIBILITY_FLOOR))
     unseen = share.sum(1) - (share * matched).sum(1)
-    covered = solver_kernels.covis_counts(
-        np.ascontiguousarray(d),
-        np.ascontiguousarray(j, dtype=np.int64),
-        priors.seen,
-        match,
-        inl,
-        float(priors.cfg.covis_radius_m),
-    )
+    covered = priors.covis_counts((d, j), match, inl)
     nb = priors.neighbours(t)
     return np.column_stack(
         [

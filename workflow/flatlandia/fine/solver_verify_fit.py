@@ -16,7 +16,7 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
-from flatlandia import proposals
+from flatlandia import config, proposals
 from flatlandia.data import localmaps
 from flatlandia.fine import evaluation, solver, solver_scoring, solver_verify
 
@@ -95,14 +95,17 @@ def fit_verifier(
 
 
 def depth_priors(
-    scenes: list[tuple[pd.DataFrame, pd.DataFrame]], geo_config: dict, region: str | None = "whole"
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]], geo_config: dict, region: str | None = "whole", **fit
 ) -> tuple[tuple[float, float] | None, solver_verify.Verifier | None]:
     """What the solver learns from the training split for depth maps, as every rule that runs it
-    uses it (fine_eval, coarse_solver, city_priors): the log-scale prior and, when ``fine.geo.verify``
-    and ``camera_prior`` are on and ``region`` is a key of :data:`REGIONS`, the verifier learned
-    on that region (None for a region no training query has, e.g. a coarse proposal)."""
-    scale = evaluation.depth_scale_prior([q for _, q in scenes], geo_config)
+    uses it (fine_eval, city_priors; coarse_solver takes the scale only): the log-scale prior and,
+    when ``fine.geo.verify`` and ``camera_prior`` are on (unset keys: the schema's defaults) and
+    ``region`` is a key of :data:`REGIONS`, the verifier learned on that region (None for a region
+    no training query has, e.g. a coarse proposal). ``fit``: ``fraction``, ``rng`` of
+    :func:`fit_verifier`."""
+    cfg = {**config.section_defaults("fine.geo"), **geo_config}
+    scale = evaluation.depth_scale_prior([q for _, q in scenes], cfg)
     verifier = None
-    if geo_config["verify"] and geo_config["camera_prior"] and region in REGIONS:
-        verifier = fit_verifier(scenes, geo_config, scale, region)
+    if cfg["verify"] and cfg["camera_prior"] and region in REGIONS:
+        verifier = fit_verifier(scenes, geo_config, scale, region, **fit)
     return scale, verifier
