@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 import pytest
@@ -63,7 +62,7 @@ def test_resolve_fills_defaults_under_a_partial_section():
     assert full["fine"]["geo"]["top_k"] == 3
     assert full["fine"]["geo"]["max_pairs"] == config.section_defaults("fine.geo")["max_pairs"]
     assert full["fine"]["train"]["epochs"] == config.section_defaults("fine.train")["epochs"]
-    assert math.isinf(full["objects"]["cluster"]["split_extent_m"])
+    assert full["objects"]["cluster"]["split_extent_m"] is None
 
 
 @dataclasses.dataclass

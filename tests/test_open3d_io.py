@@ -40,11 +40,12 @@ def test_published_cloud_read_exactly(scene):
 
 
 def test_truncated_published_cloud_raises(tmp_path):
-    """open3d only logs a short read; the reader turns it into an error instead of garbage."""
+    """A cut file: its header declares more rows than the body holds, refused before open3d reads it
+    (open3d itself only logs a short read)."""
     whole = (ROOT / "maps/12/class_segmented_point_cloud.ply").read_bytes()
     cut = tmp_path / "cut.ply"
     cut.write_bytes(whole[: len(whole) // 2])
-    with pytest.raises(InputError, match="unreadable PLY .*unable to read file"):
+    with pytest.raises(InputError, match="PLY header declares 9329 vertex rows of 27 bytes.*truncated or forged"):
         cloud.read_classified_cloud(cut)
 
 

@@ -110,11 +110,29 @@ def _meta(path, ck: dict) -> dict:
 def load_checkpoint(path, config_class, build_model: Callable) -> tuple[nn.Module, object]:
     """The model of a checkpoint, in eval mode, and its config (``config_class.from_dict``)."""
     ck = _read(path)
-    cfg = config_class.from_dict(_meta(path, ck)["config"])
-    model = build_model(cfg)
-    model.load_state_dict(ck["state_dict"])
+    try:
+        cfg = config_class.from_dict(_meta(path, ck)["config"])
+        model = build_model(cfg)
+    except (TypeError, ValueError, KeyError) as e:  # ConfigError is a ValueError
+        raise InputError(path, f"the checkpoint's config does not build a model ({_first_line(e)}): {REBUILD}") from None
+    state = ck.get("state_dict")
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise InputError(path, f"the checkpoint's weights are not a mapping of names to tensors: {REBUILD}")
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as e:  # missing or unexpected keys, tensors of another shape
+        raise InputError(
+            path, f"the weights do not fit the model its config describes ({_first_line(e)}): {REBUILD}"
+        ) from None
     model.eval()
     return model, cfg
+
+
+def _first_line(err: Exception) -> str:
+    """The first specific line of an error (torch's load_state_dict lists every mismatch)."""
+    lines = [ln.strip() for ln in str(err).splitlines() if ln.strip()]
+    detail = [ln for ln in lines[1:] if ln]
+    return (detail[0] if detail else lines[0] if lines else type(err).__name__)[:300]
 
 
 def checkpoint_info(path) -> dict:

@@ -14,6 +14,7 @@ import copy
 import dataclasses
 import difflib
 import functools
+import math
 import textwrap
 from pathlib import Path
 
@@ -118,15 +119,45 @@ def _type_errors(cfg: dict) -> list[str]:
     return [f"'{'.'.join(map(str, e.absolute_path)) or '(top level)'}': {e.message}" for e in errors]
 
 
+def _non_finite(value, prefix: str = "") -> list[str]:
+    """Every number that is NaN or infinite: JSON Schema's minimum/maximum let NaN through (every
+    comparison with it is false), and no setting means anything at infinity."""
+    if isinstance(value, dict):
+        return [p for k, v in value.items() for p in _non_finite(v, _join(prefix, k))]
+    if isinstance(value, list):
+        return [p for i, v in enumerate(value) for p in _non_finite(v, f"{prefix}[{i}]")]
+    if isinstance(value, float) and not math.isfinite(value):
+        return [f"'{prefix}': {value} is not a finite number"]
+    return []
+
+
+#: settings that must agree with each other: (what, check, the keys named in the error)
+SPLIT_KEYS = ("train", "val", "test")
+
+
+def _cross_key_errors(full: dict) -> list[str]:
+    """Checks JSON Schema cannot state: the split fractions share every query out exactly once."""
+    split = full.get("split") or {}
+    if all(isinstance(split.get(k), (int, float)) for k in SPLIT_KEYS):
+        total = sum(float(split[k]) for k in SPLIT_KEYS)
+        if math.isfinite(total) and abs(total - 1.0) > 1e-6:
+            return [
+                f"'split': train + val + test must sum to 1, not {total:g} "
+                f"({', '.join(f'{k}={split[k]}' for k in SPLIT_KEYS)})"
+            ]
+    return []
+
+
 def resolve(cfg: dict | None) -> dict:
-    """The complete config: ``cfg`` over the schema's defaults, after refusing unknown keys and
-    values of the wrong type. Raises :class:`ConfigError` listing every problem."""
+    """The complete config: ``cfg`` over the schema's defaults, after refusing unknown keys,
+    values of the wrong type, numbers that are not finite and settings that contradict each other.
+    Raises :class:`ConfigError` listing every problem."""
     cfg = dict(cfg or {})
     unknown = unknown_keys(cfg)
     if unknown:
         raise ConfigError("unknown key " + "; unknown key ".join(unknown))
     full = _coerce(_merge(section_defaults(), cfg), schema())
-    problems = _type_errors(full)
+    problems = _non_finite(full) or _type_errors(full) or _cross_key_errors(full)
     if problems:
         raise ConfigError("; ".join(problems))
     return full

@@ -12,9 +12,13 @@ import hashlib
 import json
 import math
 import os
+import re
 import shutil
+import socket
+import stat
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +26,20 @@ import numpy as np
 import pandas as pd
 
 from flatlandia.errors import InputError
+from flatlandia.names import plain_name
 
 # --------------------------------------------------------------------------- atomic writes
+#
+# Every temporary the workflow creates beside an output is named ``.<name>.partial-<host>-<pid>-<random>``
+# (``<host>``: 8 hex digits of the host name's sha256; files keep the target's suffix after the random
+# part) and a temporary folder also holds a PARTIAL_MARKER file naming its process and host. A run
+# killed mid-write leaves such a temporary; :func:`clean_stale_partials` (the Snakefile's ``onstart``)
+# removes those whose process is gone, and nothing else.
+
+#: The file inside each temporary folder of the workflow: JSON {pid, host, created, for}.
+PARTIAL_MARKER = ".flatlandia-partial"
+_PARTIAL_NAME = re.compile(r"^\..*\.partial-(?P<host>[0-9a-f]{8})-(?P<pid>[0-9]{1,10})-[a-z0-9_]{8}(?P<suffix>.*)$")
+_MAX_MARKER_BYTES = 65536
 
 
 def _file_mode() -> int:
@@ -34,13 +50,56 @@ def _file_mode() -> int:
     return 0o666 & ~mask
 
 
+def _host_tag(host: str | None = None) -> str:
+    return hashlib.sha256((host if host is not None else socket.gethostname()).encode()).hexdigest()[:8]
+
+
+def _partial_prefix(path: Path) -> str:
+    """The name start of a temporary beside ``path``: recognisable, with this process and host."""
+    return f".{path.name[:80]}.partial-{_host_tag()}-{os.getpid()}-"
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists on this host (one of another user counts; so does a zombie)."""
+    if pid <= 0:
+        return True  # never a process of ours: not judged, so kept
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # PermissionError: alive, another user's; anything else: unknown, so kept
+        return True
+    return True
+
+
 @contextlib.contextmanager
-def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success (with the
-    mode the umask gives new files)."""
+def partial_dir(path: str | Path) -> Iterator[Path]:
+    """Yield a new, empty-but-for-its-marker temporary folder beside ``path``; removed on exit,
+    whatever happens. Killed before that, it is a stale partial for :func:`clean_stale_partials`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
+    tmp = Path(tempfile.mkdtemp(prefix=_partial_prefix(path), dir=path.parent))
+    try:
+        marker = {
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "created": datetime.now(UTC).isoformat(timespec="seconds"),
+            "for": str(path),
+        }
+        (tmp / PARTIAL_MARKER).write_text(json.dumps(marker) + "\n")
+        yield tmp
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (ending in ``suffix``, by default the suffix of
+    ``path``: some writers infer the format from it); rename it onto ``path`` only on success (with
+    the mode the umask gives new files)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=_partial_prefix(path), suffix=suffix or path.suffix, dir=path.parent)
     os.close(fd)
     tmp = Path(tmp)
     try:
@@ -55,20 +114,98 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
 
 @contextlib.contextmanager
 def atomic_dir(path: str | Path) -> Iterator[Path]:
-    """Yield an empty temporary folder beside ``path``; it replaces ``path`` only on success.
+    """Yield an empty temporary folder (inside a :func:`partial_dir` beside ``path``); it replaces
+    ``path`` only on success.
 
-    For rules whose output is a folder (``directory()``): a crash never leaves a half-filled one.
+    For rules whose output is a folder (``directory()``): a crash never leaves a half-filled one,
+    and a killed run's temporary is removed at the next run's start.
     """
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    try:
+    with partial_dir(path) as work:
+        tmp = work / "output"
+        tmp.mkdir()
         yield tmp
-        shutil.rmtree(path, ignore_errors=True)
+        if os.path.lexists(path):  # the older output goes into our temporary folder, removed with it
+            os.rename(path, work / "replaced")
         tmp.rename(path)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _stale(entry: Path, host_tag: str, log) -> bool:
+    """Whether ``entry`` is a temporary of the workflow whose process is gone (False when in doubt)."""
+    m = _PARTIAL_NAME.match(entry.name)
+    if m is None or m["host"] != host_tag:
+        return False  # not ours, or another host's: its process cannot be checked from here
+    pid = int(m["pid"])
+    try:
+        st = entry.lstat()
+    except OSError:
+        return False
+    if stat.S_ISREG(st.st_mode):
+        return not _alive(pid)
+    if not stat.S_ISDIR(st.st_mode) or m["suffix"]:
+        return False  # a link, a device, a folder named like a temporary file: never ours
+    marker = entry / PARTIAL_MARKER
+    try:
+        if not stat.S_ISREG(marker.lstat().st_mode) or marker.stat().st_size > _MAX_MARKER_BYTES:
+            return False
+        info = json.loads(marker.read_text())
+    except FileNotFoundError:
+        # killed between creating the folder and writing its marker: only an empty folder is ours
+        try:
+            return not any(entry.iterdir()) and not _alive(pid)
+        except OSError:
+            return False
+    except (OSError, ValueError) as e:
+        log(f"kept {entry}: unreadable {PARTIAL_MARKER} ({e})")
+        return False
+    if not isinstance(info, dict) or info.get("pid") != pid or _host_tag(str(info.get("host"))) != host_tag:
+        return False
+    return not _alive(pid)
+
+
+def _remove(entry: Path) -> None:
+    if entry.is_dir() and not entry.is_symlink():
+        shutil.rmtree(entry)
+    else:
+        entry.unlink()
+
+
+def clean_stale_partials(folders: Iterable[str | Path] = (), beside: Iterable[str | Path] = (), log=None) -> list[Path]:
+    """Remove the temporaries of interrupted runs: those named and marked as the workflow's (see
+    :func:`partial_dir`, :func:`atomic_path`) whose creating process no longer runs on this host.
+
+    ``folders`` are searched at every depth (links not followed); for each path of ``beside`` (e.g.
+    ``fetch.dest``) only its own temporaries, in its parent folder. A temporary of a live process
+    (a concurrent run), of another host, or anything not named and marked so is never touched.
+    Returns the removed paths; ``log`` (a callable taking a line) hears of each.
+    """
+    log = log or (lambda line: None)
+    host_tag = _host_tag()
+    found: list[Path] = []
+    for folder in map(Path, folders):
+        if not folder.is_dir() or folder.is_symlink():
+            continue
+        for dirpath, dirnames, filenames in os.walk(folder):
+            for name in filenames + dirnames:
+                if _PARTIAL_NAME.match(name):
+                    found.append(Path(dirpath, name))
+            dirnames[:] = [d for d in dirnames if not _PARTIAL_NAME.match(d)]  # never inside a temporary
+    for path in map(Path, beside):
+        parent, start = path.parent, f".{path.name[:80]}.partial-"
+        if parent.is_dir():
+            found += [parent / n for n in os.listdir(parent) if n.startswith(start)]
+    removed: list[Path] = []
+    for entry in dict.fromkeys(found):
+        if not _stale(entry, host_tag, log):
+            continue
+        try:
+            _remove(entry)
+        except OSError as e:
+            log(f"could not remove {entry}, the leftover of an interrupted run: {e}")
+            continue
+        log(f"removed {entry}, the leftover of an interrupted run")
+        removed.append(entry)
+    return removed
 
 
 def write_parquet(df: pd.DataFrame, path: str | Path, metadata: dict[str, Any] | None = None) -> None:
@@ -192,7 +329,10 @@ def read_local_maps(path: str | Path, scene: str, min_objects: int = 3) -> dict[
     if scene not in data:
         raise InputError(path, f"unknown scene id {scene!r}; scenes present: {sorted(data, key=_natural)}")
     out: dict[str, dict[str, np.ndarray]] = {}
+    if not isinstance(data[scene], dict):
+        raise InputError(path, f"scene {scene}: expected {{token: {{GT, depth}}}}")
     for token, maps in data[scene].items():
+        plain_name(token, path, f"scene {scene} query token")  # tokens name output files
         try:
             gt = np.asarray(maps["GT"], dtype=float).reshape(-1, 2)
             depth = np.asarray(maps["depth"], dtype=float).reshape(-1, 2)

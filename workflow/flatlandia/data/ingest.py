@@ -5,8 +5,9 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-from flatlandia import io
+from flatlandia import io, ply
 from flatlandia.errors import InputError
+from flatlandia.names import plain_name
 
 #: files of a published scene: (key, path relative to the data root, required?)
 SCENE_FILES = [
@@ -40,11 +41,10 @@ def _parse_check(key: str, path: Path) -> None:
         toks = [t for t in path.read_text().split() if t]
         if not toks:
             raise InputError(path, "no tokens")
+        for t in toks:
+            plain_name(t, path, "query token")
     elif key.endswith(".ply") or key in ("class_segmented_point_cloud", "bbs"):
-        with open(path, "rb") as f:
-            head = f.read(4096)
-        if not head.startswith(b"ply") or b"end_header" not in head:
-            raise InputError(path, "not a PLY file (no 'ply' magic or no end_header)")
+        ply.check_header(path)
     elif key == "sfm_images":
         try:
             with zipfile.ZipFile(path) as z:

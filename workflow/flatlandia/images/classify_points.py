@@ -9,8 +9,8 @@ import pandas as pd
 from PIL import Image
 
 from flatlandia.errors import InputError
-from flatlandia.images.image_audit import check_plain_name
 from flatlandia.images.segment import NOT_AN_OBJECT
+from flatlandia.names import child, plain_name
 
 
 def point_votes(rec, class_maps: dict[str, np.ndarray]) -> pd.DataFrame:
@@ -92,7 +92,7 @@ def load_instance_maps(folder: str | Path | None, names: list[str]) -> dict[str,
         raise InputError(folder, "segment.instances_dir is not a folder")
     maps = {}
     for n in names:
-        p = folder / f"{Path(check_plain_name(n, folder)).stem}.png"
+        p = child(folder, Path(plain_name(n, folder, "image name")).stem, ".png", "image name")
         if p.exists():
             with Image.open(p) as im:
                 ids = np.asarray(im)
@@ -108,7 +108,7 @@ def load_class_maps(folder: Path, names: list[str]) -> dict[str, np.ndarray]:
     """Class maps ``<image name>.png`` of a folder; names checked plain, so each stays inside it."""
     maps = {}
     for n in names:
-        p = Path(folder) / f"{check_plain_name(n, folder)}.png"
+        p = child(folder, n, ".png", "image name")
         if p.exists():
             with Image.open(p) as im:
                 maps[n] = np.asarray(im)

@@ -22,32 +22,12 @@ from PIL import ExifTags, Image
 from scipy.spatial.distance import pdist
 
 from flatlandia import geo
+from flatlandia.names import plain_name
 from flatlandia.errors import InputError
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 GPS_IFD = 0x8825
 EXIF_IFD = 0x8769
-
-
-def check_plain_name(name, source: str | Path, what: str = "image name") -> str:
-    """A name read from a user's file or folder, checked before it becomes part of an output path
-    (``masks/<name>.png``): one plain path component, so it cannot point outside the folder it is
-    joined to. ``source`` (the file it came from) is named in the error."""
-    text = name if isinstance(name, str) else ""
-    if (
-        not text.strip()
-        or text in (".", "..")
-        or "/" in text
-        or "\\" in text
-        or any(ord(c) < 32 for c in text)
-        or len(text.encode()) > 250
-    ):
-        raise InputError(
-            source,
-            f"{what} {name!r} is refused: a name must be one plain file name (no folders, no '..', "
-            "no '/' or '\\', no control characters, at most 250 bytes)",
-        )
-    return text
 
 
 def list_images(folder: str | Path) -> list[Path]:
@@ -164,7 +144,7 @@ def read_folder_metadata(folder: str | Path, csv_name: str = "metadata.csv") -> 
         if "name" not in extra.columns:
             raise InputError(csv, "needs a 'name' column naming each image")
         for name in extra["name"]:
-            check_plain_name(name, csv)
+            plain_name(name, csv, "image name")
         unknown = set(extra["name"]) - set(df["name"])
         if unknown:
             raise InputError(csv, f"names not in the folder: {sorted(unknown)[:5]}")
@@ -220,7 +200,7 @@ def audit_table(folder: str | Path, dedup_threshold: float, missing_gps: str = "
     folder = Path(folder)
     df = read_folder_metadata(folder)
     for name in df["name"]:  # the names later steps write masks/<name>.png and query files under
-        check_plain_name(name, folder)
+        plain_name(name, folder, "image name")
     order = df.sort_values(["capture_time", "name"], na_position="last").index
     df = df.loc[order].reset_index(drop=True)
     df["has_gps"] = has_gps(df)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo
+from flatlandia import geo, ply
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
@@ -148,8 +148,7 @@ def _read_ply_vertices(path: Path) -> dict[str, np.ndarray]:
     """
     import open3d as o3d
 
-    if not path.is_file():
-        raise InputError(path, "file is missing")
+    ply.check_header(path)  # counts the body cannot hold are refused before open3d allocates
     log = StringIO()
     with redirect_stdout(log), o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Warning):
         pc = o3d.t.io.read_point_cloud(str(path), format="ply")

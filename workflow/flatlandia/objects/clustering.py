@@ -52,7 +52,7 @@ class ClusterParams:
     """Clustering settings, all lengths in metres (defaults = the measured published procedure).
 
     ``eps_m`` is the radius of every macro-class not named in ``eps_m_by_class``. The split of
-    long clusters is off by default (``split_extent_m`` infinite): the published objects are
+    long clusters is off by default (``split_extent_m`` None): the published objects are
     plain single-radius clusters, and re-clustering long ones lowered the reproduction.
     """
 
@@ -60,7 +60,7 @@ class ClusterParams:
     eps_m_by_class: dict = field(default_factory=lambda: dict(_CLUSTER["eps_m_by_class"]))
     min_points: int = _CLUSTER["min_points"]  # DBSCAN core-point neighbourhood size (the point included)
     min_cluster_points: int = _CLUSTER["min_cluster_points"]  # clusters with fewer points are dropped
-    split_extent_m: float = _CLUSTER["split_extent_m"]  # clusters longer than this are re-clustered ...
+    split_extent_m: float | None = _CLUSTER["split_extent_m"]  # clusters longer than this are re-clustered ...
     split_eps_factor: float = _CLUSTER["split_eps_factor"]  # ... with eps * this factor
 
     @classmethod
@@ -117,7 +117,7 @@ def _clusters_of_class(pts: np.ndarray, mpu: float, p: ClusterParams, eps_m: flo
         if len(idx) < p.min_cluster_points:
             continue
         extent = np.ptp(pts[idx], axis=0).max() * mpu if len(idx) > 1 else 0.0
-        if extent > p.split_extent_m and p.split_eps_factor < 1:
+        if p.split_extent_m is not None and extent > p.split_extent_m and p.split_eps_factor < 1:
             sub = _dbscan(pts[idx], eps_m * p.split_eps_factor / mpu, p.min_points)
             parts = [idx[sub == j] for j in np.unique(sub[sub >= 0])]
             parts = [q for q in parts if len(q) >= p.min_cluster_points]

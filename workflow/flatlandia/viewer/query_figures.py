@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flatlandia import figures
+from flatlandia import figures, names
 from flatlandia.figures import MAP_TYPE_STYLES, METHOD_LABELS, TRUTH_COLOUR, Run
 from flatlandia.viewer.scene import Estimate, QueryView, SceneView, worst_queries
 
@@ -137,7 +137,7 @@ def write_query_figures(view: SceneView, folder: str | Path) -> list[Path]:
     out = []
     for q in view.test_queries():
         if q.estimates:
-            path = Path(folder) / f"{q.token}.png"
+            path = names.child(folder, q.token, ".png", "query token")
             figures.save(query_figure(view, q), path, dpi=80, tight=False)
             out.append(path)
     return out
