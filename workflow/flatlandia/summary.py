@@ -2,7 +2,10 @@
 
 Why: a run that ends rc 0 with an empty map (no segmentation model, no object classes) must say
 so where the user looks (the terminal and ``results/summary.md``), not only inside a rule's log.
-Reads what is on disk under ``results/``, so it describes every run, whatever its target.
+Reads what is on disk under ``results/``, so it describes every run, whatever its target; and
+every scene with results in the folder, not only this run's: a run on one scene must not replace
+the record of the scenes an earlier run built there (a column says which scenes this run selected).
+Cheap: one ``stat`` per scene of the sheet, then the small files of the scenes listed.
 """
 
 from __future__ import annotations
@@ -11,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io
+from flatlandia import escape, io
 
 #: why a scene's map can be empty, for the files that do not say it themselves
 EMPTY_MAP_HINT = (
@@ -72,21 +75,56 @@ def scene_line(results: Path, scene: str) -> tuple[str, list[str]]:
     return (", ".join(parts) if parts else "nothing built yet"), empty
 
 
-def summary(results: str | Path, scenes: list[str]) -> str:
-    """Markdown: one line per scene, then the result tables present."""
+def listed_scenes(results: str | Path, scenes: list[str], known: list[str] | None = None) -> list[str]:
+    """The scenes the summary describes: those of ``known`` (the scene sheet's ids, in its order)
+    that have a folder ``results/<scene>/``, and this run's ``scenes`` even without one (after the
+    sheet's, where they are not in it)."""
     results = Path(results)
-    lines = ["# Run summary", "", "| scene | built | empty, and why |", "|---|---|---|"]
-    for scene in scenes:
+    this_run = [str(s) for s in scenes]
+    on_disk = [str(s) for s in (known or []) if (results / str(s)).is_dir()]
+    wanted = set(on_disk) | set(this_run)
+    order = [str(s) for s in (known or [])] + this_run
+    return [s for s in dict.fromkeys(order) if s in wanted]
+
+
+def summary(results: str | Path, scenes: list[str], known: list[str] | None = None) -> str:
+    """Markdown: one line per scene (:func:`listed_scenes`: every scene of ``known`` with results
+    here, and this run's ``scenes``), marked when this run selected it; then the result tables
+    present. Values read from disk are escaped (:func:`flatlandia.escape.markdown`)."""
+    results = Path(results)
+    this_run = {str(s) for s in scenes}
+    listed = listed_scenes(results, scenes, known)
+    earlier = len([s for s in listed if s not in this_run])
+    lines = [
+        "# Run summary",
+        "",
+        f"This run selected {len(this_run)} scene(s) (`this run`: yes); "
+        + (
+            f"{earlier} other scene(s) have results in this folder from earlier runs (`this run`: no)."
+            if earlier
+            else "no other scene has results in this folder."
+        ),
+        "",
+        "| scene | this run | built | empty, and why |",
+        "|---|---|---|---|",
+    ]
+    for scene in listed:
         built, empty = scene_line(results, scene)
-        lines.append(f"| {scene} | {built} | {'; '.join(empty)} |")
+        cells = [scene, "yes" if scene in this_run else "no", built, "; ".join(empty)]
+        lines.append("| " + " | ".join(escape.markdown(c) for c in cells) + " |")
     tables = sorted(p.name for p in (results / "tables").glob("*.parquet")) if (results / "tables").exists() else []
-    lines += ["", "Result tables: " + (", ".join(tables) if tables else "none yet (they come with `all` or `tables`)")]
+    lines += [
+        "",
+        "Result tables: "
+        + (", ".join(escape.markdown(t) for t in tables) if tables else "none yet (they come with `all` or `tables`)"),
+    ]
     return "\n".join(lines) + "\n"
 
 
-def write_summary(results: str | Path, scenes: list[str]) -> str:
-    """Write ``results/summary.md`` and return its text."""
-    text = summary(results, scenes)
+def write_summary(results: str | Path, scenes: list[str], known: list[str] | None = None) -> str:
+    """Write ``results/summary.md`` and return its text: ``scenes`` are this run's, ``known`` the
+    scene sheet's ids (every one with results in the folder is described too)."""
+    text = summary(results, scenes, known)
     path = Path(results) / "summary.md"
     with io.atomic_path(path) as tmp:
         tmp.write_text(text)

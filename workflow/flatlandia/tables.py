@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from flatlandia import escape
 from flatlandia.io import write_parquet, write_text
 
 
@@ -229,22 +230,26 @@ def check_schema(df: pd.DataFrame, name: str) -> None:
 
 
 def to_markdown(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
+    """The frame as a Markdown table; every header and cell escaped (:func:`flatlandia.escape.markdown`)."""
+
     def fmt(v):
         if isinstance(v, (float, np.floating)):
             return "" if np.isnan(v) else format(v, floatfmt)
-        return str(v)
+        return escape.markdown(v)
 
-    cols = list(df.columns)
+    cols = [escape.markdown(c) for c in df.columns]
     lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
     lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in df.itertuples(index=False)]
     return "\n".join(lines) + "\n"
 
 
 def to_latex(df: pd.DataFrame, floatfmt: str = ".3g", caption: str = "") -> str:
+    """The frame as a LaTeX table; every header, cell and the caption escaped (:func:`flatlandia.escape.latex`)."""
+
     def esc(v) -> str:
         if isinstance(v, (float, np.floating)):
             return "--" if np.isnan(v) else format(v, floatfmt)
-        return str(v).replace("_", r"\_").replace("%", r"\%").replace("&", r"\&")
+        return escape.latex(v)
 
     cols = list(df.columns)
     lines = [
@@ -272,7 +277,9 @@ def write_table(
     title: str = "",
     note: str = "",
 ) -> None:
-    """Check the schema, then write Parquet (schema in its metadata) and the renderings."""
+    """Check the schema, then write Parquet (schema in its metadata) and the renderings. The cells are
+    escaped for each format; ``title`` and ``note`` are the caller's own text (the note may hold
+    Markdown), written as given into the Markdown and, for ``title``, escaped as the LaTeX caption."""
     check_schema(df, name)
     meta = {"table": name, "columns": {c.name: {"unit": c.unit, "meaning": c.meaning} for c in SCHEMAS[name]}}
     write_parquet(df, parquet, meta)

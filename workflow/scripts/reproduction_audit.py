@@ -2,7 +2,7 @@
 
 import pandas as pd
 
-from flatlandia import io, runlog, tables
+from flatlandia import escape, io, runlog, tables
 from flatlandia.objects import audit, cloud
 
 
@@ -22,7 +22,8 @@ def main(smk, log):
         )
         rows.append(row)
         ours_xy = ours[["x_m", "y_m"]].to_numpy()
-        panels.append((f"scene {scene}: {row['within_0.5m']}/{row['published']} within 0.5 m", ours_xy, ref_xy))
+        title = f"scene {escape.mathtext(scene)}: {row['within_0.5m']}/{row['published']} within 0.5 m"
+        panels.append((title, ours_xy, ref_xy))
         log.info("%s", row)
     df = pd.DataFrame(rows)
     counts = ["published", "ours", "matched", "within_0.05m", "within_0.5m", "within_2m", "extra"]

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import paper, proposals, tables
+from flatlandia import escape, paper, proposals, tables
 from flatlandia.coarse import retrieval
 from flatlandia.proposals import proposal_metrics  # noqa: F401  (this module's API too)
 
@@ -163,7 +163,8 @@ def _fmt(p, r, s) -> str:
 
 
 def render_markdown(table: pd.DataFrame, title: str = "Coarse map localization (Table 3)", note: str = "") -> str:
-    """Rows loss x strategy; columns GT maps and depth maps, ours beside the paper's (P / R / S)."""
+    """Rows loss x strategy; columns GT maps and depth maps, ours beside the paper's (P / R / S). The
+    rows' labels are escaped (:func:`flatlandia.escape.markdown`); ``title`` and ``note`` are the caller's."""
     order_loss = ["-", "Sim", "Trip", "Sim+Trip", "Solver", "random", "S oracle"]
     order_strat = {s: i for i, s in enumerate(STRATEGIES)}
     t = table.copy()
@@ -190,7 +191,11 @@ def render_markdown(table: pd.DataFrame, title: str = "Coarse map localization (
                 ]
             else:
                 cells += ["", ""]
-        lines.append(f"| {loss} | {strat} | " + " | ".join(cells) + f" | {int(g['queries'].iloc[0])} |")
+        lines.append(
+            f"| {escape.markdown(loss)} | {escape.markdown(strat)} | "
+            + " | ".join(cells)
+            + f" | {int(g['queries'].iloc[0])} |"
+        )
     return "\n".join(lines) + "\n"
 
 

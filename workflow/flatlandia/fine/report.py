@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import paper, tables
+from flatlandia import escape, paper, tables
 from flatlandia.fine import evaluation
 
 #: method slugs (rule wildcards) and their display names
@@ -88,7 +88,8 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
 
 def render_markdown(df: pd.DataFrame, note: str = "") -> str:
     """Tables 4 (GT-BB) and 5 (coarse proposals, whole map) laid out like the paper, its values beside
-    ours; then every run's recall at the field's thresholds (:func:`recall_markdown`)."""
+    ours; then every run's recall at the field's thresholds (:func:`recall_markdown`). Values from the
+    runs are escaped (:func:`flatlandia.escape.markdown`); ``note`` is the caller's Markdown."""
 
     def fmt(v, spec):
         return "–" if v is None or not np.isfinite(v) else format(v, spec)
@@ -101,13 +102,18 @@ def render_markdown(df: pd.DataFrame, note: str = "") -> str:
             f"gross {fmt(r['gross_pct'], '.1f')}%"
         )
         if r["epochs"]:
-            out += f"; train {fmt(r['train_s'] / 60, '.1f')} min ({r['epochs']} ep, {r['trained_on'] or 'GT-BB'})"
+            trained_on = escape.markdown(r["trained_on"] or "GT-BB")
+            out += f"; train {fmt(r['train_s'] / 60, '.1f')} min ({r['epochs']} ep, {trained_on})"
         return out
 
     def paper_cell(r):
         if not r["paper_row"]:
             return "—"
-        pre = "" if r["paper_row"].endswith(r["method_label"]) else r["paper_row"].split(" ", 2)[-1] + ": "
+        pre = (
+            ""
+            if r["paper_row"].endswith(r["method_label"])
+            else escape.markdown(r["paper_row"].split(" ", 2)[-1]) + ": "
+        )
         pct = (
             " / ".join(fmt(r[f"paper_{c}"], "g") for c in evaluation.THRESHOLD_COLUMNS) + "; "
             if np.isfinite(r[f"paper_{evaluation.THRESHOLD_COLUMNS[0]}"])
@@ -154,7 +160,9 @@ def render_markdown(df: pd.DataFrame, note: str = "") -> str:
                 if r0["n_parameters"]
                 else f"– / – / {r0['ref_map_kb']:.2f} kB"
             )
-            out.append(f"| {label} | {strategy} | " + " | ".join(cells) + f" | {size} |")
+            out.append(
+                f"| {escape.markdown(label)} | {escape.markdown(strategy)} | " + " | ".join(cells) + f" | {size} |"
+            )
         out.append("")
     return "\n".join(out + recall_markdown(df)) + "\n"
 
@@ -180,7 +188,8 @@ def recall_markdown(df: pd.DataFrame) -> list[str]:
     order = df.assign(_gtbb=df["strategy"] != "GT-BB").sort_values("_gtbb", kind="stable")
     for r in order.to_dict("records"):
         cells = ["–" if not np.isfinite(r[c]) else f"{r[c]:.1f}" for c in evaluation.RECALL_COLUMNS]
-        out.append(f"| {r['method_label']} | {r['strategy']} | {r['map_type']} | " + " | ".join(cells) + " |")
+        labels = [escape.markdown(r[c]) for c in ("method_label", "strategy", "map_type")]
+        out.append("| " + " | ".join(labels + cells) + " |")
     theirs = [paper.ORIENTERNET_MGL_RECALL_M[m] for m in evaluation.RECALL_M] + [
         paper.ORIENTERNET_MGL_RECALL_DEG[d] for d in evaluation.RECALL_DEG
     ]

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import pandas as pd
 
-from flatlandia import proposals
+from flatlandia import escape, proposals
 from flatlandia.fine import evaluation
 
 #: proposals a new scene is evaluated on: the oracle box and the whole map (coarse proposals
@@ -67,14 +67,15 @@ def _row(scene, method, slug, map_type, proposal, label, errors: pd.DataFrame) -
 
 def render_markdown(rows: pd.DataFrame, scene: str) -> str:
     """The scene's rows as a Markdown table (true metres; % under the paper's thresholds, then the
-    field's recalls: position and heading apart)."""
-    head = f"# Scene {scene}: localization with the benchmark's methods (no retraining)\n\n"
+    field's recalls: position and heading apart); the scene id and the cells escaped
+    (:func:`flatlandia.escape.markdown`)."""
+    head = f"# Scene {escape.markdown(scene)}: localization with the benchmark's methods (no retraining)\n\n"
     if rows.empty:
         return head + "No rows: the scene has no query (see results/summary.md for why).\n"
     cols = ["method", "map_type", "strategy", "queries", "median_m", "median_deg"]
     cols += evaluation.THRESHOLD_COLUMNS + evaluation.RECALL_COLUMNS
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    lines = ["| " + " | ".join(escape.markdown(c) for c in cols) + " |", "|" + "---|" * len(cols)]
     for r in rows[cols].to_dict("records"):
-        cells = [f"{r[c]:.2f}" if isinstance(r[c], float) else str(r[c]) for c in cols]
+        cells = [f"{r[c]:.2f}" if isinstance(r[c], float) else escape.markdown(r[c]) for c in cols]
         lines.append("| " + " | ".join(cells) + " |")
     return head + "\n".join(lines) + "\n"

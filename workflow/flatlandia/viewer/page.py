@@ -9,11 +9,12 @@ The output is deterministic: the same inputs give the same bytes.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 
-from flatlandia import figures, io
+from flatlandia import escape, figures, io
 from flatlandia.figures import MAP_TYPE_DASHES, TRUTH_COLOUR
 from flatlandia.viewer.query_figures import WRONG_COLOUR
 from flatlandia.viewer.scene import Estimate, QueryView, SceneView
@@ -95,19 +96,19 @@ def page_data(view: SceneView) -> dict:
 
 
 def render(view: SceneView) -> str:
-    """The page: the template with the style, the script and the scene's data written in."""
+    """The page: the template with the style, the script and the scene's data written in. The title
+    is HTML-escaped (:func:`flatlandia.escape.html`), the data is JSON that cannot close its script
+    block; the placeholders are filled in one pass, so a value that holds one is never filled again."""
     text = json.dumps(page_data(view), sort_keys=True, separators=(",", ":"), allow_nan=False)
     text = text.replace("<", "\\u003c")  # the data can never close its <script> block
-    html = (ASSETS / "viewer.html").read_text()
     parts = {
-        "__TITLE__": f"Flatlandia scene {view.scene}",
+        "__TITLE__": escape.html(f"Flatlandia scene {view.scene}"),
         "__CSS__": (ASSETS / "viewer.css").read_text(),
         "__JS__": (ASSETS / "viewer.js").read_text(),
         "__DATA__": text,
     }
-    for key, value in parts.items():
-        html = html.replace(key, value)
-    return html
+    template = (ASSETS / "viewer.html").read_text()
+    return re.sub("|".join(parts), lambda m: parts[m.group(0)], template)
 
 
 def write_page(view: SceneView, path: str | Path) -> int:
