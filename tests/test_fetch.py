@@ -46,7 +46,7 @@ def test_fetch_images_takes_the_subfolder(tmp_path, flat_root):
             out.write(lund / name, f"OpenSfM-main/data/lund/images/{name}")
         out.writestr("OpenSfM-main/data/lund/config.yaml", "x")
     dest = fetch.fetch_images(z.as_uri(), "data/lund/images", tmp_path / "imgs", timeout_s=5)
-    assert sorted(p.name for p in dest.iterdir()) == ["01.jpg", "02.jpg"]
+    assert sorted(p.name for p in dest.iterdir()) == [fetch.FETCH_MARKER, "01.jpg", "02.jpg"]
 
 
 def test_offline_fetch_fails_at_once_with_instructions(tmp_path):

@@ -105,7 +105,7 @@ def test_too_many_members_and_too_big_a_download_are_refused(tmp_path):
         fetch.fetch_images(archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_download_mb=0.0001))
     assert tree(tmp_path) == before
     got = fetch.fetch_images(archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_members=5))
-    assert sorted(p.name for p in got.iterdir()) == [f"{i}.jpg" for i in range(5)]
+    assert sorted(p.name for p in got.iterdir()) == [fetch.FETCH_MARKER] + [f"{i}.jpg" for i in range(5)]
 
 
 def test_members_outside_the_subfolder_are_never_written(tmp_path):
@@ -114,8 +114,8 @@ def test_members_outside_the_subfolder_are_never_written(tmp_path):
         [("top/imgs/ok.jpg", b"a"), ("top/src/imgs/other.jpg", b"b"), ("top/../imgs/x.jpg", b"c"), ("top/imgs/", b"")],
     )
     got = fetch.fetch_images(archive.as_uri(), "imgs", tmp_path / "dest")
-    assert tree(got) == {"ok.jpg"}
-    assert tree(tmp_path) == {"mixed.zip", "dest", "dest/ok.jpg"}
+    assert tree(got) == {"ok.jpg", fetch.FETCH_MARKER}
+    assert tree(tmp_path) == {"mixed.zip", "dest", "dest/ok.jpg", f"dest/{fetch.FETCH_MARKER}"}
 
 
 @pytest.mark.parametrize("url", ["http://example.org/a.zip", "ftp://example.org/a.zip", "data:,x", "/tmp/a.zip"])

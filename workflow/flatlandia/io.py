@@ -38,7 +38,9 @@ from flatlandia.names import plain_name
 
 #: The file inside each temporary folder of the workflow: JSON {pid, host, created, for}.
 PARTIAL_MARKER = ".flatlandia-partial"
-_PARTIAL_NAME = re.compile(r"^\..*\.partial-(?P<host>[0-9a-f]{8})-(?P<pid>[0-9]{1,10})-[a-z0-9_]{8}(?P<suffix>.*)$")
+_PARTIAL_NAME = re.compile(
+    r"^\..*\.partial-(?P<host>[0-9a-f]{8})-(?P<pid>[0-9]{1,10})-[a-z0-9_]{8}(?P<suffix>.*)$", re.DOTALL
+)
 _MAX_MARKER_BYTES = 65536
 
 
@@ -54,9 +56,14 @@ def _host_tag(host: str | None = None) -> str:
     return hashlib.sha256((host if host is not None else socket.gethostname()).encode()).hexdigest()[:8]
 
 
+def _partial_start(path: Path) -> str:
+    """How every temporary beside ``path`` is named first (its name cut to 80 bytes: room for the rest)."""
+    return f".{path.name.encode()[:80].decode(errors='ignore')}.partial-"
+
+
 def _partial_prefix(path: Path) -> str:
     """The name start of a temporary beside ``path``: recognisable, with this process and host."""
-    return f".{path.name[:80]}.partial-{_host_tag()}-{os.getpid()}-"
+    return f"{_partial_start(path)}{_host_tag()}-{os.getpid()}-"
 
 
 def _alive(pid: int) -> bool:
@@ -183,7 +190,7 @@ def clean_stale_partials(folders: Iterable[str | Path] = (), beside: Iterable[st
     host_tag = _host_tag()
     found: list[Path] = []
     for folder in map(Path, folders):
-        if not folder.is_dir() or folder.is_symlink():
+        if not folder.is_dir():
             continue
         for dirpath, dirnames, filenames in os.walk(folder):
             for name in filenames + dirnames:
@@ -191,7 +198,7 @@ def clean_stale_partials(folders: Iterable[str | Path] = (), beside: Iterable[st
                     found.append(Path(dirpath, name))
             dirnames[:] = [d for d in dirnames if not _PARTIAL_NAME.match(d)]  # never inside a temporary
     for path in map(Path, beside):
-        parent, start = path.parent, f".{path.name[:80]}.partial-"
+        parent, start = path.parent, _partial_start(path)
         if parent.is_dir():
             found += [parent / n for n in os.listdir(parent) if n.startswith(start)]
     removed: list[Path] = []

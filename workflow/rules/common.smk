@@ -9,6 +9,7 @@ import pandas as pd
 from snakemake.utils import validate
 
 from flatlandia import config as config_schema
+from flatlandia.data.fetch import FetchError, check_dest
 
 # Every key checked against workflow/schemas/config.schema.yaml (the one source of defaults)
 # before any job: a typo or a wrong type stops the run with one line naming the key.
@@ -128,6 +129,11 @@ def _resolve_root():
 
 
 FLAT_ROOT_GIVEN = _resolve_root()
+# a fetch replaces fetch.dest: '.', '..', the working folder, its parents, the root or home are refused
+try:
+    check_dest(config["fetch"]["dest"])
+except FetchError as err:
+    sys.exit(f"ERROR: config: {err}")
 FLAT_FETCH = not FLAT_ROOT_GIVEN.exists()
 FLAT_ROOT = Path(config["fetch"]["dest"]) if FLAT_FETCH else FLAT_ROOT_GIVEN
 FETCH_FLAG = str(Path(config["fetch"]["dest"]).with_suffix(".fetched"))

@@ -11,6 +11,8 @@ def main(smk, log):
     scenes = scenes[scenes["source"] == "flatlandia"]
     log.info("fetching %s into %s", smk.params.url, smk.params.dest)
     log.info("pinned sha256: %s; caps %s", smk.params.sha256 or "none", smk.params.limits)
+    if fetch.fetched_before(smk.params.dest):  # only a folder holding the marker of a fetch is replaced
+        log.info("replacing the earlier fetch in %s", smk.params.dest)
     try:
         dest = fetch.fetch_flatlandia(
             smk.params.dest,

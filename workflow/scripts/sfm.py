@@ -1,6 +1,5 @@
 """Rule sfm: pycolmap on the kept images with masks; clean cameras; final bundle adjustment."""
 
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +10,10 @@ from flatlandia.images import gps_alignment, image_queries, sfm
 
 
 def main(smk, log):
-    """SfM in a scratch folder beside the model, removed whether the reconstruction succeeds or fails."""
-    work = Path(smk.output.model).parent / "work"
-    try:
+    """SfM in a scratch folder beside the model, removed whether the reconstruction succeeds or
+    fails (killed, the next run's start removes it: flatlandia.io.clean_stale_partials)."""
+    with io.partial_dir(Path(smk.output.model).parent / "work") as work:
         reconstruct(smk, log, work)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
 
 
 def reconstruct(smk, log, work: Path):

@@ -10,26 +10,32 @@ The archives are untrusted: the scene sheet and the config name them. So a fetch
   absolute names, ``..`` components, symlinks, devices, more members than ``fetch.max_members``
   and more bytes than ``fetch.max_unpacked_mb`` are refused, naming the archive and the member;
 - writes nothing outside the destination: all happens in one temporary folder beside it, renamed
-  into place once complete and removed on any failure.
+  into place once complete and removed on any failure;
+- never deletes what it did not write: the destination may not be '.', '..', the working folder or
+  its parents, the root or the home folder (:func:`check_dest`), and an existing one is replaced
+  only when it holds the marker (FETCH_MARKER) of an earlier fetch; otherwise the fetch is refused.
 """
 
 from __future__ import annotations
 
 import hashlib
-import shutil
+import json
+import logging
+import os
 import stat
-import tempfile
 import urllib.error
 import urllib.parse
 import urllib.request
 import zipfile
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import config
+from flatlandia import config, io
 from flatlandia.classes import CLASSES
 
 UPSTREAM_ZIP = "https://codeload.github.com/IIT-PAVIS/Flatlandia/zip/refs/heads/main"
@@ -47,6 +53,7 @@ MB = 1_000_000
 CHUNK = 1 << 20
 
 _DEFAULTS = config.section_defaults("fetch")
+_LOG = logging.getLogger("flatlandia.fetch")  # into the rule's log (flatlandia.runlog)
 
 
 class FetchError(RuntimeError):
@@ -272,6 +279,96 @@ def unpack_subfolder(archive: Path, subfolder: str, root: Path, url: str, limits
     return root
 
 
+# ----------------------------------------------------------------------------- destination
+
+#: The file a fetch writes into the folder it unpacks (JSON: url, subfolder, sha256, time): only a
+#: folder holding it is ever replaced by a later fetch.
+FETCH_MARKER = ".flatlandia-fetch"
+#: Folders of the working folder that the workflow writes itself: never a fetch's destination.
+WORKFLOW_FOLDERS = (".snakemake", "config", "logs", "resources", "results", "workflow")
+_MAX_MARKER_BYTES = 65536
+
+
+def check_dest(dest: str | Path, cwd: str | Path | None = None, setting: str = "fetch.dest") -> Path:
+    """The resolved destination of a fetch, refused (FetchError) when replacing it could delete
+    what a fetch did not write: '.', '..', a name ending in them, the working folder ``cwd``, any
+    of its parents, the filesystem root, the home folder or its parents, a folder of the workflow's
+    own (results, resources, ...). Called at parse time and again before any download."""
+    raw = str(dest)
+    cwd = Path(cwd if cwd is not None else os.getcwd()).resolve()
+    try:
+        target = (cwd / raw).resolve() if raw.strip() else cwd
+    except (OSError, RuntimeError) as e:  # a loop of links
+        raise FetchError(f"{setting} {raw!r} is refused: it cannot be resolved ({e}); nothing was downloaded") from e
+    try:
+        home = Path.home().resolve()
+    except (OSError, RuntimeError, KeyError):  # no home folder known: nothing to compare with
+        home = cwd
+    why = None
+    if target == Path(target.anchor):
+        why = "the filesystem root"
+    elif target == cwd:
+        why = "the working folder"
+    elif target in cwd.parents:
+        why = f"a parent of the working folder {cwd}"
+    elif target == home or target in home.parents:
+        why = "the home folder" if target == home else "a parent of the home folder"
+    elif target.parent == cwd and target.name in WORKFLOW_FOLDERS:
+        why = "a folder the workflow writes itself"
+    elif not raw.strip() or Path(raw).name in ("", ".", ".."):
+        why = "it does not end in a folder name of its own (it is empty or ends in '.' or '..')"
+    if why:
+        raise FetchError(
+            f"{setting} {raw!r} ({target}) is refused: {why}. A fetch replaces its destination, so "
+            f"{setting} must name a folder of its own (e.g. resources/flatlandia); nothing was downloaded"
+        )
+    return target
+
+
+def fetched_before(dest: str | Path) -> bool:
+    """Whether ``dest`` is a folder written by an earlier fetch (it holds a valid FETCH_MARKER)."""
+    dest, marker = Path(dest), Path(dest) / FETCH_MARKER
+    try:
+        if dest.is_symlink() or not dest.is_dir() or marker.is_symlink() or not marker.is_file():
+            return False
+        if marker.stat().st_size > _MAX_MARKER_BYTES:
+            return False
+        info = json.loads(marker.read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(info, dict) and isinstance(info.get("url"), str)
+
+
+def _check_replaceable(dest: Path, hint: str, setting: str, done: str = "nothing was downloaded or removed") -> None:
+    """Refuse an existing ``dest`` that no fetch wrote: a fetch never deletes a folder it did not create."""
+    if not os.path.lexists(dest) or fetched_before(dest):
+        return
+    kind = "a folder not written by a fetch" if dest.is_dir() else "not a folder"
+    if dest.is_symlink():
+        kind = "a symbolic link"
+    raise FetchError(
+        f"{setting} {str(dest)!r} ({dest.absolute()}) already exists and is {kind} (no {FETCH_MARKER} "
+        f"marker inside): a fetch never replaces what it did not write, so {done}. {hint}"
+    )
+
+
+def _into_place(unpacked: Path, dest: Path, work: Path, hint: str, setting: str) -> None:
+    """Rename the complete ``unpacked`` folder onto ``dest``; an older fetched copy is first moved
+    into the temporary folder ``work`` (removed with it), anything else at ``dest`` is refused."""
+    # again: something may have appeared there during the download
+    _check_replaceable(dest, hint, setting, "the download was discarded and nothing was removed")
+    if not os.path.lexists(dest):
+        unpacked.rename(dest)
+        return
+    older = work / "replaced"
+    dest.rename(older)
+    try:
+        unpacked.rename(dest)
+    except OSError:
+        older.rename(dest)
+        raise
+
+
 def fetch_archive(
     url: str,
     subfolder: str,
@@ -279,28 +376,43 @@ def fetch_archive(
     timeout_s: float = 30.0,
     sha256: str | None = None,
     limits: Limits | None = None,
+    finish: Callable[[Path], None] | None = None,
+    setting: str = "fetch.dest",
+    hint: str = "Remove it yourself, or choose another `fetch.dest`",
 ) -> Path:
     """Download a zip archive and unpack its ``<top>/<subfolder>/`` files into ``dest``.
 
-    All happens in one temporary folder beside ``dest`` (download, checksum, unpacking); ``dest``
-    appears, replacing an older copy, only once complete, and the temporary folder is removed
-    whatever happens.
+    ``dest`` is checked first (:func:`check_dest`; an existing one must hold the FETCH_MARKER of an
+    earlier fetch, else it is refused with ``hint``), then all happens in one temporary folder
+    beside it (download, checksum, unpacking, ``finish(folder)`` for files of the caller, the
+    marker); ``dest`` appears, replacing an older fetched copy, only once complete, and the
+    temporary folder is removed whatever happens (a killed fetch's one, at the next fetch or run).
     """
     limits = limits or Limits()
     dest = Path(dest)
     check_url(url)
     _subfolder_parts(subfolder, url)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", dir=dest.parent))
+    check_dest(dest, setting=setting)
+    _check_replaceable(dest, hint, setting)
     try:
-        got = download(url, work / "archive.zip", timeout_s, int(limits.max_download_mb * MB))
-        check_sha256(url, got, sha256)
-        unpacked = unpack_subfolder(work / "archive.zip", subfolder, work / "unpacked", url, limits)
-        if dest.exists():
-            shutil.rmtree(dest)
-        unpacked.rename(dest)
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        io.clean_stale_partials(beside=[dest], log=_LOG.info)  # a killed fetch's temporary folder
+        with io.partial_dir(dest) as work:
+            got = download(url, work / "archive.zip", timeout_s, int(limits.max_download_mb * MB))
+            check_sha256(url, got, sha256)
+            unpacked = unpack_subfolder(work / "archive.zip", subfolder, work / "unpacked", url, limits)
+            if finish is not None:
+                finish(unpacked)
+            marker = {
+                "url": url,
+                "subfolder": subfolder,
+                "sha256": got,
+                "time": datetime.now(UTC).isoformat(timespec="seconds"),
+            }
+            (unpacked / FETCH_MARKER).write_text(json.dumps(marker, indent=2) + "\n")
+            _into_place(unpacked, dest, work, hint, setting)
+    except OSError as e:
+        raise FetchError(f"could not write the fetch of {url} into {dest}: {e}") from e
     return dest
 
 
@@ -314,7 +426,16 @@ def fetch_images(
 ) -> Path:
     """An images scene's folder from a repository archive (e.g. OpenSfM's data/lund/images)."""
     try:
-        return fetch_archive(url, subfolder, dest, timeout_s, sha256, limits)
+        return fetch_archive(
+            url,
+            subfolder,
+            dest,
+            timeout_s,
+            sha256,
+            limits,
+            setting="the images folder",
+            hint="Remove it yourself, or, if it holds the scene's images, set the scene sheet's `path` to it",
+        )
     except DownloadError as e:
         raise FetchError(f"{e}. Point the scene sheet's `path` at a local folder of images instead.") from e
 
@@ -329,17 +450,19 @@ def fetch_flatlandia(
 ) -> Path:
     """Download the upstream repository archive and unpack its ``data/`` folder into ``dest``.
 
-    Writes ``scenes.tsv`` and ``classes.tsv`` beside it (the upstream keeps them in code).
-    The folder appears only once complete (unpacked to a temporary folder, then renamed).
+    Adds ``scenes.tsv`` and ``classes.tsv`` to it (the upstream keeps them in code) before it is
+    renamed into place: the folder appears only once complete.
     """
+
+    def sheets(folder: Path) -> None:
+        scenes[["scene", "city", "name"]].to_csv(folder / "scenes.tsv", sep="\t", index=False)
+        pd.DataFrame({"class_id": range(len(CLASSES)), "mapillary_label": CLASSES}).to_csv(
+            folder / "classes.tsv", sep="\t", index=False
+        )
+
     try:
-        dest = fetch_archive(url, "data", dest, timeout_s, sha256, limits)
+        return fetch_archive(url, "data", dest, timeout_s, sha256, limits, finish=sheets)
     except DownloadError as e:
         raise FetchError(f"could not download the Flatlandia data: {e}. {HOW_TO_POINT}") from e
     except FetchError as e:
         raise FetchError(f"{e}. {HOW_TO_POINT}") from e
-    scenes[["scene", "city", "name"]].to_csv(dest / "scenes.tsv", sep="\t", index=False)
-    pd.DataFrame({"class_id": range(len(CLASSES)), "mapillary_label": CLASSES}).to_csv(
-        dest / "classes.tsv", sep="\t", index=False
-    )
-    return dest

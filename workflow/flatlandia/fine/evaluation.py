@@ -20,12 +20,12 @@ import pandas as pd
 
 from flatlandia import config, geo, paper
 from flatlandia.data import localmaps
-from flatlandia.fine import solver
+from flatlandia import solver
 
 if TYPE_CHECKING:  # torch and torch-geometric load in 4 s: only the learned models' evaluation needs them
     from torch import nn
 
-    from flatlandia.fine import learned
+from flatlandia.fine import learned
 
 #: errors above this many metres count as gross
 GROSS_M = 30.0
@@ -178,7 +178,7 @@ def evaluate_solver(
     without a proposal row get an empty proposal (counted as failures). ``prior_seen``: per prior
     camera (rows of ``prior_xy``), the reference ``obj_idx`` it saw (training queries' ``ref_idx``),
     for the solver's co-visibility cost. ``verifier``: the solver's verifier for depth maps
-    (``solver_verify_fit.fit_verifier``), or None to keep the cheapest hypothesis.
+    (``verify_fit.fit_verifier``), or None to keep the cheapest hypothesis.
     """
     cfg = solver.SolverConfig.from_dict(config)
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
@@ -257,7 +257,7 @@ def evaluate_model(
     import torch
     from torch_geometric.data import Batch
 
-    from flatlandia.fine import learned
+from flatlandia.fine import learned
 
     samples, kept = learned.samples_from_queries(ref, queries, proposals, cfg)
     ref_cls = ref["class_id"].to_numpy()

@@ -13,8 +13,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from flatlandia import geo
-from flatlandia.fine import solver_kernels
-from flatlandia.fine.solver_kernels import CoSeen, PriorTerms
+from flatlandia.solver import kernels
+from flatlandia.solver.kernels import CoSeen, PriorTerms
 
 
 class PriorGate:
@@ -91,7 +91,7 @@ def prior_gate(cams: np.ndarray, radius: float) -> PriorGate:
 def coseen(seen: np.ndarray) -> CoSeen:
     """Which candidates some prior camera saw together (the co-visibility gate of hypotheses)."""
     cam, obj = np.nonzero(seen)
-    return CoSeen(*solver_kernels.coseen_pairs(cam, obj, seen.shape[1]))
+    return CoSeen(*kernels.coseen_pairs(cam, obj, seen.shape[1]))
 
 
 class Priors:
@@ -176,7 +176,7 @@ class Priors:
         """(C,) inliers that the best single prior camera within ``covis_radius_m`` among ``nb``
         (distances, indices (C, k)) saw together."""
         d, j = nb
-        return solver_kernels.covis_counts(
+        return kernels.covis_counts(
             np.ascontiguousarray(d),
             np.ascontiguousarray(j, dtype=np.int64),
             self.seen,

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from flatlandia.fine import solver, solver_kernels
-from flatlandia.fine.solver_priors import Priors
-from flatlandia.fine.solver_problem import Problem
+from flatlandia.solver import kernels, pipeline
+from flatlandia.solver.priors import Priors
+from flatlandia.solver.problem import Problem
 
 #: the evidence of each bound: (range terms, priors); without range terms the range weight is nil
 EVIDENCE = {
@@ -30,7 +30,7 @@ def true_match_pose(
     matched_xy,
     start,
     ranges: bool,
-    config: solver.SolverConfig | dict | None = None,
+    config: pipeline.SolverConfig | dict | None = None,
     prior_xy=None,
     scale_prior=None,
 ) -> tuple[float, float, float]:
@@ -38,9 +38,9 @@ def true_match_pose(
     ``matched_xy[k]``: robust Gauss-Newton (the solver's refinement) from ``start`` = (x, y,
     heading, metres per local unit), on bearings, plus log-ranges when ``ranges``, plus the camera
     and scale priors when given."""
-    cfg = config if isinstance(config, solver.SolverConfig) else solver.SolverConfig.from_dict(config)
+    cfg = config if isinstance(config, pipeline.SolverConfig) else pipeline.SolverConfig.from_dict(config)
     if not ranges:  # bearings only: a vanishing range weight
-        cfg = solver.SolverConfig(**{**cfg.to_dict(), "refine_log_range_sigma": 1e6})
+        cfg = pipeline.SolverConfig(**{**cfg.to_dict(), "refine_log_range_sigma": 1e6})
     m = len(depth_xy)
     problem = Problem(depth_xy, np.zeros(m, int), matched_xy, np.zeros(m, int), False, cfg)
     priors = Priors(cfg, False, prior_xy, scale_prior)
@@ -48,5 +48,5 @@ def true_match_pose(
     p = np.array([[x, y, theta, np.log(scale)]], float)
     matched = np.ascontiguousarray(np.asarray(matched_xy, float).reshape(1, m, 2))
     inl = np.ones((1, m), bool)
-    solver_kernels.refine_gauss_newton(p, matched, inl, problem.refine_terms, priors.refine_terms(p), ITERATIONS)
+    kernels.refine_gauss_newton(p, matched, inl, problem.refine_terms, priors.refine_terms(p), ITERATIONS)
     return float(p[0, 0]), float(p[0, 1]), float(p[0, 2])

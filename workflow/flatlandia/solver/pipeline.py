@@ -28,7 +28,7 @@ hypotheses are refined (robust Gauss-Newton on their matches, with re-associatio
 and the cheapest wins; (4) or, given a verifier (depth maps with priors), the ``verify_top_k``
 best are refined and the verifier's highest score wins (``solver_verify``: near-tie hypotheses
 that the cost ranks wrongly, told apart by what the training cameras near each pose saw). The inner loops (hypotheses, scoring, refinement) are compiled with numba in
-``solver_kernels``; ``solver_scoring.padded_costs`` keeps the padded numpy form as the reference
+``solver_kernels``; ``scoring.padded_costs`` keeps the padded numpy form as the reference
 they are tested against. For depth maps hypotheses come from 3-bearing resections (range-free)
 and then 2-point similarities. The result holds the pose, the inlier matches (query index,
 candidate index) and a confidence in [0, 1].
@@ -48,10 +48,10 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from flatlandia import config
-from flatlandia.fine import solver_hypotheses, solver_scoring, solver_verify
-from flatlandia.fine.solver_priors import Priors
-from flatlandia.fine.solver_problem import Problem
-from flatlandia.fine.solver_verify import Verifier
+from flatlandia.solver import hypotheses, scoring, verify
+from flatlandia.solver.priors import Priors
+from flatlandia.solver.problem import Problem
+from flatlandia.solver.verify import Verifier
 
 #: Defaults of the solver: the `fine.geo` section of workflow/schemas/config.schema.yaml.
 _GEO = config.section_defaults("fine.geo")
@@ -174,15 +174,15 @@ def candidates(
     priors = Priors(cfg, metric, prior_xy, scale_prior, prior_seen, n_ref=len(problem.r))
     if not problem.solvable():
         return None
-    verified = verify and solver_verify.usable(problem, priors)
+    verified = verify and verify.usable(problem, priors)
     keep = cfg.verify_top_k if verified else cfg.top_k
-    scored = solver_hypotheses.score_hypotheses(problem, priors, keep)
+    scored = hypotheses.score_hypotheses(problem, priors, keep)
     kept = scored.arrays()
     if kept is None:
         return None
     cost, t, theta, s = kept
-    chosen = solver_hypotheses.distinct_best(cost, t, theta, keep)
-    t, theta, s = solver_scoring.refine(problem, priors, t[chosen], theta[chosen], s[chosen])
+    chosen = hypotheses.distinct_best(cost, t, theta, keep)
+    t, theta, s = scoring.refine(problem, priors, t[chosen], theta[chosen], s[chosen])
     return Pool(problem, priors, t, theta, s, scored.n_hypotheses, verified)
 
 
@@ -191,12 +191,12 @@ def _best_refined(pool: Pool, verifier: Verifier | None) -> Solution | None:
     verifier's highest score), with its inliers and a confidence: the share of explained objects,
     lowered when a distinct pose is nearly as good (cost / 2 or score gap, a log-likelihood ratio)."""
     problem, priors, t, theta, s = pool.problem, pool.priors, pool.t, pool.theta, pool.s
-    data, cost, inl, match = solver_scoring.score_terms(problem, priors, t, theta, s)
+    data, cost, inl, match = scoring.score_terms(problem, priors, t, theta, s)
     ok = [k for k in range(len(t)) if np.all(np.isfinite(t[k])) and not priors.too_far(t[k])]
     if not ok:
         return None
     if pool.verified:
-        key = -verifier.score(solver_verify.features(problem, priors, t, theta, s, data, inl, match))
+        key = -verifier.score(verify.features(problem, priors, t, theta, s, data, inl, match))
     else:
         key = cost / 2.0
     ok.sort(key=lambda k: float(key[k]))

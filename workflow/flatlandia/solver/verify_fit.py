@@ -18,7 +18,8 @@ import pandas as pd
 
 from flatlandia import config, proposals
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation, solver, solver_scoring, solver_verify
+from flatlandia.fine import evaluation
+from flatlandia.solver import pipeline, scoring, verify
 
 #: a hypothesis within this of the true pose is right (the target the verifier is tuned for)
 RIGHT_M, RIGHT_DEG = 5.0, 5.0
@@ -34,7 +35,7 @@ def scene_groups(
     """(features (C, F), right (C,)) of the training queries of one scene (those where ``chosen``,
     a boolean per training query, or all), each solved on its ``region`` with the priors of the
     scene's other training queries."""
-    cfg = solver.SolverConfig.from_dict(geo_config)
+    cfg = pipeline.SolverConfig.from_dict(geo_config)
     prior, seen_objs = evaluation.training_priors(queries, geo_config)
     if prior is None or seen_objs is None:
         return []
@@ -48,7 +49,7 @@ def scene_groups(
         r = train.iloc[i]
         idx = np.array([pos[int(o)] for o in regions[str(r["token"])] if int(o) in pos], int)
         others = np.arange(len(train)) != i
-        pool = solver.candidates(
+        pool = pipeline.candidates(
             localmaps.local_map(r, "depth"),
             np.asarray(r["classes"]),
             ref_xy[idx],
@@ -62,8 +63,8 @@ def scene_groups(
         )
         if pool is None or not pool.verified:
             continue
-        data, _, inl, match = solver_scoring.score_terms(pool.problem, pool.priors, pool.t, pool.theta, pool.s)
-        f = solver_verify.features(pool.problem, pool.priors, pool.t, pool.theta, pool.s, data, inl, match)
+        data, _, inl, match = scoring.score_terms(pool.problem, pool.priors, pool.t, pool.theta, pool.s)
+        f = verify.features(pool.problem, pool.priors, pool.t, pool.theta, pool.s, data, inl, match)
         e_m, e_deg = evaluation.pose_errors(
             pool.t[:, 0], pool.t[:, 1], pool.theta, r["x_m"], r["y_m"], np.radians(r["theta_deg"])
         )
@@ -79,24 +80,24 @@ def fit_verifier(
     region: str = "whole",
     fraction: float = 1.0,
     rng: np.random.Generator | None = None,
-) -> solver_verify.Verifier | None:
+) -> verify.Verifier | None:
     """The verifier learned from the training split of ``scenes`` (reference map, queries), each
     training query solved on its ``region`` (a key of :data:`REGIONS`): from every training query,
     or from a random ``fraction`` of them drawn with ``rng`` (to measure how much the verifier
     depends on its examples; the priors always hold every training query). None when nothing can
     be learned (no co-visibility sets: ``covis_weight`` 0, or no right hypothesis)."""
-    solver.warm_up()
+    pipeline.warm_up()
     groups = []
     for ref, q in scenes:
         n = int((q["split"] == "train").sum())
         chosen = None if rng is None else rng.random(n) < fraction
         groups += scene_groups(ref, q, geo_config, scale_prior, region, chosen)
-    return solver_verify.fit(groups) if any(np.any(right) for _, right in groups) else None
+    return verify.fit(groups) if any(np.any(right) for _, right in groups) else None
 
 
 def depth_priors(
     scenes: list[tuple[pd.DataFrame, pd.DataFrame]], geo_config: dict, region: str | None = "whole", **fit
-) -> tuple[tuple[float, float] | None, solver_verify.Verifier | None]:
+) -> tuple[tuple[float, float] | None, verify.Verifier | None]:
     """What the solver learns from the training split for depth maps, as every rule that runs it
     uses it (fine_eval, city_priors; coarse_solver takes the scale only): the log-scale prior and,
     when ``fine.geo.verify`` and ``camera_prior`` are on (unset keys: the schema's defaults) and

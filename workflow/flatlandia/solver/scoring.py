@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from flatlandia import geo
-from flatlandia.fine import solver_kernels
-from flatlandia.fine.solver_priors import Priors
-from flatlandia.fine.solver_problem import Problem
+from flatlandia.solver import kernels
+from flatlandia.solver.priors import Priors
+from flatlandia.solver.problem import Problem
 
 
 def data_cost(problem: Problem, t, theta, s):
@@ -24,9 +24,9 @@ def data_cost(problem: Problem, t, theta, s):
     tau2 = float(problem.cfg.tau**2)
     tx, ty = t[:, 0].copy(), t[:, 1].copy()
     if problem.metric:
-        return solver_kernels.score_metric(tx, ty, theta, problem.terms, problem.candidates, tau2)
+        return kernels.score_metric(tx, ty, theta, problem.terms, problem.candidates, tau2)
     s = np.ascontiguousarray(s, dtype=float).ravel()
-    return solver_kernels.score_depth(tx, ty, theta, s, problem.terms, problem.candidates, tau2)
+    return kernels.score_depth(tx, ty, theta, s, problem.terms, problem.candidates, tau2)
 
 
 def score(problem: Problem, priors: Priors, t, theta, s):
@@ -95,6 +95,6 @@ def refine(problem: Problem, priors: Priors, t: np.ndarray, theta: np.ndarray, s
     for _ in range(problem.cfg.refine_rounds):
         _, inl, match = data_cost(problem, p[:, :2], p[:, 2], np.exp(p[:, 3]))
         matched = np.ascontiguousarray(problem.r[match])  # (C, M, 2)
-        solver_kernels.refine_gauss_newton(p, matched, inl, problem.refine_terms, priors.refine_terms(p), iters)
+        kernels.refine_gauss_newton(p, matched, inl, problem.refine_terms, priors.refine_terms(p), iters)
     scale = np.exp(p[:, 3]) if not problem.metric else np.ones(len(p))
     return p[:, :2].copy(), geo.wrap_angle(p[:, 2]), scale

@@ -18,8 +18,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from flatlandia import geo
-from flatlandia.fine.solver_priors import Priors
-from flatlandia.fine.solver_problem import Problem
+from flatlandia.solver.priors import Priors
+from flatlandia.solver.problem import Problem
 
 #: the features of a hypothesis, in the columns of :func:`features`
 FEATURES = (
@@ -62,7 +62,7 @@ def usable(problem: Problem, priors: Priors) -> bool:
 
 def features(problem: Problem, priors: Priors, t, theta, s, data, inl, match) -> np.ndarray:
     """(C, F) features of refined hypotheses (``t``, ``theta``, ``s``) whose capped data cost,
-    inliers and matches are ``data``, ``inl``, ``match`` (from ``solver_scoring.data_cost``)."""
+    inliers and matches are ``data``, ``inl``, ``match`` (from ``scoring.data_cost``)."""
     t = np.asarray(t, float).reshape(-1, 2)
     n = len(t)
     k = min(KERNEL_KNN, priors.tree.n)

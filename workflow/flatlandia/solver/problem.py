@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from flatlandia.fine.solver_kernels import Candidates, QueryTerms
+from flatlandia.solver.kernels import Candidates, QueryTerms
 
 
 class Problem:

@@ -14,10 +14,10 @@ from collections.abc import Iterator
 import numpy as np
 
 from flatlandia import geo
-from flatlandia.fine import solver_kernels, solver_scoring
-from flatlandia.fine.solver_kernels import CoSeen
-from flatlandia.fine.solver_priors import Priors
-from flatlandia.fine.solver_problem import Problem
+from flatlandia.solver import kernels, scoring
+from flatlandia.solver.kernels import CoSeen
+from flatlandia.solver.priors import Priors
+from flatlandia.solver.problem import Problem
 
 
 def query_pairs(problem: Problem) -> list[tuple[int, int]]:
@@ -77,7 +77,7 @@ def pair_hypotheses(problem: Problem, priors: Priors, i: int, j: int):
     if float(np.hypot(*dq)) < 1e-9:
         return None
     cfg = problem.cfg
-    return solver_kernels.pair_fits(
+    return kernels.pair_fits(
         a.astype(np.int64),
         b.astype(np.int64),
         *_coseen(problem, priors),
@@ -106,7 +106,7 @@ def triple_hypotheses(problem: Problem, priors: Priors, i: int, j: int, k: int, 
     if min(len(ca), len(cb), len(cc)) == 0 or (not use_co and len(ca) * len(cb) * len(cc) > limit):
         return None
     qb, qr, cfg = problem.q_bear, problem.q_range, problem.cfg
-    return solver_kernels.triple_resections(
+    return kernels.triple_resections(
         ca.astype(np.int64),
         cb.astype(np.int64),
         cc.astype(np.int64),
@@ -188,7 +188,7 @@ class ScoredHypotheses:
         costs = []
         for o in range(0, len(t), chunk):
             window = slice(o, o + chunk)
-            costs.append(solver_scoring.score(self.problem, self.priors, t[window], theta[window], s[window])[0])
+            costs.append(scoring.score(self.problem, self.priors, t[window], theta[window], s[window])[0])
         return np.concatenate(costs)
 
     def arrays(self):

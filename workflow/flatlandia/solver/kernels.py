@@ -5,7 +5,7 @@ spent most of a whole-map query (about 60 % of 47 ms) building temporaries for c
 bearing test rejects at once. Here each (hypothesis, query object) walks only its own class's
 candidates and skips a candidate as soon as its bearing cost alone cannot beat the best so far or
 the inlier cap; the result is the same MSAC data term, inlier mask and matches as the numpy
-reference ``solver_scoring.padded_costs`` (tested against it).
+reference ``scoring.padded_costs`` (tested against it).
 
 Candidates are given flat: object ``k``'s candidates are ``cand_x/cand_y/cand_idx[ptr[k]:ptr[k+1]]``.
 """
@@ -402,7 +402,7 @@ def _candidate_triples(ca, cb, cc, co, use_co):
 def triple_resections(ca, cb, cc, co, use_co, rx, ry, bi, bj, bk, ri, rj, rk, eps, min_scale, max_scale, metric):
     """3-bearing resections of query bearings (bi, bj, bk) (ranges ri, rj, rk + ``eps`` give the
     scale) onto every triple of distinct candidates from ``ca`` x ``cb`` x ``cc`` (with ``use_co``,
-    only triples seen together pairwise, ``co`` a :class:`CoSeen`). See ``solver_hypotheses.triple_hypotheses``
+    only triples seen together pairwise, ``co`` a :class:`CoSeen`). See ``hypotheses.triple_hypotheses``
     for the algebra. Returns t (H, 2), theta (H,), scale (H,)."""
     abc = _candidate_triples(ca, cb, cc, co, use_co)
     n = abc.shape[0]
