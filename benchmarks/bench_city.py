@@ -33,13 +33,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_fine_solver import load  # noqa: E402
 
-from flatlandia import config, proposals  # noqa: E402
-from flatlandia.city import evaluate, index, priors, search, simulate  # noqa: E402
+from flatlandia import (  # noqa: E402
+    config,
+    proposals,
+    solver,  # noqa: E402
+)
+from flatlandia.city import evaluate, index, search, simulate  # noqa: E402
 from flatlandia.data import localmaps  # noqa: E402
-from flatlandia.fine import evaluation, solver  # noqa: E402
 
 
-def stages(ix, queries, cfg, geo, scale, verifier) -> pd.DataFrame:
+def stages(ix, queries, cfg, settings, learned) -> pd.DataFrame:
     """CPU seconds of each stage of the search, per query, and its errors."""
     rows = []
     for r in queries.itertuples(index=False):
@@ -48,11 +51,10 @@ def stages(ix, queries, cfg, geo, scale, verifier) -> pd.DataFrame:
         views, _ = search.view_scores(ix, q, q_cls, cfg)
         centres = search.region_centres(ix, views, cfg)
         c1 = time.process_time()
-        rows_, cams, seen = search.region_priors(ix, centres, cfg, geo.prior_radius_m)
+        rows_, cams, seen = search.region_priors(ix, centres, cfg, settings.prior_radius_m)
         c2 = time.process_time()
-        sol = solver.solve(
-            q, q_cls, ix.obj_xy[rows_], ix.obj_cls[rows_], False, geo, ix.cam[cams], scale, seen, verifier
-        )
+        given = search.region_training_priors(ix, cams, seen, learned)
+        sol = solver.solve(q, q_cls, ix.obj_xy[rows_], ix.obj_cls[rows_], False, settings, given)
         c3 = time.process_time()
         e_m = np.hypot(sol.x - r.x_m, sol.y - r.y_m) if sol else np.inf
         e_deg = abs(np.degrees(np.angle(np.exp(1j * (sol.theta - np.radians(r.theta_deg)))))) if sol else 180.0
@@ -61,30 +63,26 @@ def stages(ix, queries, cfg, geo, scale, verifier) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def scene_priors(ref, q, geo_dict):
-    """(map xy, classes, prior cameras, seen (cameras, objects)) of one scene, as fine_eval has them."""
-    prior, seen_ids = evaluation.training_priors(q, geo_dict)
+def scene_priors(ref, q, solver_dict, scale):
+    """(map xy, classes, the scene's training priors with ``scale``, obj_idx -> row) of one scene,
+    as fine_eval has them (without the verifier)."""
+    given = solver.TrainingPriors(*solver.scene_priors(ref, q, solver_dict)[:2], scale)
     col = {int(o): k for k, o in enumerate(ref["obj_idx"])}
-    seen = np.zeros((len(prior), len(ref)), bool)
-    for k, objs in enumerate(seen_ids):
-        seen[k, [col[int(o)] for o in objs]] = True
-    return ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy(), prior, seen, col
+    return ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy(), given, col
 
 
-def ambiguity(scenes, split, geo, geo_dict, scale) -> pd.DataFrame:
+def ambiguity(scenes, split, settings, solver_dict, scale) -> pd.DataFrame:
     """Per query: the cost of the best pose at the right place and the lowest cost of a pose in any
     other scene (the solver without its verifier: the cheapest pose)."""
-    sp = {s: scene_priors(r, q, geo_dict) for s, r, q in scenes}
+    sp = {s: scene_priors(r, q, solver_dict, scale) for s, r, q in scenes}
     rows = []
     for s, _, q in scenes:
-        xy, cls, prior, seen, col = sp[s]
+        xy, cls, given, col = sp[s]
         for r in q[q["split"] == split].itertuples(index=False):
             lm, q_cls = localmaps.local_map(r, "depth"), np.asarray(r.classes)
             box = proposals.gtbb_indices(xy, [col[int(o)] for o in r.ref_idx], [r.x_m, r.y_m])
-            right = solver.solve(lm, q_cls, xy[box], cls[box], False, geo, prior, scale, seen[:, box])
-            other = [
-                solver.solve(lm, q_cls, x, c, False, geo, p, scale, sn) for t, (x, c, p, sn, _) in sp.items() if t != s
-            ]
+            right = solver.solve(lm, q_cls, xy[box], cls[box], False, settings, given.rows(box))
+            other = [solver.solve(lm, q_cls, x, c, False, settings, g) for t, (x, c, g, _) in sp.items() if t != s]
             rows.append(
                 dict(
                     m=r.n_objects,
@@ -105,15 +103,15 @@ def main():
     ap.add_argument("--bound", action="store_true", help="measure how often another scene explains a query better")
     args = ap.parse_args()
     scenes = load(args.root)
-    geo_dict = config.section_defaults("fine.geo")
-    geo, cfg = solver.SolverConfig.from_dict(geo_dict), search.SearchConfig()
+    solver_dict = config.section_defaults("solver")
+    settings, cfg = solver.SolverConfig.from_dict(solver_dict), search.SearchConfig()
     sim = config.section_defaults("city.simulate")
     c0 = time.process_time()
-    scale, verifier = priors.load(priors.fit([(r, q) for _, r, q in scenes], geo_dict))
+    learned = solver.learned.fit([(r, q) for _, r, q in scenes], solver_dict)
     print(f"priors fitted in {time.process_time() - c0:.1f} s CPU")
     solver.warm_up()
     if args.bound:
-        a = ambiguity(scenes, args.split, geo, geo_dict, scale)
+        a = ambiguity(scenes, args.split, settings, solver_dict, learned.scale)
         worse = a["other"] <= a["right"]
         print(
             f"another scene explains the query at a lower cost than the right place: {100 * worse.mean():.1f} % of {len(a)}"
@@ -137,10 +135,10 @@ def main():
             build.append((time.process_time() - c0, ix.nbytes() / 1e6))
             mine = cq[(cq["scene"] == s) & cq["token"].isin(test["token"])]
             if n in args.objects:
-                parts.append(stages(ix, mine, cfg, geo, scale, verifier))
+                parts.append(stages(ix, mine, cfg, settings, learned))
             if n in args.solver_objects:
                 keep = (cq["split"] == "train") | cq["token"].isin(mine["token"])
-                whole.append(evaluate.solver_errors(ref, cq[keep], args.split, geo_dict, scale, verifier))
+                whole.append(evaluate.solver_errors(ref, cq[keep], args.split, solver_dict, learned))
         b = np.array(build)
         print(f"\n{n:,} objects: index build {b[:, 0].mean():.2f} s CPU, {b[:, 1].mean():.2f} MB (mean per city)")
         if parts:

@@ -23,8 +23,8 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
-from flatlandia import proposals  # noqa: E402
-from flatlandia.fine import evaluation, solver_verify_fit  # noqa: E402
+from flatlandia import solver  # noqa: E402
+from flatlandia.fine import evaluation  # noqa: E402
 
 
 def load(root: Path):
@@ -57,58 +57,42 @@ def describe(e: pd.DataFrame) -> str:
 
 
 def solver_errors(
-    scenes, split: str, map_type: str, proposal: str, geo_cfg: dict, every: int = 1, root: Path | None = None, **fit
+    scenes,
+    split: str,
+    map_type: str,
+    proposal: str,
+    solver_settings: dict,
+    every: int = 1,
+    root: Path | None = None,
+    **fit,
 ) -> pd.DataFrame:
-    """Per-query errors of the solver as rule fine_eval computes them (priors and, on depth maps,
-    the verifier from the training split); ``fit``: ``fraction`` and ``rng`` of the verifier's
-    examples (``solver_verify_fit.fit_verifier``)."""
-    scale_prior = verifier = None
-    if map_type == "depth":  # the scale prior and the verifier as rule fine_eval learns them
+    """Per-query errors of the solver as rule fine_eval computes them (its entry function, with the
+    priors rule solver_priors learns for depth maps); ``fit``: ``fraction`` and ``rng`` of the
+    verifier's examples (``verify_fit.fit_verifier``)."""
+    learned = None
+    if map_type == "depth":
         c0 = time.process_time()
-        scale_prior, verifier = solver_verify_fit.depth_priors(
-            [(ref, q) for _, ref, q in scenes], geo_cfg, proposal, **fit
-        )
-        if verifier is not None:
+        region = proposal if proposal in ("whole", "gtbb") else None
+        learned = solver.learned.fit([(ref, q) for _, ref, q in scenes], solver_settings, region, **fit)
+        if learned.verifier is not None:
             print(f"verifier learned from the training split in {time.process_time() - c0:.0f} s CPU")
     coarse = None
     if proposal.startswith("coarse-"):
         coarse = pd.read_parquet(root / "coarse" / proposal.split("-", 1)[1] / "proposals.parquet")
-    parts = []
-    for s, ref, q in scenes:
-        test = q[q["split"] == split].iloc[::every]
-        if not len(test):
-            continue
-        if proposal == "gtbb":
-            props = proposals.gtbb_proposals(ref, test)
-        elif proposal == "whole":
-            props = proposals.whole_map_proposals(ref, test)
-        else:
-            p = coarse[(coarse["scene"].astype(str) == s) & (coarse["strategy"] == geo_cfg.get("strategy", "2N_LM"))]
-            props = p[p["token"].astype(str).isin(test["token"].astype(str))]
-        prior, seen = evaluation.training_priors(q, geo_cfg)
-        parts.append(
-            evaluation.evaluate_solver(
-                ref,
-                test,
-                props,
-                map_type,
-                geo_cfg,
-                prior_xy=prior,
-                scale_prior=scale_prior,
-                prior_seen=seen,
-                verifier=verifier,
-            )
-        )
-    return pd.concat(parts, ignore_index=True)
+    solver_settings = dict(solver_settings)
+    strategy = solver_settings.pop("strategy", "2N_LM")
+    return evaluation.solver_errors(
+        [(ref, q) for _, ref, q in scenes], map_type, proposal, solver_settings, learned, coarse, strategy, split, every
+    )
 
 
-def geo_config(path: str, overrides: list[str]) -> dict:
-    """The ``fine.geo`` section of a config file with ``key=value`` overrides (YAML values)."""
-    geo_cfg = dict((yaml.safe_load(open(path)) or {}).get("fine", {}).get("geo", {}))
+def solver_config(path: str, overrides: list[str]) -> dict:
+    """The ``solver`` section of a config file with ``key=value`` overrides (YAML values)."""
+    solver_settings = dict((yaml.safe_load(open(path)) or {}).get("solver", {}))
     for kv in overrides:
         k, v = kv.split("=", 1)
-        geo_cfg[k] = yaml.safe_load(v)
-    return geo_cfg
+        solver_settings[k] = yaml.safe_load(v)
+    return solver_settings
 
 
 def main(argv=None):
@@ -127,7 +111,7 @@ def main(argv=None):
     ap.add_argument("--verify-fraction", type=float, default=0.8, help="share of training queries per seed")
     ap.add_argument("--save", default="")
     a = ap.parse_args(argv)
-    geo_cfg = geo_config(a.config, a.set)
+    solver_settings = solver_config(a.config, a.set)
     root = Path(a.root)
     scenes = load(root)
     runs = (
@@ -140,7 +124,7 @@ def main(argv=None):
     )
     for label, fit in runs.items():
         t0 = time.perf_counter()
-        e = solver_errors(scenes, a.split, a.map, a.proposal, geo_cfg, a.every, root, **fit)
+        e = solver_errors(scenes, a.split, a.map, a.proposal, solver_settings, a.every, root, **fit)
         print(
             f"{a.split} {a.map} {a.proposal} {' '.join(a.set)}{label}: {describe(e)}; wall {time.perf_counter() - t0:.0f} s"
         )

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import data_root
 
-from flatlandia import geo, io, similarity
+from flatlandia import geo, io, scaled_rigid
 from flatlandia.errors import InputError
 from flatlandia.objects import cloud, principal_plane
 
@@ -49,7 +49,7 @@ def test_ransac_similarity_known_answer(reflect):
     r = geo.rot2(0.8) @ (np.diag([1.0, -1.0]) if reflect else np.eye(2))
     dst = 3.0 * src @ r.T + [500, -200]
     dst[:6] += rng.uniform(100, 200, size=(6, 2))  # outliers
-    sim = similarity.ransac_scaled_rigid(src, dst, threshold=1.0, seed=0)
+    sim = scaled_rigid.ransac_scaled_rigid(src, dst, threshold=1.0, seed=0)
     assert sim.reflection == reflect
     assert sim.scale == pytest.approx(3.0, rel=1e-9)
     np.testing.assert_allclose(sim.rotation, r, atol=1e-9)
@@ -63,12 +63,12 @@ def test_similarity_never_mirrors_a_walk_along_a_street():
     src = np.column_stack([np.linspace(0, 200, 30), rng.normal(0, 0.5, 30)])
     r = geo.rot2(2.0)
     dst = 0.7 * src @ r.T + [10, 20] + rng.normal(0, 0.2, (30, 2))
-    sim = similarity.ransac_scaled_rigid(src, dst, threshold=2.0, seed=0, allow_reflection=False)
+    sim = scaled_rigid.ransac_scaled_rigid(src, dst, threshold=2.0, seed=0, allow_reflection=False)
     assert not sim.reflection and sim.inliers.all()
     assert sim.angle_deg() == pytest.approx(np.degrees(2.0), abs=0.5) and sim.scale == pytest.approx(0.7, rel=0.01)
-    exact = similarity.least_squares(src, 0.7 * src @ r.T + [10, 20])
+    exact = scaled_rigid.least_squares(src, 0.7 * src @ r.T + [10, 20])
     assert exact.scale == pytest.approx(0.7, rel=1e-9) and np.allclose(exact.rotation, r, atol=1e-9)
-    mirrored = similarity.least_squares(src, 0.7 * src @ (r @ np.diag([1.0, -1.0])).T, allow_reflection=True)
+    mirrored = scaled_rigid.least_squares(src, 0.7 * src @ (r @ np.diag([1.0, -1.0])).T, allow_reflection=True)
     assert mirrored.reflection and mirrored.scale == pytest.approx(0.7, rel=1e-9)
 
 
@@ -80,7 +80,7 @@ def test_heading_term_rejects_wrong_headings():
     hs = rng.uniform(-np.pi, np.pi, 30)
     hd = hs + th
     hd[:5] += np.pi  # five cameras with wrong compass heading
-    sim = similarity.ransac_scaled_rigid(src, dst, threshold=1.0, src_heading=hs, dst_heading=hd)
+    sim = scaled_rigid.ransac_scaled_rigid(src, dst, threshold=1.0, src_heading=hs, dst_heading=hd)
     assert sim.angle_deg() == pytest.approx(np.degrees(th), abs=1e-6)
     assert not sim.inliers[:5].any() and sim.inliers[5:].all()
 
@@ -94,13 +94,13 @@ def test_bad_input():
     with pytest.raises(InputError, match="NaN"):
         principal_plane.fit_plane(np.array([[0, 0, 0], [1, 0, 0], [0, 1, np.nan]]))
     with pytest.raises(InputError, match="at least 3"):
-        similarity.ransac_scaled_rigid(np.zeros((2, 2)), np.zeros((2, 2)))
+        scaled_rigid.ransac_scaled_rigid(np.zeros((2, 2)), np.zeros((2, 2)))
     with pytest.raises(InputError, match="NaN"):
-        similarity.ransac_scaled_rigid(np.array([[0, 0], [1, 0], [np.nan, 1.0]]), np.zeros((3, 2)))
+        scaled_rigid.ransac_scaled_rigid(np.array([[0, 0], [1, 0], [np.nan, 1.0]]), np.zeros((3, 2)))
     with pytest.raises(InputError, match="coincide"):
-        similarity.ransac_scaled_rigid(np.ones((4, 2)), np.zeros((4, 2)))
+        scaled_rigid.ransac_scaled_rigid(np.ones((4, 2)), np.zeros((4, 2)))
     with pytest.raises(InputError, match="but"):
-        similarity.ransac_scaled_rigid(np.eye(3)[:, :2], np.zeros((4, 2)))
+        scaled_rigid.ransac_scaled_rigid(np.eye(3)[:, :2], np.zeros((4, 2)))
 
 
 # ----------------------------------------------------------------------- real scene 12
@@ -141,8 +141,8 @@ def test_scene12_similarity_simulated_gps(scene12):
     out = rng.choice(len(gps), 5, replace=False)
     ang = rng.uniform(0, 2 * np.pi, 5)
     gps[out] += rng.uniform(30, 80, (5, 1)) * np.column_stack([np.cos(ang), np.sin(ang)])
-    sim = similarity.ransac_scaled_rigid(src, gps, threshold=15.0, seed=0)
-    err = similarity.transform_error(sim, src, truth)
+    sim = scaled_rigid.ransac_scaled_rigid(src, gps, threshold=15.0, seed=0)
+    err = scaled_rigid.transform_error(sim, src, truth)
     assert not sim.inliers[out].any()
     assert err["reflection_correct"]
     assert err["median_m"] < 5.0 and abs(err["scale_ratio"] - 1) < 0.05 and err["rotation_deg"] < 8

@@ -7,9 +7,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from flatlandia import solver
 from flatlandia.city import index, search, simulate, tiling
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation, solver
+from flatlandia.solver import priors
 
 # one street corner: classes and positions in the frame of a camera at the origin looking along +x
 CORNER = [(1, 10.0, 3.0), (2, 15.0, -4.0), (3, 20.0, 6.0), (1, 25.0, -2.0)]
@@ -80,8 +81,8 @@ def test_index_finds_the_only_region_that_explains_a_query():
     top, score = search.view_scores(ix, q, q_cls, cfg)
     assert ix.cam[top[0], 0] < 500  # the corner's view, though B's saw the same classes
     assert score[0] > score[1] + 0.2  # by its geometry: the bags of classes are equal
-    geo = solver.SolverConfig.from_dict({"covis_weight": 0.0})
-    found = search.localize(ix, q, q_cls, cfg, geo, scale_prior=(np.log(17.0), 0.5))
+    settings = solver.SolverConfig.from_dict({"covis_weight": 0.0})
+    found = search.localize(ix, q, q_cls, cfg, settings, solver.LearnedPriors(scale=(np.log(17.0), 0.5)))
     assert np.hypot(*found.centres[0]) < 50
     assert set(ix.obj_id[found.rows]) == set(range(6))  # region B was never searched
     assert found.solution is not None
@@ -118,7 +119,7 @@ def test_tiled_map_keeps_ids_geometry_and_priors():
     for r in q.itertuples():  # the city pose sees the city objects exactly as the scene pose saw its own
         seen = local_map(by_id.loc[r.ref_idx, ["x_m", "y_m"]], [r.x_m, r.y_m], np.radians(r.theta_deg))
         np.testing.assert_allclose(seen, localmaps.xy(r.gt_local_xy_m), atol=1e-9)
-    prior, seen_ids = evaluation.training_priors(q, {"covis_weight": 2.0})
+    prior, seen_ids = priors.training_priors(q, {"covis_weight": 2.0})
     np.testing.assert_allclose(prior[:, :2], [[1.0, -5.0], [1000.0, 0.0]])
     assert [list(s) for s in seen_ids] == [[1, 0], [4]]
 

@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 from snakemake_runner import smk
 
-from flatlandia import config, geo
+from flatlandia import config, geo, solver
 from flatlandia.coarse import evaluation, solver_proposals
 
 CAM, THETA = np.array([10.0, -20.0]), 0.6
@@ -63,7 +63,7 @@ def test_an_alternative_pose_rescues_a_wrong_best_pose():
     cand = solver_proposals.Candidates(
         np.vstack([pattern, pattern + [200.0, 0.0]]),
         np.concatenate([cls, cls]),
-        prior_xy=np.array([[0.0, 0.0, 0.0], [204.0, 0.0, 0.0]]),
+        solver.TrainingPriors(cameras=np.array([[0.0, 0.0, 0.0], [204.0, 0.0, 0.0]])),
     )
     truth = np.arange(6, 12)
     hyps = solver_proposals.hypotheses(pattern, cls, cand, True, alternatives=2)
@@ -81,11 +81,14 @@ def test_an_alternative_pose_rescues_a_wrong_best_pose():
     assert list(n_lm) == list(range(6))
 
 
-def test_candidates_mask_what_training_cameras_saw():
+def test_priors_mask_what_training_cameras_saw_over_the_candidate_rows():
     ref = pd.DataFrame({"obj_idx": [4, 7, 9], "class_id": [1, 2, 1], "x_m": [0.0, 1.0, 2.0], "y_m": [0.0, 0.0, 1.0]})
-    cand = solver_proposals.scene_candidates(ref, np.zeros((2, 3)), [np.array([9, 4]), np.array([7])])
-    assert cand.prior_seen.tolist() == [[True, False, True], [False, True, False]]
-    assert solver_proposals.scene_candidates(ref).prior_seen is None
+    seen = solver.priors.seen_mask(ref["obj_idx"], [np.array([9, 4]), np.array([7])])
+    cand = solver_proposals.scene_candidates(ref, solver.TrainingPriors(np.zeros((2, 3)), seen))
+    assert cand.priors.seen.tolist() == [[True, False, True], [False, True, False]]
+    assert cand.priors.rows([2, 0]).seen.tolist() == [[True, True], [False, False]]  # a proposal's rows
+    assert cand.priors.without_cameras(np.array([False, True])).seen.tolist() == [[False, True, False]]
+    assert solver_proposals.scene_candidates(ref).priors is None
 
 
 def test_config_comes_from_the_schema_and_is_strict():

@@ -43,11 +43,15 @@ def test_every_key_has_a_default_and_a_description():
 @pytest.mark.parametrize(
     "cfg, message",
     [
-        ({"fine": {"geo": {"topk": 3}}}, "unknown key 'fine.geo.topk' (did you mean 'fine.geo.top_k'?)"),
+        ({"solver": {"topk": 3}}, "unknown key 'solver.topk' (did you mean 'solver.top_k'?)"),
+        (
+            {"fine": {"geo": {"top_k": 3}}},
+            "unknown key 'fine.geo.top_k' (moved: the section is now 'solver', e.g. 'solver.top_k')",
+        ),
         ({"sfm": {"matchr": "sequential"}}, "unknown key 'sfm.matchr' (did you mean 'sfm.matcher'?)"),
         ({"selct": [1]}, "unknown key 'selct' (did you mean 'select'?)"),
         ({"fine": {"train_overrides": {"gat": {"epoch": 3}}}}, "'fine.train_overrides.gat.epoch'"),
-        ({"fine": {"geo": {"top_k": "six"}}}, "'fine.geo.top_k': 'six' is not of type 'integer'"),
+        ({"solver": {"top_k": "six"}}, "'solver.top_k': 'six' is not of type 'integer'"),
         ({"sfm": {"matcher": "fast"}}, "'sfm.matcher': 'fast' is not one of"),
     ],
 )
@@ -58,9 +62,9 @@ def test_typos_and_wrong_types_are_refused_with_the_key_named(cfg, message):
 
 
 def test_resolve_fills_defaults_under_a_partial_section():
-    full = config.resolve({"fine": {"geo": {"top_k": 3}}})
-    assert full["fine"]["geo"]["top_k"] == 3
-    assert full["fine"]["geo"]["max_pairs"] == config.section_defaults("fine.geo")["max_pairs"]
+    full = config.resolve({"solver": {"top_k": 3}})
+    assert full["solver"]["top_k"] == 3
+    assert full["solver"]["max_pairs"] == config.section_defaults("solver")["max_pairs"]
     assert full["fine"]["train"]["epochs"] == config.section_defaults("fine.train")["epochs"]
     assert full["objects"]["cluster"]["split_extent_m"] is None
 
@@ -72,21 +76,21 @@ class _Toy:
 
 
 def test_from_section_is_strict_and_takes_the_schema_defaults():
-    toy = config.from_section(_Toy, "fine.geo", {}, model="mlp")
-    assert toy == _Toy(top_k=config.section_defaults("fine.geo")["top_k"], model="mlp")
-    with pytest.raises(config.ConfigError, match="'fine.geo.top_kk' \\(did you mean 'fine.geo.top_k'\\?\\)"):
-        config.from_section(_Toy, "fine.geo", {"top_kk": 1})
+    toy = config.from_section(_Toy, "solver", {}, model="mlp")
+    assert toy == _Toy(top_k=config.section_defaults("solver")["top_k"], model="mlp")
+    with pytest.raises(config.ConfigError, match="'solver.top_kk' \\(did you mean 'solver.top_k'\\?\\)"):
+        config.from_section(_Toy, "solver", {"top_kk": 1})
 
 
 def test_a_typo_in_a_config_file_stops_the_run_before_any_job(repo, flat_root, tmp_path):
     from snakemake_runner import smk
 
     mine = tmp_path / "my.yaml"
-    mine.write_text("fine:\n  geo:\n    topk: 3\n")
+    mine.write_text("solver:\n  topk: 3\n")
     res = smk(repo, tmp_path, "-n", "all", "--configfile", str(mine), "--config", f"flatlandia_root={flat_root}")
     assert res.returncode != 0
     err = res.stderr.strip().splitlines()
-    assert err[-1] == "ERROR: config: unknown key 'fine.geo.topk' (did you mean 'fine.geo.top_k'?)"
+    assert err[-1] == "ERROR: config: unknown key 'solver.topk' (did you mean 'solver.top_k'?)"
     assert "Traceback" not in res.stderr and "Building DAG" not in res.stdout + res.stderr
     assert not (tmp_path / "results").exists()
 
@@ -109,14 +113,14 @@ def test_nested_command_line_overrides_merge_deeply(repo, flat_root, tmp_path):
         "--config",
         f"flatlandia_root={flat_root}",
         "images={missing_gps: stop}",
-        "fine={geo: {top_k: 12}}",
+        "solver={top_k: 12}",
     ]
     res = smk(repo, tmp_path, *args, snakefile=probe)
     assert res.returncode == 0, res.stderr[-2000:]
     resolved = yaml.safe_load(out.read_text())
-    assert resolved["images"]["missing_gps"] == "stop" and resolved["fine"]["geo"]["top_k"] == 12
+    assert resolved["images"]["missing_gps"] == "stop" and resolved["solver"]["top_k"] == 12
     assert resolved["images"]["dedup_threshold"] == config.section_defaults("images")["dedup_threshold"]
-    assert resolved["fine"]["geo"]["max_pairs"] == config.section_defaults("fine.geo")["max_pairs"]
+    assert resolved["solver"]["max_pairs"] == config.section_defaults("solver")["max_pairs"]
     res = smk(repo, tmp_path, "-n", "all", "--config", f"flatlandia_root={flat_root}", "sfm={matcher: fast}")
     assert res.returncode != 0
     assert (

@@ -11,10 +11,11 @@ import pandas as pd
 import pytest
 
 from flatlandia import escape, io, summary, tables
-from flatlandia.city import report as city_report
+from flatlandia.city import table as city_table
 from flatlandia.coarse import evaluation as coarse_evaluation
 from flatlandia.data import stats
-from flatlandia.fine import evaluation, report, scene_eval
+from flatlandia.fine import evaluation, scene_localization
+from flatlandia.fine import table as fine_table
 from flatlandia.viewer import page
 from flatlandia.viewer.scene import SceneView
 
@@ -112,12 +113,12 @@ def city_frame(method: str = "index + solver") -> pd.DataFrame:
     row = {
         c.name: 1.5 if c.kind == "float" else 2 if c.kind == "int" else "tiled" for c in tables.SCHEMAS["city_scale"]
     }
-    return city_report.table([{**row, "method": method}])
+    return city_table.table([{**row, "method": method}])
 
 
 def scene_rows(method: str = "geometric solver") -> pd.DataFrame:
     s = fine_summaries()[0]
-    return pd.DataFrame([{**s, "scene": "9", "method": method, "method_slug": "geo", "proposal": "whole"}])
+    return pd.DataFrame([{**s, "scene": "9", "method": method, "method_slug": "solver", "proposal": "whole"}])
 
 
 # ----------------------------------------------------------------------------- the functions
@@ -135,7 +136,7 @@ def test_markdown_escapes_markup_but_keeps_plain_names():
     assert escape.markdown(HOSTILE) == r"\\input{secret.tex}&lt;img src=x onerror=alert(1)&gt;\|pipe"
     assert escape.markdown("*b* `c` [l](u) & x\ny") == r"\*b\* \`c\` \[l\](u) &amp; x y"
     assert escape.markdown("_em_ a__b") == r"\_em\_ a\_\_b"
-    for plain in ["R_30", "2N_LM", "geo_gt_gtbb", "GAT+ATT", "Sim+Trip", "GT-BB", "-1.5e+03", "0.375 / 0.500"]:
+    for plain in ["R_30", "2N_LM", "solver_gt_gtbb", "GAT+ATT", "Sim+Trip", "GT-BB", "-1.5e+03", "0.375 / 0.500"]:
         assert escape.markdown(plain) == plain
     text = ["| a | b |", "|---|---|", "| " + escape.markdown(HOSTILE) + " | " + escape.markdown("_em_ *b*") + " |"]
     assert rendered_cells("\n".join(text) + "\n")[2:] == [HOSTILE, "_em_ *b*"]
@@ -185,10 +186,10 @@ def test_normal_tables_are_unchanged():
     [
         lambda: tables.to_markdown(stats_frame(["Barcelona", "Sao Paulo"])),
         lambda: tables.to_latex(stats_frame(["Barcelona", "Sao Paulo"]), caption="Dataset statistics"),
-        lambda: report.render_markdown(report.table_rows(fine_summaries()), note="a **note**"),
+        lambda: fine_table.render_markdown(fine_table.table_rows(fine_summaries()), note="a **note**"),
         lambda: coarse_evaluation.render_markdown(coarse_table(), note="`x`"),
-        lambda: city_report.markdown(city_frame(), "note `x`"),
-        lambda: scene_eval.render_markdown(scene_rows(), "9"),
+        lambda: city_table.markdown(city_frame(), "note `x`"),
+        lambda: scene_localization.render_markdown(scene_rows(), "9"),
     ],
 )
 def test_escaping_changes_nothing_without_specials(render, monkeypatch):
@@ -200,8 +201,8 @@ def test_escaping_changes_nothing_without_specials(render, monkeypatch):
 
 
 def test_fine_markdown_escapes_run_values():
-    df = report.table_rows(fine_summaries(label=HOSTILE, trained_on=HOSTILE))
-    md = report.render_markdown(df, note="the **note** stays bold")
+    df = fine_table.table_rows(fine_summaries(label=HOSTILE, trained_on=HOSTILE))
+    md = fine_table.render_markdown(df, note="the **note** stays bold")
     assert_markdown_safe(md)
     assert "the **note** stays bold" in md and "## Table 4 (GT-BB proposals)" in md
     cells = rendered_cells(md)
@@ -213,12 +214,12 @@ def test_fine_markdown_escapes_run_values():
 def test_coarse_city_and_scene_markdown_escape_their_values():
     for md in (
         coarse_evaluation.render_markdown(coarse_table(loss=HOSTILE, strategy="R_30|x"), note="n"),
-        city_report.markdown(city_frame(method=HOSTILE), "note"),
-        scene_eval.render_markdown(scene_rows(method=HOSTILE), "<b>scene</b>"),
+        city_table.markdown(city_frame(method=HOSTILE), "note"),
+        scene_localization.render_markdown(scene_rows(method=HOSTILE), "<b>scene</b>"),
     ):
         assert_markdown_safe(md)
         assert HOSTILE in rendered_cells(md)
-    head = scene_eval.render_markdown(scene_rows(), "<b>*x*</b>").splitlines()[0]
+    head = scene_localization.render_markdown(scene_rows(), "<b>*x*</b>").splitlines()[0]
     assert head == r"# Scene &lt;b&gt;\*x\*&lt;/b&gt;: localization with the benchmark's methods (no retraining)"
 
 

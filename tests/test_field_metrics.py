@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from flatlandia import paper, tables
-from flatlandia.fine import evaluation, report, scene_eval
+from flatlandia.fine import evaluation, scene_localization
+from flatlandia.fine import table as fine_table
 
 
 def _errors(error_m, error_deg):
@@ -60,25 +61,25 @@ def test_orienternet_figures_are_keyed_by_our_thresholds():
 
 def _summaries():
     """Two runs as fine_eval writes them: the solver on GT-BB (gt maps) and on the whole map (depth)."""
-    gtbb = {"run": "geo_gt_gtbb", "map_type": "gt", "strategy": "GT-BB", **evaluation.summarise(ERRORS)}
+    gtbb = {"run": "solver_gt_gtbb", "map_type": "gt", "strategy": "GT-BB", **evaluation.summarise(ERRORS)}
     whole = _errors([0.5, 2.0, 10.0, np.inf], [0.5, 2.0, 10.0, 180.0])
     return [
         gtbb,
-        {"run": "geo_depth_whole", "map_type": "depth", "strategy": "whole map", **evaluation.summarise(whole)},
+        {"run": "solver_depth_whole", "map_type": "depth", "strategy": "whole map", **evaluation.summarise(whole)},
     ]
 
 
 def test_every_run_has_its_recalls_in_parquet_markdown_and_latex(tmp_path):
-    df = report.table_rows(_summaries())
+    df = fine_table.table_rows(_summaries())
     tables.write_table(df, "fine_localization", tmp_path / "f.parquet", tmp_path / "f.md", tmp_path / "f.tex")
     back = pd.read_parquet(tmp_path / "f.parquet").set_index("run")
-    assert back.loc["geo_gt_gtbb", evaluation.RECALL_COLUMNS].tolist() == pytest.approx([30, 50, 70, 20, 40, 60])
-    assert back.loc["geo_depth_whole", evaluation.RECALL_COLUMNS].tolist() == pytest.approx([25, 50, 50, 25, 50, 50])
+    assert back.loc["solver_gt_gtbb", evaluation.RECALL_COLUMNS].tolist() == pytest.approx([30, 50, 70, 20, 40, 60])
+    assert back.loc["solver_depth_whole", evaluation.RECALL_COLUMNS].tolist() == pytest.approx([25, 50, 50, 25, 50, 50])
 
     flat = (tmp_path / "f.md").read_text().splitlines()
     head = [c.strip() for c in flat[0].split("|")[1:-1]]
     row = dict(zip(head, (c.strip() for c in flat[2].split("|")[1:-1])))
-    assert row["run"] == "geo_gt_gtbb" and [row[c] for c in evaluation.RECALL_COLUMNS] == [
+    assert row["run"] == "solver_gt_gtbb" and [row[c] for c in evaluation.RECALL_COLUMNS] == [
         "30",
         "50",
         "70",
@@ -88,11 +89,11 @@ def test_every_run_has_its_recalls_in_parquet_markdown_and_latex(tmp_path):
     ]
     tex = (tmp_path / "f.tex").read_text()
     assert r"recall\_1m & recall\_3m & recall\_5m & recall\_1deg & recall\_3deg & recall\_5deg" in tex
-    assert r"geo\_depth\_whole" in tex and "& 25 & 50 & 50 & 25 & 50 & 50 &" in tex
+    assert r"solver\_depth\_whole" in tex and "& 25 & 50 & 50 & 25 & 50 & 50 &" in tex
 
 
 def test_paper_layout_keeps_tables_4_5_and_adds_recall_beside_orienternet():
-    md = report.render_markdown(report.table_rows(_summaries()))
+    md = fine_table.render_markdown(fine_table.table_rows(_summaries()))
     table4, recall = md.split("## Recall at the field's thresholds")
     assert "## Table 4 (GT-BB proposals)" in table4 and "## Table 5 (coarse proposals and whole map)" in table4
     assert "recall" not in table4.split("## Table 4")[1]  # the paper's layout stays as it was
@@ -110,9 +111,9 @@ def test_paper_layout_keeps_tables_4_5_and_adds_recall_beside_orienternet():
 def test_a_run_without_recalls_reads_as_missing_not_zero():
     """A summary written before the recalls existed: NaN in the table, a dash in the markdown."""
     old = {k: v for k, v in _summaries()[0].items() if k not in evaluation.RECALL_COLUMNS}
-    df = report.table_rows([old])
+    df = fine_table.table_rows([old])
     assert df[evaluation.RECALL_COLUMNS].isna().all(axis=None)
-    assert "| geometric solver | GT-BB | gt | – | – | – | – | – | – |" in report.render_markdown(df)
+    assert "| geometric solver | GT-BB | gt | – | – | – | – | – | – |" in fine_table.render_markdown(df)
 
 
 def test_scene_rows_markdown_shows_the_recalls():
@@ -121,7 +122,7 @@ def test_scene_rows_markdown_shows_the_recalls():
             {
                 "scene": "9",
                 "method": "geometric solver",
-                "method_slug": "geo",
+                "method_slug": "solver",
                 "map_type": "depth",
                 "proposal": "whole",
                 "strategy": "whole map",
@@ -129,7 +130,7 @@ def test_scene_rows_markdown_shows_the_recalls():
             }
         ]
     )
-    lines = scene_eval.render_markdown(rows, "9").splitlines()
+    lines = scene_localization.render_markdown(rows, "9").splitlines()
     head = [c.strip() for c in lines[2].split("|")[1:-1]]
     cells = dict(zip(head, (c.strip() for c in lines[4].split("|")[1:-1])))
     assert [cells[c] for c in evaluation.RECALL_COLUMNS] == ["30.00", "50.00", "70.00", "20.00", "40.00", "60.00"]

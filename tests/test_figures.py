@@ -97,7 +97,7 @@ def test_the_papers_medians_are_marked_where_it_publishes_them(errors):
     assert any(np.isclose(x, paper.TABLE4[("MLP", "depth")][4] / 1.4) for x in pos), pos
     coarse_deg = {float(ln.get_xdata()[0]) for ax, ln in stars if ax is fig.axes[7]}
     assert coarse_deg == {paper.TABLE5[("MLP", "Sim+Trip", "depth")][1]}
-    assert not [ln for _, ln in stars if to_hex(ln.get_color()) == METHOD_COLOURS["geo"]]  # no paper value
+    assert not [ln for _, ln in stars if to_hex(ln.get_color()) == METHOD_COLOURS["solver"]]  # no paper value
 
 
 def test_error_vs_objects_has_integer_count_axes_and_a_row_per_setting(errors):
@@ -127,7 +127,7 @@ def test_the_figures_are_written_as_pngs(errors, tmp_path):
 
 
 def test_a_proposal_setting_unknown_here_gets_a_row_of_its_own_last(errors):
-    more = {**errors, "geo_depth_coarse-new": errors["geo_depth_gtbb"]}
+    more = {**errors, "solver_depth_coarse-new": errors["solver_depth_gtbb"]}
     fig = figures.error_cdf_figure(more)
     assert len(fig.axes) == 20  # the 4 default settings, then the new one
     assert fig.axes[-2].get_title().startswith("coarse-new, depth local maps")

@@ -8,8 +8,10 @@ import pytest
 import torch
 from snakemake_runner import smk
 
-from flatlandia import checkpoints, geo, proposals
-from flatlandia.fine import evaluation, learned, report, solver, solver_problem, solver_scoring, training
+from flatlandia import checkpoints, geo, proposals, solver
+from flatlandia.fine import evaluation, learned, training
+from flatlandia.fine import table as fine_table
+from flatlandia.solver import problem, scoring
 
 torch.set_num_threads(1)
 
@@ -82,17 +84,17 @@ def test_compiled_scoring_equals_padded_numpy_costs(metric):
     rng = np.random.default_rng(3)
     ref, cls = rng.uniform(-100, 100, (150, 2)), rng.integers(0, 6, 150)
     q, qc = rng.uniform(1, 30, (7, 2)), np.r_[rng.integers(0, 6, 6), 9]  # class 9: no candidates
-    pb = solver_problem.Problem(q, qc, ref, cls, metric, solver.SolverConfig(position_sigma_m=5.0))  # inliers by chance
+    pb = problem.Problem(q, qc, ref, cls, metric, solver.SolverConfig(position_sigma_m=5.0))  # inliers by chance
     t, th, s = rng.uniform(-100, 100, (4000, 2)), rng.uniform(-np.pi, np.pi, 4000), rng.uniform(2, 50, 4000)
-    total, inl, match = solver_scoring.data_cost(pb, t, th, s)
-    cost = solver_scoring.padded_costs(pb, t, th, s)
+    total, inl, match = scoring.data_cost(pb, t, th, s)
+    cost = scoring.padded_costs(pb, t, th, s)
     best = cost.argmin(2)
     bc = np.take_along_axis(cost, best[..., None], 2)[..., 0]
     tau2 = pb.cfg.tau**2
     np.testing.assert_allclose(total, np.minimum(bc, tau2).sum(1), rtol=1e-4, atol=1e-4)
     ok = np.abs(bc - tau2) > 1e-3  # float32 reference: leave exact ties with the cap aside
     assert (inl == (bc < tau2))[ok].all() and inl.sum() > 100
-    ref_match = solver_scoring.padded_candidates(pb)[0][np.arange(pb.m)[None], best]
+    ref_match = scoring.padded_candidates(pb)[0][np.arange(pb.m)[None], best]
     assert (match[inl] == ref_match[inl]).all()
     assert not inl[:, -1].any()
 
@@ -124,27 +126,27 @@ def test_covisibility_prior_breaks_a_repeated_pattern(seen_copy):
     seen = np.zeros((2, 12), bool)
     seen[seen_copy, 6 * seen_copy : 6 * seen_copy + 6] = True  # only one camera saw its copy
     cfg = {"covis_weight": 2.0}
-    s = solver.solve(depth, cls, ref, ref_cls, metric=False, config=cfg, prior_xy=prior, prior_seen=seen)
+    s = solver.solve(depth, cls, ref, ref_cls, metric=False, config=cfg, priors=solver.TrainingPriors(prior, seen))
     assert np.hypot(s.x - 200.0 * seen_copy, s.y) < 1e-3 and abs(geo.wrap_angle(s.theta)) < 1e-6
     assert sorted(m for _, m in s.inliers) == list(range(6 * seen_copy, 6 * seen_copy + 6))
 
 
 def test_training_priors_come_from_the_training_split_only(scene):
     _, q = scene
-    prior, seen = evaluation.training_priors(q, {"covis_weight": 2.0})
+    prior, seen = solver.priors.training_priors(q, {"covis_weight": 2.0})
     train = q[q["split"] == "train"]
     assert len(prior) == len(seen) == len(train)
     assert np.allclose(prior[:, :2], train[["x_m", "y_m"]].to_numpy())
-    assert evaluation.training_priors(q, {"camera_prior": False}) == (None, None)
-    assert evaluation.training_priors(q, {"covis_weight": 0.0})[1] is None  # no co-visibility cost: no sets
+    assert solver.priors.training_priors(q, {"camera_prior": False}) == (None, None)
+    assert solver.priors.training_priors(q, {"covis_weight": 0.0})[1] is None  # no co-visibility cost: no sets
 
 
 def test_solver_returns_none_without_candidates():
     assert solver.solve(np.array([[1.0, 0.0], [2.0, 1.0]]), [1, 2], np.zeros((0, 2)), np.zeros(0, int)) is None
 
 
-def test_fit_priors():
-    mu, sd = solver.fit_priors([np.array([[10.0, 0.0], [0.0, 10.0]]), np.array([[30.0, 0.0]])])
+def test_fit_scale():
+    mu, sd = solver.fit_scale([np.array([[10.0, 0.0], [0.0, 10.0]]), np.array([[30.0, 0.0]])])
     assert mu == pytest.approx(np.mean(np.log([10.0, 30.0])))
     assert sd > 0
 
@@ -208,7 +210,7 @@ def test_markdown_table_layout():
         )
         for mt in ("gt", "depth")
     ]
-    md = report.render_markdown(report.table_rows(rows))
+    md = fine_table.render_markdown(fine_table.table_rows(rows))
     assert "Table 4" in md and "| MLP | GT-BB |" in md and "13.3" in md  # the paper's depth MLP median
 
 
@@ -429,21 +431,21 @@ def test_training_proposals_regimes(scene):
 def test_a_new_scene_is_localized_by_the_benchmark_methods_without_its_own_priors(scene):
     """Rule scene_localization's rows: the solver (no camera or scale prior from the new scene) and
     each given model, on every query, per map type x proposal; no rows for a scene without queries."""
-    from flatlandia.fine import scene_eval
+    from flatlandia.fine import scene_localization
 
     ref, q = scene
     q = q.iloc[:12]
     cfg = learned.FineConfig(model="MLP", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
     models = {("mlp", "depth"): (learned.build_model(cfg), cfg)}
-    rows = scene_eval.scene_rows(ref, q, models, ["gt", "depth"], {"camera_prior": True, "scale_prior": True})
+    rows = scene_localization.scene_rows(ref, q, models, ["gt", "depth"], {"camera_prior": True, "scale_prior": True})
     assert len(rows) == 2 * (2 + 1)  # proposals x (solver per map type + the depth model)
     assert (rows["queries"] == 12).all() and (rows["scene"] == "9").all()
-    assert set(rows["method_slug"]) == {"geo", "mlp"} and set(rows.loc[rows["method_slug"] == "mlp", "map_type"]) == {
-        "depth"
-    }
-    exact = rows[(rows["method_slug"] == "geo") & (rows["map_type"] == "gt") & (rows["proposal"] == "gtbb")].iloc[0]
+    assert set(rows["method_slug"]) == {"solver", "mlp"} and set(
+        rows.loc[rows["method_slug"] == "mlp", "map_type"]
+    ) == {"depth"}
+    exact = rows[(rows["method_slug"] == "solver") & (rows["map_type"] == "gt") & (rows["proposal"] == "gtbb")].iloc[0]
     assert exact["median_m"] < 0.1  # GT local maps on the oracle box: the solver is exact
-    assert "| geometric solver | gt | GT-BB | 12 |" in scene_eval.render_markdown(rows, "9")
-    empty = scene_eval.scene_rows(ref, q.iloc[:0], models, ["gt"], {})
+    assert "| geometric solver | gt | GT-BB | 12 |" in scene_localization.render_markdown(rows, "9")
+    empty = scene_localization.scene_rows(ref, q.iloc[:0], models, ["gt"], {})
     assert empty.empty and "queries" in empty.columns
-    assert "No rows" in scene_eval.render_markdown(empty, "9")
+    assert "No rows" in scene_localization.render_markdown(empty, "9")

@@ -14,7 +14,7 @@ import pycolmap
 import pytest
 from snakemake_runner import smk
 
-from flatlandia import io, similarity
+from flatlandia import io, scaled_rigid
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 from flatlandia.images import classify_points, gps_alignment, image_queries
@@ -36,7 +36,7 @@ def lund_run(repo, flat_root, tmp_path_factory):
         "results/lund/localization/localization.parquet",
         "--config",
         f"flatlandia_root={flat_root}",
-        "fine={runs: {methods: [geo]}}",  # the solver only: no benchmark model to train here
+        "fine={runs: {methods: [solver]}}",  # the solver only: no benchmark model to train here
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd
@@ -229,7 +229,7 @@ def test_local_frame_is_the_gps_map_up_to_a_rotation_and_scale(lund_run):
     assert gps_alignment.is_local(local) and gps_alignment.frame_of(local) is None
     X = np.array([p.xyz for p in model.points3D.values()])
     a, b = gps_alignment.map_points(local, X), gps_alignment.map_points(gps, X)
-    fit = similarity.least_squares(a, b, allow_reflection=True)
+    fit = scaled_rigid.least_squares(a, b, allow_reflection=True)
     assert not fit.reflection
     assert fit.scale == pytest.approx(gps["metres_per_sfm_unit"], rel=1e-6)
     assert np.abs(fit.apply(a) - b).max() < 1e-6 * np.ptp(b)

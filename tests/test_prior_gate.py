@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from flatlandia.fine import solver_priors
-from flatlandia.fine.solver_priors import PriorGate
+from flatlandia.solver import priors
+from flatlandia.solver.priors import PriorGate
 
 
 @pytest.mark.parametrize("spread_m", [50.0, 5_000.0, 40_000.0])
@@ -33,10 +33,10 @@ def test_the_grid_is_built_only_once_the_tree_has_answered_enough_points():
     rng = np.random.default_rng(3)
     cams = rng.uniform(0, 200, (50, 2))
     pts = rng.uniform(-20, 220, (2000, 2))
-    solver_priors._GATES.clear()
-    gate = solver_priors.prior_gate(cams, 15.0)
+    priors._GATES.clear()
+    gate = priors.prior_gate(cams, 15.0)
     first = gate.near(pts)
-    assert gate.tree_only and solver_priors.prior_gate(cams, 15.0) is gate  # cached
+    assert gate.tree_only and priors.prior_gate(cams, 15.0) is gate  # cached
     needed = int(np.ceil(PriorGate.GRID_AFTER * gate.cells))
     while gate.queried + len(pts) < needed:
         gate.near(pts)

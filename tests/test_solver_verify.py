@@ -2,23 +2,17 @@
 (a case only the verifier resolves) and real scenes built from the published data."""
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
 import pytest
 from conftest import published_scene
 
-from flatlandia import geo, proposals
+from flatlandia import geo, proposals, solver
 from flatlandia.data import localmaps
-from flatlandia.fine import (
-    evaluation,
-    solver,
-    solver_bound,
-    solver_kernels,
-    solver_priors,
-    solver_verify,
-    solver_verify_fit,
-)
+from flatlandia.fine import evaluation
+from flatlandia.solver import bound, kernels, priors, scoring, verify, verify_fit
 
 
 def _scene(flat_root, scene: str):
@@ -37,16 +31,16 @@ def real_scenes(flat_root):
 def test_coseen_pairs_and_gated_triples_equal_brute_force():
     rng = np.random.default_rng(0)
     seen = rng.random((30, 40)) < 0.1
-    co = solver_priors.coseen(seen)
+    co = priors.coseen(seen)
     np.testing.assert_array_equal(co.pair, (seen.T.astype(int) @ seen.astype(int)) > 0)
     for a in range(40):  # the lists hold each row of the matrix
         np.testing.assert_array_equal(co.idx[co.ptr[a] : co.ptr[a + 1]], np.flatnonzero(co.pair[a]))
     ca, cb, cc = (np.sort(rng.choice(40, 12, replace=False)).astype(np.int64) for _ in range(3))
     distinct = [t for t in itertools.product(ca, cb, cc) if len(set(t)) == 3]
     gated = [t for t in distinct if co.pair[t[0], t[1]] and co.pair[t[0], t[2]] and co.pair[t[1], t[2]]]
-    got = solver_kernels._candidate_triples(ca, cb, cc, co, True)
+    got = kernels._candidate_triples(ca, cb, cc, co, True)
     assert sorted(map(tuple, got.tolist())) == sorted(gated) and 0 < len(gated) < len(distinct)
-    got = solver_kernels._candidate_triples(ca, cb, cc, co, False)
+    got = kernels._candidate_triples(ca, cb, cc, co, False)
     assert sorted(map(tuple, got.tolist())) == sorted(distinct)
 
 
@@ -73,7 +67,7 @@ def test_covis_gate_keeps_the_true_pose_with_far_fewer_hypotheses():
     out = {}
     for gate in (0, 10**9):
         cfg = {"covis_gate_above": gate}
-        out[gate] = solver.solve(depth, qc, ref, cls, config=cfg, prior_xy=prior, prior_seen=seen)
+        out[gate] = solver.solve(depth, qc, ref, cls, config=cfg, priors=solver.TrainingPriors(prior, seen))
     for s in out.values():
         assert np.hypot(s.x - cam[0], s.y - cam[1]) < 1e-3 and abs(geo.wrap_angle(s.theta - theta)) < 1e-4
     assert out[0].n_hypotheses * 5 < out[10**9].n_hypotheses
@@ -103,27 +97,28 @@ def _two_copies():
 
 def test_only_the_verifier_picks_the_place_whose_camera_saw_just_these_objects():
     depth, cls, ref, ref_cls, prior, seen = _two_copies()
-    cheapest = solver.solve(depth, cls, ref, ref_cls, prior_xy=prior, prior_seen=seen)
+    given = solver.TrainingPriors(prior, seen)
+    cheapest = solver.solve(depth, cls, ref, ref_cls, priors=given)
     assert np.hypot(cheapest.x, cheapest.y) < 0.5  # the exact copy costs less
-    jaccard = np.eye(len(solver_verify.FEATURES))[solver_verify.FEATURES.index("jaccard")]
-    verifier = solver_verify.Verifier(jaccard, np.zeros_like(jaccard), np.ones_like(jaccard))
-    verified = solver.solve(depth, cls, ref, ref_cls, prior_xy=prior, prior_seen=seen, verifier=verifier)
+    jaccard = np.eye(len(verify.FEATURES))[verify.FEATURES.index("jaccard")]
+    verifier = verify.Verifier(jaccard, np.zeros_like(jaccard), np.ones_like(jaccard))
+    verified = solver.solve(depth, cls, ref, ref_cls, priors=replace(given, verifier=verifier))
     assert np.hypot(verified.x - 200.0, verified.y) < 0.5 and abs(geo.wrap_angle(verified.theta)) < 0.01
     assert sorted(m for _, m in verified.inliers) == list(range(16, 22))
     # the features say why: a full overlap with the camera there, ten objects seen but not matched here
-    pool = solver.candidates(depth, cls, ref, ref_cls, prior_xy=prior, prior_seen=seen, verify=True)
-    data, _, inl, match = solver.solver_scoring.score_terms(pool.problem, pool.priors, pool.t, pool.theta, pool.s)
-    f = solver_verify.features(pool.problem, pool.priors, pool.t, pool.theta, pool.s, data, inl, match)
-    assert f.shape == (len(pool.t), len(solver_verify.FEATURES)) and np.isfinite(f).all()
+    pool = solver.candidates(depth, cls, ref, ref_cls, priors=given, use_verifier=True)
+    data, _, inl, match = scoring.score_terms(pool.problem, pool.priors, pool.t, pool.theta, pool.s)
+    f = verify.features(pool.problem, pool.priors, pool.t, pool.theta, pool.s, data, inl, match)
+    assert f.shape == (len(pool.t), len(verify.FEATURES)) and np.isfinite(f).all()
     at = [np.argmin(np.hypot(pool.t[:, 0] - x, pool.t[:, 1])) for x in (0.0, 200.0)]
-    col = {name: f[at, k] for k, name in enumerate(solver_verify.FEATURES)}
+    col = {name: f[at, k] for k, name in enumerate(verify.FEATURES)}
     assert col["jaccard"] == pytest.approx([6 / 16, 1.0]) and col["uncovered"].tolist() == [0, 0]
     assert col["unseen"][0] > col["unseen"][1] + 5
 
 
 def test_verifier_fit_learns_the_deciding_feature_deterministically():
     rng = np.random.default_rng(4)
-    f_count = len(solver_verify.FEATURES)
+    f_count = len(verify.FEATURES)
 
     def groups(n):
         out = []
@@ -135,13 +130,13 @@ def test_verifier_fit_learns_the_deciding_feature_deterministically():
         return out
 
     train, held_out = groups(200), groups(100)
-    v = solver_verify.fit(train)
+    v = verify.fit(train)
     assert np.argmax(np.abs(v.weights)) == 3 and v.weights[3] > 0
     picked = np.mean([right[np.argmax(v.score(f))] for f, right in held_out])
     assert picked > 0.6  # 1 in 8 by chance
-    np.testing.assert_array_equal(solver_verify.fit(train).weights, v.weights)
+    np.testing.assert_array_equal(verify.fit(train).weights, v.weights)
     with pytest.raises(ValueError, match="right hypothesis"):
-        solver_verify.fit([(f, np.zeros(len(f), bool)) for f, _ in held_out])
+        verify.fit([(f, np.zeros(len(f), bool)) for f, _ in held_out])
 
 
 def _within(errors: pd.DataFrame) -> int:
@@ -152,28 +147,17 @@ def test_verifier_learned_on_real_training_splits_places_more_test_queries(real_
     """Scenes 8 and 17 on the whole map, depth maps: a verifier learned from their training splits
     (leave-one-out) places more of their val and test queries within (5 m, 5 deg) than the
     cheapest hypothesis does."""
-    scale_prior = solver.fit_priors(
-        [localmaps.xy(c) for _, q in real_scenes for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
-    )
-    verifier = solver_verify_fit.fit_verifier(real_scenes, {}, scale_prior)
-    assert verifier.weights[solver_verify.FEATURES.index("jaccard")] > 0
+    scale_prior = solver.depth_scale_prior([q for _, q in real_scenes])
+    verifier = verify_fit.fit_verifier(real_scenes, {}, scale_prior)
+    assert verifier.weights[verify.FEATURES.index("jaccard")] > 0
     counts = {False: 0, True: 0}
     n = 0
     for ref, q in real_scenes:
         held = q[q["split"] != "train"]
-        prior, seen = evaluation.training_priors(q)
         props = proposals.whole_map_proposals(ref, held)
         for use in counts:
-            e = evaluation.evaluate_solver(
-                ref,
-                held,
-                props,
-                "depth",
-                prior_xy=prior,
-                scale_prior=scale_prior,
-                prior_seen=seen,
-                verifier=verifier if use else None,
-            )
+            learned = solver.LearnedPriors(scale_prior, verifier if use else None)
+            e = evaluation.evaluate_solver(ref, held, props, "depth", priors=solver.scene_priors(ref, q, {}, learned))
             counts[use] += _within(e)
         n += len(held)
     assert counts[True] > counts[False] and counts[True] >= 0.6 * n
@@ -191,35 +175,32 @@ def test_true_match_bound_is_exact_on_exact_bearings():
     local = geo.world_to_local(world, cam, theta)
     depth = local * np.exp(rng.uniform(-0.7, 0.7, (5, 1))) / 30.0
     start = (cam[0] + 2.0, cam[1] - 1.5, theta + 0.05, 25.0)
-    x, y, th = solver_bound.true_match_pose(depth, world, start, ranges=False)
+    x, y, th = bound.true_match_pose(depth, world, start, ranges=False)
     assert np.hypot(x - cam[0], y - cam[1]) < 1e-6 and abs(geo.wrap_angle(th - theta)) < 1e-8
-    x, y, th = solver_bound.true_match_pose(depth, world, start, ranges=True)
+    x, y, th = bound.true_match_pose(depth, world, start, ranges=True)
     assert np.hypot(x - cam[0], y - cam[1]) < 0.5
 
 
 def test_true_match_bound_on_real_scenes_and_priors_tighten_it(real_scenes):
     """Scenes 8 and 17, val and test queries: the bound is metres, not tens of metres, and the
     training-split priors (cameras and scale) bring more queries within 3 m."""
-    scale_prior = solver.fit_priors(
-        [localmaps.xy(c) for _, q in real_scenes for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
-    )
+    scale_prior = solver.depth_scale_prior([q for _, q in real_scenes])
     err = {False: [], True: []}
     for ref, q in real_scenes:
         ref_xy = ref[["x_m", "y_m"]].to_numpy()
         pos = {int(o): k for k, o in enumerate(ref["obj_idx"])}
-        prior = evaluation.training_priors(q)[0]
+        given = solver.TrainingPriors(solver.priors.training_priors(q)[0], None, scale_prior)
         for r in q[q["split"] != "train"].itertuples(index=False):
             theta = np.radians(r.theta_deg)
             start = (r.x_m, r.y_m, theta, r.depth_oracle_scale_m)
             matched = ref_xy[[pos[int(o)] for o in r.ref_idx]]
             for use in err:
-                x, y, _ = solver_bound.true_match_pose(
+                x, y, _ = bound.true_match_pose(
                     localmaps.local_map(r, "depth"),
                     matched,
                     start,
                     True,
-                    prior_xy=prior if use else None,
-                    scale_prior=scale_prior if use else None,
+                    given=given if use else None,
                 )
                 err[use].append(np.hypot(x - r.x_m, y - r.y_m))
     assert np.median(err[False]) < 3.0
@@ -230,4 +211,4 @@ def test_no_verifier_without_co_visibility_sets(real_scenes):
     """Without co-visibility (``covis_weight`` 0 leaves the training sets out) there is nothing to
     learn from: no verifier, and the solver keeps the cheapest hypothesis."""
     ref, q = real_scenes[0]
-    assert solver_verify_fit.fit_verifier([(ref, q)], {"covis_weight": 0.0}, None) is None
+    assert verify_fit.fit_verifier([(ref, q)], {"covis_weight": 0.0}, None) is None

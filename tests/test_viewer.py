@@ -72,8 +72,8 @@ def data():
         return e
 
     errors = {
-        "geo_depth_gtbb": run(2.0, 3.0, matches=True),
-        "geo_gt_gtbb": run(0.0, 0.0),
+        "solver_depth_gtbb": run(2.0, 3.0, matches=True),
+        "solver_gt_gtbb": run(0.0, 0.0),
         "mlp_depth_gtbb": run(8.0, 10.0),
         "mlp_att_depth_gtbb": run(20.0, 25.0),
     }
@@ -92,13 +92,13 @@ def test_the_local_map_at_the_true_pose_lies_on_its_reference_objects(view):
 
 
 def test_the_featured_runs_are_the_solver_and_the_best_learned_model(view):
-    assert view.featured == ("geo_depth_gtbb", "mlp_depth_gtbb")
-    assert [r.name for r in view.runs][:2] == ["geo_gt_gtbb", "geo_depth_gtbb"]  # panel order
+    assert view.featured == ("solver_depth_gtbb", "mlp_depth_gtbb")
+    assert [r.name for r in view.runs][:2] == ["solver_gt_gtbb", "solver_depth_gtbb"]  # panel order
 
 
 def test_only_the_solver_brings_matches(view):
     q = next(q for q in view.queries if q.token == "t1")
-    assert q.estimate("geo_depth_gtbb").matches[1:] == q.ref_idx[1:]
+    assert q.estimate("solver_depth_gtbb").matches[1:] == q.ref_idx[1:]
     assert q.estimate("mlp_depth_gtbb").matches is None
 
 
@@ -111,13 +111,13 @@ def test_a_query_figure_draws_truth_estimates_matches_and_errors(view):
     fig = query_figures.query_figure(view, q)
     (ax,) = fig.axes
     texts = [t.get_text() for t in ax.get_legend().get_texts()]
-    e_geo, e_mlp = q.estimate("geo_depth_gtbb"), q.estimate("mlp_depth_gtbb")
+    e_geo, e_mlp = q.estimate("solver_depth_gtbb"), q.estimate("mlp_depth_gtbb")
     assert any(t.startswith("true pose") for t in texts)
     assert f"{e_geo.run.label}: {e_geo.error_m:.2f} m, {e_geo.error_deg:.1f}° (4 inliers, 3 correct)" in texts
     assert f"{e_mlp.run.label}: {e_mlp.error_m:.2f} m, {e_mlp.error_deg:.1f}°" in texts
     colours = [to_hex(ln.get_color()) for ln in ax.get_lines()]
     assert colours.count(query_figures.WRONG_COLOUR) == 1  # the one wrong match, in red
-    assert colours.count(METHOD_COLOURS["geo"]) >= q.local.shape[0] - 1  # the right ones, in the solver's colour
+    assert colours.count(METHOD_COLOURS["solver"]) >= q.local.shape[0] - 1  # the right ones, in the solver's colour
     crosses = [c for c in ax.collections if len(c.get_offsets()) == len(q.local) and c.get_facecolor().size]
     assert {to_hex(c.get_facecolor()[0]) for c in crosses} >= {TRUTH_COLOUR, METHOD_COLOURS["mlp"]}
 
@@ -156,7 +156,7 @@ def test_the_page_is_self_contained_small_and_deterministic(view):
         "t2": sorted(view_runs),
     }
     t2 = next(q for q in d["queries"] if q["token"] == "t2")
-    assert t2["est"]["geo_depth_gtbb"][:3] == [None, None, None]
+    assert t2["est"]["solver_depth_gtbb"][:3] == [None, None, None]
     assert sum(c["count"] for c in d["classes"]) == len(view.ref) == len(d["objects"])
 
 
@@ -215,8 +215,8 @@ def test_clicking_a_test_query_shows_its_layers_in_chromium(browser, view, tmp_p
 
     browser.find_element(By.CSS_SELECTOR, '.camera[data-token="t1"]').click()
     state = browser.execute_script("return window.flatlandiaViewer")
-    assert state["selected"] == "t1" and state["drawn"] == ["truth", "geo_depth_gtbb", "mlp_depth_gtbb"]
-    for layer in ('[data-layer="truth"]', '[data-run="geo_depth_gtbb"]', '[data-run="mlp_depth_gtbb"]'):
+    assert state["selected"] == "t1" and state["drawn"] == ["truth", "solver_depth_gtbb", "mlp_depth_gtbb"]
+    for layer in ('[data-layer="truth"]', '[data-run="solver_depth_gtbb"]', '[data-run="mlp_depth_gtbb"]'):
         r = browser.execute_script(f"return document.querySelector('#layer-query {layer}').getBoundingClientRect()")
         assert r["width"] > 5 and r["height"] > 5 and box[0] <= r["left"] and r["right"] <= box[2], (layer, r)
     after = browser.get_screenshot_as_png()

@@ -71,10 +71,12 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
     assert list(stats["city"]) == ["Lisbon", "Paris", "all"]
     assert stats.set_index("city").loc["all", "total_queries"] == 15
     fine = pd.read_parquet(wd / "results/tables/fine_localization.parquet").set_index("run")
-    assert fine.loc["geo_gt_gtbb", "median_m"] < 1e-6  # GT local maps are exact rigid copies
-    assert fine.loc["geo_depth_gtbb", "queries"] == fine.loc["geo_gt_gtbb", "queries"] > 0
-    assert {"mlp_depth_gtbb", "geo_depth_coarse-simtrip", "geo_depth_whole", "gat_att_depth_gtbb"} <= set(fine.index)
-    assert fine.loc["mlp_depth_gtbb", "trained_on"] == "GT-BB" and fine.loc["geo_depth_gtbb", "trained_on"] == ""
+    assert fine.loc["solver_gt_gtbb", "median_m"] < 1e-6  # GT local maps are exact rigid copies
+    assert fine.loc["solver_depth_gtbb", "queries"] == fine.loc["solver_gt_gtbb", "queries"] > 0
+    assert {"mlp_depth_gtbb", "solver_depth_coarse-simtrip", "solver_depth_whole", "gat_att_depth_gtbb"} <= set(
+        fine.index
+    )
+    assert fine.loc["mlp_depth_gtbb", "trained_on"] == "GT-BB" and fine.loc["solver_depth_gtbb", "trained_on"] == ""
     assert fine.loc["mlp_depth_coarse-simtrip", "trained_on"] == "simulated coarse, cut to 30 m"
     assert (wd / "results/fine/models/mlp_depth_coarse/checkpoint.pt").exists()
     coarse = pd.read_parquet(wd / "results/tables/coarse_localization.parquet")

@@ -114,7 +114,9 @@ def load_checkpoint(path, config_class, build_model: Callable) -> tuple[nn.Modul
         cfg = config_class.from_dict(_meta(path, ck)["config"])
         model = build_model(cfg)
     except (TypeError, ValueError, KeyError) as e:  # ConfigError is a ValueError
-        raise InputError(path, f"the checkpoint's config does not build a model ({_first_line(e)}): {REBUILD}") from None
+        raise InputError(
+            path, f"the checkpoint's config does not build a model ({_first_line(e)}): {REBUILD}"
+        ) from None
     state = ck.get("state_dict")
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise InputError(path, f"the checkpoint's weights are not a mapping of names to tensors: {REBUILD}")

@@ -47,7 +47,7 @@ def _defaults_of(node: dict):
 
 
 def section_defaults(dotted: str = "") -> dict:
-    """Every default under a section, nested as the config is: ``section_defaults('fine.geo')``."""
+    """Every default under a section, nested as the config is: ``section_defaults('solver')``."""
     return _defaults_of(_node(dotted))
 
 
@@ -63,15 +63,32 @@ def _join(prefix: str, key) -> str:
     return f"{prefix}.{key}" if prefix else str(key)
 
 
+#: sections that moved: an old config naming them is told the new key (not only "did you mean")
+MOVED = {"fine.geo": "solver"}
+
+
+def _moved(dotted: str, value) -> list[str]:
+    """The keys of a moved section as ``'old' (moved: now 'new')``, one per key given under it."""
+    new = MOVED[dotted]
+    keys = list(value) if isinstance(value, dict) and value else [None]
+    return [
+        f"'{_join(dotted, k) if k else dotted}' (moved: the section is now '{new}', e.g. '{_join(new, k or '...')}')"
+        for k in keys
+    ]
+
+
 def unknown_keys(cfg, node: dict | None = None, prefix: str = "") -> list[str]:
-    """Every key of ``cfg`` the schema does not know, as ``'a.b.c' (did you mean 'a.b.d'?)``."""
+    """Every key of ``cfg`` the schema does not know, as ``'a.b.c' (did you mean 'a.b.d'?)``, or
+    for a section that moved (:data:`MOVED`) with its new name."""
     node = schema() if node is None else node
     if not isinstance(cfg, dict) or "properties" not in node:
         return []
     props = node["properties"]
     out = []
     for key, value in cfg.items():
-        if key in props:
+        if _join(prefix, key) in MOVED:
+            out += _moved(_join(prefix, key), value)
+        elif key in props:
             out += unknown_keys(value, props[key], _join(prefix, key))
         elif node.get("additionalProperties", True) is False:
             out.append(f"'{_join(prefix, key)}'{_closest(str(key), props, prefix)}")
@@ -249,7 +266,7 @@ same way (the section's other keys keep their values):
 (Snakemake itself does not accept dotted keys such as `images.missing_gps=stop`.) A key the schema
 does not know, or a value of the wrong type, stops the run before any job with one line naming
 it, e.g.
-`ERROR: config: unknown key 'fine.geo.topk' (did you mean 'fine.geo.top_k'?)`.
+`ERROR: config: unknown key 'solver.topk' (did you mean 'solver.top_k'?)`.
 Relative paths are taken from the working directory, else from the repository. The scene sheet
 (`scenes`) is checked against `workflow/schemas/scenes.schema.yaml`.
 

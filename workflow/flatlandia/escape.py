@@ -66,7 +66,7 @@ def markdown(text) -> str:
     """``text`` as literal Markdown inline text (a table cell, a value in a sentence or heading):
     on one line, one cell, no HTML, entity, link, image, code or emphasis of its own.
 
-    ``_`` between two letters or digits cannot start or end emphasis (``R_30``, ``geo_gt_gtbb``):
+    ``_`` between two letters or digits cannot start or end emphasis (``R_30``, ``solver_gt_gtbb``):
     it stays as written, so the file reads as before; any other ``_`` gets a backslash."""
     s = str(text)
 

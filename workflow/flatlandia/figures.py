@@ -81,9 +81,9 @@ def plot_training_curves(curves: dict[str, pd.DataFrame], path: str | Path) -> N
 # ----------------------------------------------------------------------------- fine runs, styled alike
 
 #: one colour per method, the same in every figure and in the map viewer
-METHOD_COLOURS = {"geo": "#000000", "mlp": "#1f77b4", "mlp_att": "#9467bd", "gat": "#ff7f0e", "gat_att": "#8c564b"}
+METHOD_COLOURS = {"solver": "#000000", "mlp": "#1f77b4", "mlp_att": "#9467bd", "gat": "#ff7f0e", "gat_att": "#8c564b"}
 #: the methods' names as the paper writes them (its tables' keys); ``geo`` is our solver
-METHOD_LABELS = {"geo": "solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+METHOD_LABELS = {"solver": "solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 #: one line style per local-map type (matplotlib, and the viewer's SVG dash pattern)
 MAP_TYPE_STYLES = {"gt": "-", "depth": "--"}
 MAP_TYPE_DASHES = {"gt": "", "depth": "6 3"}

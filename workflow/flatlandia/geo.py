@@ -100,6 +100,14 @@ def wrap_angle(theta: np.ndarray | float) -> np.ndarray | float:
     return (np.asarray(theta) + np.pi) % (2 * np.pi) - np.pi
 
 
+def pose_errors(x, y, theta_rad, gt_x, gt_y, gt_theta_rad):
+    """Position error (m) and absolute wrapped heading error (deg) of poses against the truth;
+    vectorised."""
+    e_m = np.hypot(np.asarray(x, float) - gt_x, np.asarray(y, float) - gt_y)
+    e_deg = np.abs(np.degrees(wrap_angle(np.asarray(theta_rad, float) - np.asarray(gt_theta_rad, float))))
+    return e_m, e_deg
+
+
 def world_to_local(points: np.ndarray, cam_xy: np.ndarray, theta: float) -> np.ndarray:
     """Express world points in a camera frame: camera at origin, looking along +x, +y left."""
     return (np.asarray(points, float) - np.asarray(cam_xy, float)) @ rot2(theta)

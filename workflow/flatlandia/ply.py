@@ -47,7 +47,9 @@ class Header:
 def _parse(path: Path, head: bytes) -> Header:
     end = head.find(b"end_header")
     if not head.startswith(b"ply") or end < 0:
-        raise InputError(path, f"not a PLY file (no 'ply' magic or no end_header in its first {MAX_HEADER_BYTES} bytes)")
+        raise InputError(
+            path, f"not a PLY file (no 'ply' magic or no end_header in its first {MAX_HEADER_BYTES} bytes)"
+        )
     newline = head.find(b"\n", end)
     header_bytes = (newline if newline >= 0 else end + len(b"end_header")) + 1
     try:
@@ -100,7 +102,8 @@ def check_header(path: str | Path) -> Header:
         rows = sum(e.count for e in header.elements)
         if rows * MIN_ASCII_ROW_BYTES > body:
             raise InputError(
-                path, f"PLY header declares {rows} rows but the ascii body holds only {body} bytes (truncated or forged)"
+                path,
+                f"PLY header declares {rows} rows but the ascii body holds only {body} bytes (truncated or forged)",
             )
         return header
     need = 0

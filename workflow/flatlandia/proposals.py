@@ -53,6 +53,30 @@ def whole_map_proposals(ref: pd.DataFrame, queries: pd.DataFrame) -> pd.DataFram
     )
 
 
+def for_queries(
+    ref: pd.DataFrame,
+    queries: pd.DataFrame,
+    kind: str,
+    map_type: str | None = None,
+    coarse: pd.DataFrame | None = None,
+    strategy: str | None = None,
+) -> pd.DataFrame:
+    """The proposals of one scene's ``queries`` of a kind: ``gtbb``, ``whole``, or any other kind
+    (a coarse stage's) read from ``coarse``, a proposal table with ``map_type`` and ``strategy``
+    columns, keeping the rows of this scene, ``map_type`` and ``strategy``."""
+    if kind == "gtbb":
+        return gtbb_proposals(ref, queries)
+    if kind == "whole":
+        return whole_map_proposals(ref, queries)
+    if coarse is None:
+        raise ValueError(f"proposals {kind!r} need a coarse proposal table")
+    scene = str(ref["scene"].iloc[0])
+    p = coarse[(coarse["scene"].astype(str) == scene) & (coarse["strategy"] == strategy)]
+    if map_type is not None and "map_type" in p.columns:
+        p = p[p["map_type"] == map_type]
+    return p[p["token"].astype(str).isin(queries["token"].astype(str))]
+
+
 def simulated_coarse_proposals(
     ref: pd.DataFrame,
     queries: pd.DataFrame,

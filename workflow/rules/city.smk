@@ -43,24 +43,6 @@ rule city_index:
         "../scripts/city_index.py"
 
 
-rule city_priors:
-    input:
-        unpack(city_scene_inputs),
-    output:
-        priors="results/city/priors.json",
-    log:
-        "logs/city_priors/all.log",
-    benchmark:
-        "logs/benchmarks/city_priors/all.tsv"
-    conda:
-        "../../envs/flatlandia.yaml"
-    threads: 1
-    params:
-        geo=config["fine"]["geo"],
-    script:
-        "../scripts/city_priors.py"
-
-
 rule city_eval:
     input:
         unpack(city_eval_inputs),
@@ -78,7 +60,7 @@ rule city_eval:
         "../../envs/flatlandia.yaml"
     threads: 1
     params:
-        geo=config["fine"]["geo"],
+        solver=config["solver"],
         split=config["city"]["split"],
         search=config["city"]["search"],
     script:
@@ -88,7 +70,7 @@ rule city_eval:
 rule city_simulate:
     input:
         unpack(city_scene_inputs),
-        priors="results/city/priors.json",
+        priors="results/solver/priors/whole.json",
     output:
         errors="results/city/simulated/{objects}/errors.parquet",
         summary="results/city/simulated/{objects}/summary.json",
@@ -108,7 +90,7 @@ rule city_simulate:
         seed=config["seed"],
         spacing_m=config["city"]["spacing_m"],
         split=config["city"]["split"],
-        geo=config["fine"]["geo"],
+        solver=config["solver"],
         search=config["city"]["search"],
         simulate=config["city"]["simulate"],
     script:

@@ -60,6 +60,7 @@ rule coarse_solver:
     input:
         reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
         queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        solver_priors="results/solver/priors/scale.json",
     output:
         proposals="results/coarse/solver/proposals.parquet",
     log:
@@ -73,8 +74,8 @@ rule coarse_solver:
         mem_mb=4000,
         runtime=20,
     params:
-        solver=config["coarse"]["solver"],
-        geo=config["fine"]["geo"],
+        proposals=config["coarse"]["solver"],
+        solver=config["solver"],
     script:
         "../scripts/coarse_solver.py"
 

@@ -1,4 +1,4 @@
-# Fine 3DoF localization: the geometric solver (`geo`) and the paper's learned baselines
+# Fine 3DoF localization: the geometric solver (`solver`) and the paper's learned baselines
 # (mlp, mlp_att, gat, gat_att) on GT/depth local maps x proposals (GT-BB, whole map, coarse), test split.
 # A learned model trains per (model x map type x training proposals): gtbb (the paper's), or coarse
 # (simulated coarse proposals, for the runs evaluated on real coarse proposals; fine.coarse_training).
@@ -47,7 +47,7 @@ rule fine_eval:
     benchmark:
         "logs/benchmarks/fine_eval/{method}_{map_type}_{proposal}.tsv"
     wildcard_constraints:
-        method="geo|" + "|".join(FINE_MODELS),
+        method="solver|" + "|".join(FINE_MODELS),
         map_type="gt|depth",
         proposal="gtbb|whole|" + "|".join(FINE_COARSE),
     conda:
@@ -58,7 +58,7 @@ rule fine_eval:
         runtime=60,
     params:
         p=fine_eval_params,
-        geo=config["fine"]["geo"],
+        solver=config["solver"],
     script:
         "../scripts/fine_eval.py"
 
@@ -99,6 +99,6 @@ rule scene_localization:
         runtime=60,
     params:
         map_types=config["fine"]["runs"]["map_types"],
-        geo=config["fine"]["geo"],
+        solver=config["solver"],
     script:
         "../scripts/scene_localization.py"

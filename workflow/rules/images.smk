@@ -32,6 +32,8 @@ rule images_audit:
         "../../envs/flatlandia.yaml"
     params:
         dedup_threshold=config["images"]["dedup_threshold"],
+        min_side_px=config["images"]["min_side_px"],
+        max_megapixels=config["images"]["max_megapixels"],
         missing_gps=config["images"]["missing_gps"],
         align_mode=config["images"]["align"]["mode"],
         folder_fingerprint=images_folder_fingerprint,
@@ -54,8 +56,10 @@ rule segment:
     priority: 10
     conda:
         "../../envs/flatlandia.yaml"
+    # measured peak (offline backend): 3.4 GB for one 49.9 MP image, 0.7 GB for 8 MP; an image is
+    # at most images.max_megapixels (the audit drops larger ones): 1000 + 80 MB per megapixel of it
     resources:
-        mem_mb=4000,
+        mem_mb=int(1000 + 80 * config["images"]["max_megapixels"]),
         runtime=30,
     params:
         backend=config["segment"]["backend"],
@@ -84,6 +88,8 @@ rule sfm:
     conda:
         "../../envs/flatlandia.yaml"
     threads: sfm_threads()
+    # measured on 3 images of 49.9 MP (images.max_megapixels 50): 1.0 GB with 1 thread, 1.5 GB with 2;
+    # the rest is matching and mapping, which grow with the number of images, not their size
     resources:
         mem_mb=8000,
         runtime=120,

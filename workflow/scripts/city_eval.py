@@ -10,26 +10,25 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, runlog
+from flatlandia import io, runlog, solver
 from flatlandia.city import evaluate, search
 from flatlandia.city.index import ViewIndex
-from flatlandia.city.priors import load
 from flatlandia.fine import evaluation
 
 
 def main(smk, log):
     maps, queries = pd.read_parquet(smk.input.map), pd.read_parquet(smk.input.queries)
-    scale, verifier = load(json.loads(Path(smk.input.priors).read_text()))
-    geo, split, method = dict(smk.params.geo), smk.params.split, smk.wildcards.method
+    learned = solver.LearnedPriors.read(smk.input.priors)
+    settings, split, method = dict(smk.params.solver), smk.params.split, smk.wildcards.method
     cfg = search.SearchConfig.from_dict(smk.params.search)
     parts, built = [], []
     for city, ref in maps.groupby("city", sort=True):
         q = queries[queries["city"] == city]
         if method == "solver":
-            parts.append(evaluate.solver_errors(ref, q, split, geo, scale, verifier))
+            parts.append(evaluate.solver_errors(ref, q, split, settings, learned))
         else:
             ix = ViewIndex.load(Path(smk.input.index) / f"{city}.npz")
-            parts.append(evaluate.index_errors(ix, q, split, cfg, geo, scale, verifier))
+            parts.append(evaluate.index_errors(ix, q, split, cfg, settings, learned))
         log.info("city %s: %s", city, evaluate.summary(parts[-1]) if len(parts[-1]) else "no queries")
     if method == "index":
         built = json.loads((Path(smk.input.index) / "build.json").read_text())

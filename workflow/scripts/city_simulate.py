@@ -6,16 +6,13 @@ built here because these maps exist only for the measurement. Today's solver is 
 whole-map search needs a (views x objects) co-visibility matrix, 7 GB at 100,000 objects.
 """
 
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, runlog
+from flatlandia import io, runlog, solver
 from flatlandia.city import evaluate, index, search, simulate
-from flatlandia.city.priors import load
 from flatlandia.fine import evaluation
 
 
@@ -24,8 +21,8 @@ def main(smk, log):
     refs = {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.reference_maps)}
     qs = {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.queries)}
     templates = {s: simulate.Template(refs[s], qs[s]) for s in scenes}
-    scale, verifier = load(json.loads(Path(smk.input.priors).read_text()))
-    geo, split, sim = dict(smk.params.geo), smk.params.split, smk.params.simulate
+    learned = solver.LearnedPriors.read(smk.input.priors)
+    settings, split, sim = dict(smk.params.solver), smk.params.split, smk.params.simulate
     cfg = search.SearchConfig.from_dict(smk.params.search)
     n_objects = int(smk.wildcards.objects)
     parts, built, sizes, tiles = [], [], [], []
@@ -40,7 +37,7 @@ def main(smk, log):
         built.append((ix.nbytes(), time.process_time() - c0))
         sizes.append(len(ref))
         tiles.append(ref["scene"].nunique())
-        parts.append(evaluate.index_errors(ix, q[q["scene"] == s], split, cfg, geo, scale, verifier))
+        parts.append(evaluate.index_errors(ix, q[q["scene"] == s], split, cfg, settings, learned))
         log.info("scene %s: %d objects, %s", s, len(ref), evaluate.summary(parts[-1]))
     errors = pd.concat(parts, ignore_index=True)
     out = evaluate.summary(errors)

@@ -1,15 +1,15 @@
 """Rule city_table: results/tables/city_scale.{parquet,md}, today's solver beside the city
-search at every city size, tiled and simulated (flatlandia.city.report)."""
+search at every city size, tiled and simulated (flatlandia.city.table)."""
 
 import json
 from pathlib import Path
 
 from flatlandia import io, runlog, tables
-from flatlandia.city import report
+from flatlandia.city import table as city_table
 
 
 def main(smk, log):
-    df = report.table([json.loads(Path(p).read_text()) for p in smk.input.summaries])
+    df = city_table.table([json.loads(Path(p).read_text()) for p in smk.input.summaries])
     note = (
         f"Depth local maps, {smk.params.split} split, no proposal; CPU per query on one core (index, region "
         "priors and solver for the city search; the solver alone for the whole-map row). `tiled`: the benchmark "
@@ -19,7 +19,7 @@ def main(smk, log):
         "off (no pose is counted apart)."
     )
     tables.write_table(df, "city_scale", smk.output.parquet, note=note)  # schema-checked
-    text = report.markdown(df, note)
+    text = city_table.markdown(df, note)
     io.write_text(text, smk.output.markdown)
     log.info("\n%s", text)
 

@@ -53,7 +53,7 @@ def main(smk, log):
         f"Ours: test split of every scene; one model per loss trained on GT and depth maps ({trained}; batch "
         f"{c0.batch_size}, Adam lr {c0.lr:g} {c0.lr_schedule}; triplet negatives {100 * c0.hard_negatives:.0f}% "
         "hardest unmatched, the rest random (paper: all random)). "
-        "'Solver': no training, the geometric solver's whole-map poses (fine.geo, training-split priors) "
+        "'Solver': no training, the geometric solver's whole-map poses (config `solver`, training-split priors) "
         "place the query's objects; N_LM / 2N_LM: the objects nearest to them, R_30: every object of the "
         "query's classes within 30 m of them, at the best pose and its near-equal alternatives; BB: the "
         "GT-BB box built from the solver's matches and camera. "

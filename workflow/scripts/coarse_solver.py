@@ -3,43 +3,37 @@
 results/coarse/solver/proposals.parquet: one row per (test query, map type, strategy) with the
 proposed reference ``obj_idx`` and its precision / recall / success, the shape of the retrieval
 models' proposals (rule coarse_eval merges its rows into Table 3; the fine runs on
-``coarse-solver`` read it). The solver is fine_eval's: the same settings (config fine.geo) and
-the same training-split priors (cameras, co-visibility, the depth maps' scale).
+``coarse-solver`` read it). The solver is fine_eval's: the same settings (config `solver`) and
+the same training-split priors (cameras, co-visibility, and rule solver_priors' scale prior).
 """
 
 import time
 
 import pandas as pd
 
-from flatlandia import io, runlog
+from flatlandia import io, runlog, solver
 from flatlandia.coarse import solver_proposals
-from flatlandia.fine import evaluation, solver
 
 
 def main(smk, log):
-    geo_cfg = dict(smk.params.geo)
-    cfg = solver_proposals.SolverProposalConfig.from_dict(smk.params.solver)
-    solver_cfg = solver.SolverConfig.from_dict(geo_cfg)
+    settings = dict(smk.params.solver)
+    cfg = solver_proposals.SolverProposalConfig.from_dict(smk.params.proposals)
+    solver_cfg = solver.SolverConfig.from_dict(settings)
+    learned = solver.LearnedPriors.read(smk.input.solver_priors)
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
-    scale_prior = evaluation.depth_scale_prior([q for _, q in scenes], geo_cfg)
     solver.warm_up()
     parts = []
     t0 = time.perf_counter()
     for ref, q in scenes:
-        prior, seen = evaluation.training_priors(q, geo_cfg)
-        cand = solver_proposals.scene_candidates(ref, prior, seen)
+        cand = solver_proposals.scene_candidates(ref, solver.scene_priors(ref, q, settings, learned))
         test = q[q["split"] == "test"]
         for mt in solver_proposals.MAP_TYPES:
-            parts.append(
-                solver_proposals.scene_proposals(
-                    ref, test, mt, cand, cfg, solver_cfg, scale_prior if mt == "depth" else None
-                )
-            )
+            parts.append(solver_proposals.scene_proposals(ref, test, mt, cand, cfg, solver_cfg))
     rows = pd.concat(parts, ignore_index=True)
     log.info(
         "%d queries x map types in %.1f s", len(rows) // len(solver_proposals.STRATEGIES), time.perf_counter() - t0
     )
-    meta = {"loss": solver_proposals.LABEL, "config": cfg.to_dict(), "geo": geo_cfg, "split": "test"}
+    meta = {"loss": solver_proposals.LABEL, "config": cfg.to_dict(), "solver": settings, "split": "test"}
     io.write_parquet(rows, smk.output.proposals, meta)
     summary = rows.groupby(["map_type", "strategy"])[["precision", "recall", "success", "n_proposed"]].mean()
     log.info("\n%s", summary.to_string())

@@ -9,12 +9,12 @@ recalls beside OrienterNet's published MGL figures, another task) as ``fine_loca
 import json
 
 from flatlandia import io, runlog, tables
-from flatlandia.fine import report
+from flatlandia.fine import table as fine_table
 
 
 def main(smk, log):
     summaries = [json.loads(open(p).read()) for p in smk.input.summaries]
-    df = report.table_rows(summaries)
+    df = fine_table.table_rows(summaries)
     note = (
         "Test split of every scene; errors in true metres (pu: the paper's convention, local-map units x 215). "
         "Learned models train on the train split (best-on-validation weights) with GT-BB proposals, or, for "
@@ -31,7 +31,7 @@ def main(smk, log):
         title="Fine 3DoF localization (Tables 4-5), test split",
         note=note,
     )
-    text = report.render_markdown(df, note=note)
+    text = fine_table.render_markdown(df, note=note)
     io.write_text(text, smk.output.markdown)
     log.info("\n%s", text)
 

@@ -12,24 +12,6 @@ from flatlandia import io, runlog
 from flatlandia.images import gps_alignment, image_queries
 
 
-def gps_mode(smk, views, cams, p):
-    has_gps = cams["lat"].notna() & cams["lon"].notna()
-    cams = cams[has_gps].reset_index(drop=True)
-    out = gps_alignment.fit_gps_alignment(
-        np.array([views[n].centre for n in cams["name"]]).reshape(-1, 3),
-        np.array([views[n].R for n in cams["name"]]).reshape(-1, 3, 3),
-        cams[["lon", "lat"]].to_numpy(float),
-        altitude=cams["alt"].to_numpy(float),
-        compass_deg=cams["heading"].to_numpy(float),
-        threshold_m=float(p["threshold_m"]),
-        iterations=int(p["iterations"]),
-        seed=int(smk.params.seed),
-        use_heading=bool(p["use_heading"]),
-        source=str(smk.input.cameras),
-    )
-    return cams, out, "camera up axes -> ground plane; RANSAC similarity to GPS"
-
-
 def main(smk, log):
     rec = pycolmap.Reconstruction(smk.input.model)
     views = {v.name: v for v in image_queries.views_from_colmap(rec)}
@@ -45,22 +27,24 @@ def main(smk, log):
         )
         method = "camera up axes -> ground plane; local frame, no GPS (images.align.mode: none)"
     else:
-        cams, out, method = gps_mode(smk, views, cams, p)
+        cams, out = gps_alignment.align_camera_table(cams, views, p, smk.params.seed, str(smk.input.cameras), log)
+        method = "camera up axes -> ground plane; RANSAC similarity to GPS"
     io.write_json({"scene": scene, "method": method, "cameras": cams["name"].tolist(), **out}, smk.output.json)
     if gps_alignment.is_local(out):
         log.info("scene %s: local frame on the SfM ground plane of %d cameras, unit: %s", scene, len(cams), out["unit"])
         return
+    compass = out["compass_median_diff_deg"]
     log.info(
-        "scene %s: %d/%d cameras inliers, camera-to-GPS residual median %.2f m (inliers %.2f m), max %.2f m; "
-        "%.3f m per SfM unit; compass vs SfM heading median %.1f deg",
+        "scene %s: %d/%d cameras inliers, camera-to-GPS residual median %.2f m (inliers %s m), max %.2f m; "
+        "%.3f m per SfM unit; compass vs SfM heading median %s",
         scene,
         out["inliers"],
         out["cameras_with_gps"],
         out["median_residual_m"],
-        out["inlier_median_residual_m"],
+        "n/a" if out["inlier_median_residual_m"] is None else f"{out['inlier_median_residual_m']:.2f}",
         out["max_residual_m"],
         out["metres_per_sfm_unit"],
-        out.get("compass_median_diff_deg", float("nan")),
+        "n/a (no headings)" if compass is None else f"{compass:.1f} deg over {out['compass_cameras']} cameras",
     )
 
 

@@ -2,7 +2,7 @@
 
 Published scenes carry no camera GPS, so their SfM -> map transform is the published chain
 (recorded here as a metric 2D transform); the robust GPS fit of the images scenes
-(:func:`flatlandia.similarity.ransac_scaled_rigid`) is exercised on scene 12 in
+(:func:`flatlandia.scaled_rigid.ransac_scaled_rigid`) is exercised on scene 12 in
 tests/test_align.py.
 """
 

@@ -6,7 +6,7 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints, io, runlog
-from flatlandia.fine import learned, scene_eval
+from flatlandia.fine import learned, scene_localization
 
 
 def main(smk, log):
@@ -22,18 +22,22 @@ def main(smk, log):
         model, cfg = checkpoints.load_checkpoint(path, learned.FineConfig, learned.build_model)
         slug = Path(path).parent.name.rsplit("_", 2)[0]  # {model}_{map_type}_{train}
         models[(slug, cfg.map_type)] = (model, cfg)
-    rows = scene_eval.scene_rows(
+    rows = scene_localization.scene_rows(
         ref,
         queries,
         models,
         list(smk.params.map_types),
-        dict(smk.params.geo),
+        dict(smk.params.solver),
         progress=runlog.progress(log, f"scene {scene}"),
     )
     io.write_parquet(rows, smk.output.parquet, meta)
-    io.write_text(scene_eval.render_markdown(rows, scene), smk.output.markdown)
+    io.write_text(scene_localization.render_markdown(rows, scene), smk.output.markdown)
     log.info(
-        "scene %s: %d queries, %d rows\n%s", scene, len(queries), len(rows), scene_eval.render_markdown(rows, scene)
+        "scene %s: %d queries, %d rows\n%s",
+        scene,
+        len(queries),
+        len(rows),
+        scene_localization.render_markdown(rows, scene),
     )
 
 

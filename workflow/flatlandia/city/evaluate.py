@@ -13,11 +13,11 @@ import time
 import numpy as np
 import pandas as pd
 
-from flatlandia import proposals
+from flatlandia import proposals, solver
 from flatlandia.city import search
 from flatlandia.city.index import ViewIndex
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation, solver
+from flatlandia.fine import evaluation
 
 #: a pose farther than this from the truth is in the wrong scene (scenes are < 300 m across and
 #: tiled 1 km apart)
@@ -25,36 +25,37 @@ WRONG_SCENE_M = 500.0
 
 
 def solver_errors(
-    ref: pd.DataFrame, queries: pd.DataFrame, split: str, geo: dict, scale_prior, verifier
+    ref: pd.DataFrame, queries: pd.DataFrame, split: str, settings: dict, learned: solver.LearnedPriors | None
 ) -> pd.DataFrame:
     """Today's solver on the whole map of one city: the ``split`` queries, priors from its training split."""
-    prior, seen = evaluation.training_priors(queries, geo)
     test = queries[queries["split"] == split]
     return evaluation.evaluate_solver(
         ref,
         test,
         proposals.whole_map_proposals(ref, test),
         "depth",
-        geo,
-        prior_xy=prior,
-        scale_prior=scale_prior,
-        prior_seen=seen,
-        verifier=verifier,
+        settings,
+        priors=solver.scene_priors(ref, queries, settings, learned),
         method="whole-map solver",
     )
 
 
 def index_errors(
-    ix: ViewIndex, queries: pd.DataFrame, split: str, cfg: search.SearchConfig, geo: dict, scale_prior, verifier
+    ix: ViewIndex,
+    queries: pd.DataFrame,
+    split: str,
+    cfg: search.SearchConfig,
+    settings: dict,
+    learned: solver.LearnedPriors | None,
 ) -> pd.DataFrame:
     """The city search on the ``split`` queries of one city (the index holds its training views)."""
-    geo_cfg = solver.SolverConfig.from_dict(geo)
+    solver_settings = solver.SolverConfig.from_dict(settings)
     solver.warm_up()
     rows = []
     for r in queries[queries["split"] == split].itertuples(index=False):
         q = localmaps.local_map(r, "depth")
         t0, c0 = time.perf_counter(), time.process_time()
-        found = search.localize(ix, q, np.asarray(r.classes), cfg, geo_cfg, scale_prior, verifier)
+        found = search.localize(ix, q, np.asarray(r.classes), cfg, solver_settings, learned)
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         sol = found.solution
         if sol is None:

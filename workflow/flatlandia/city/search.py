@@ -19,10 +19,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from flatlandia import config
+from flatlandia import config, solver
 from flatlandia.city import kernels
 from flatlandia.city.index import ViewIndex
-from flatlandia.fine import solver
 
 _SEARCH = config.section_defaults("city.search")
 
@@ -114,6 +113,14 @@ def region_priors(ix: ViewIndex, centres: np.ndarray, cfg: SearchConfig, prior_r
     return rows, views, seen
 
 
+def region_training_priors(ix: ViewIndex, cams: np.ndarray, seen: np.ndarray, learned=None) -> solver.TrainingPriors:
+    """The solver's priors on a search's regions: the training views near them and what they saw
+    (:func:`region_priors`), the learned scale prior, and the verifier where there are views."""
+    if not len(cams):
+        return solver.TrainingPriors(scale=learned.scale if learned else None)
+    return solver.TrainingPriors(ix.cam[cams], seen).with_learned(learned)
+
+
 @dataclass
 class Located:
     """A query's pose (None when the solver found none) and what the index proposed."""
@@ -128,15 +135,15 @@ def localize(
     q_xy,
     q_cls,
     cfg: SearchConfig,
-    geo: solver.SolverConfig,
-    scale_prior=None,
-    verifier=None,
+    settings: solver.SolverConfig,
+    learned: solver.LearnedPriors | None = None,
 ) -> Located:
-    """Pose of a depth query in the city: regions from the index, then the solver on them."""
+    """Pose of a depth query in the city: regions from the index, then the solver on them with the
+    training views near them as its priors (and the ``learned`` scale prior and verifier)."""
     q_xy, q_cls = np.asarray(q_xy, float).reshape(-1, 2), np.asarray(q_cls, np.int64)
     views, _ = view_scores(ix, q_xy, q_cls, cfg)
     centres = region_centres(ix, views, cfg)
-    rows, cams, seen = region_priors(ix, centres, cfg, geo.prior_radius_m)
+    rows, cams, seen = region_priors(ix, centres, cfg, settings.prior_radius_m)
     sol = None
     if len(rows) >= 2:
         sol = solver.solve(
@@ -145,10 +152,7 @@ def localize(
             ix.obj_xy[rows],
             ix.obj_cls[rows],
             metric=False,
-            config=geo,
-            prior_xy=ix.cam[cams] if len(cams) else None,
-            scale_prior=scale_prior,
-            prior_seen=seen if len(cams) else None,
-            verifier=verifier if len(cams) else None,
+            config=settings,
+            priors=region_training_priors(ix, cams, seen, learned),
         )
     return Located(sol, rows, centres)

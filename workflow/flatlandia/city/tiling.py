@@ -34,7 +34,7 @@ def place(
     The map keeps each scene's columns, moves ``x_m, y_m`` by the scene's offset and renumbers
     ``obj_idx`` 0..N-1 (the scene's own id stays in ``scene_obj_idx``). Queries move alike
     (``x_m, y_m``; local maps and headings are in the camera frame and do not change) and their
-    ``ref_idx`` point to the city ids, so ``evaluation.training_priors`` works on the city table.
+    ``ref_idx`` point to the city ids, so ``solver.priors.training_priors`` works on the city table.
     """
     maps, qs, base = [], [], 0
     for (dx, dy), ref, q in zip(np.asarray(offsets, float), refs, queries):

@@ -25,10 +25,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, geo, proposals
+from flatlandia import config, geo, proposals, solver
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation as fine_evaluation
-from flatlandia.fine import solver
 
 STRATEGIES = ["N_LM", "2N_LM", "R_30", "BB"]
 MAP_TYPES = list(localmaps.LOCAL_MAP_COLUMNS)  # gt, depth
@@ -58,23 +56,20 @@ class SolverProposalConfig:
 
 @dataclass
 class Candidates:
-    """One scene's reference map as the solver reads it, with the training-split priors."""
+    """One scene's reference map as the solver reads it, with its training priors."""
 
     xy: np.ndarray  # (N, 2) metres
     cls: np.ndarray  # (N,) class ids
-    prior_xy: np.ndarray | None = None  # (P, 3) training cameras: x, y, heading (radians)
-    prior_seen: np.ndarray | None = None  # (P, N) bool: training camera p saw reference row n
+    priors: solver.TrainingPriors | None = None  # over the N rows
 
 
-def scene_candidates(ref: pd.DataFrame, prior_xy=None, prior_seen_objs=None) -> Candidates:
-    """The solver's view of a scene: rows of ``ref``; ``prior_seen_objs``, per prior camera the
-    reference ``obj_idx`` it saw (:func:`flatlandia.fine.evaluation.training_priors`), as a mask."""
-    seen = fine_evaluation.seen_mask(ref["obj_idx"], prior_seen_objs) if prior_xy is not None else None
-    return Candidates(ref[["x_m", "y_m"]].to_numpy(float), ref["class_id"].to_numpy(), prior_xy, seen)
+def scene_candidates(ref: pd.DataFrame, priors: solver.TrainingPriors | None = None) -> Candidates:
+    """The solver's view of a scene: rows of ``ref`` and its priors (:func:`flatlandia.solver.scene_priors`)."""
+    return Candidates(ref[["x_m", "y_m"]].to_numpy(float), ref["class_id"].to_numpy(), priors)
 
 
 def hypotheses(
-    query_xy, query_cls, cand: Candidates, metric: bool, geo_cfg=None, scale_prior=None, alternatives: int = 1
+    query_xy, query_cls, cand: Candidates, metric: bool, settings=None, alternatives: int = 1
 ) -> list[tuple[solver.Solution, np.ndarray]]:
     """The best pose on the whole map, then up to ``alternatives - 1`` more, each solved on the map
     without the reference objects the earlier poses matched. Each comes with its candidate rows
@@ -89,10 +84,8 @@ def hypotheses(
             cand.xy[rows],
             cand.cls[rows],
             metric=metric,
-            config=geo_cfg,
-            prior_xy=cand.prior_xy,
-            scale_prior=scale_prior,
-            prior_seen=cand.prior_seen[:, rows] if cand.prior_seen is not None else None,
+            config=settings,
+            priors=cand.priors.rows(rows) if cand.priors is not None else None,
         )
         if sol is None:
             break
@@ -144,8 +137,7 @@ def scene_proposals(
     map_type: str,
     cand: Candidates,
     cfg: SolverProposalConfig,
-    geo_cfg=None,
-    scale_prior=None,
+    settings=None,
 ) -> pd.DataFrame:
     """One row per (query, strategy) of one scene: the proposal (reference ``obj_idx``), its metrics
     against the query's matched objects (:func:`flatlandia.proposals.proposal_metrics`),
@@ -156,7 +148,7 @@ def scene_proposals(
     for r in queries.itertuples(index=False):
         q = localmaps.local_map(r, map_type)
         t0 = time.perf_counter()
-        hyps = hypotheses(q, np.asarray(r.classes), cand, map_type == "gt", geo_cfg, scale_prior, cfg.alternatives)
+        hyps = hypotheses(q, np.asarray(r.classes), cand, map_type == "gt", settings, cfg.alternatives)
         seconds = time.perf_counter() - t0
         truth = [pos[int(o)] for o in r.ref_idx]
         pose_error = float(np.hypot(hyps[0][0].x - r.x_m, hyps[0][0].y - r.y_m)) if hyps else float("inf")

@@ -18,14 +18,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, geo, paper
+from flatlandia import geo, paper, solver
+from flatlandia import proposals as proposals_module
 from flatlandia.data import localmaps
-from flatlandia import solver
+from flatlandia.geo import pose_errors  # noqa: F401 - the errors of this module's tables, for its readers
 
 if TYPE_CHECKING:  # torch and torch-geometric load in 4 s: only the learned models' evaluation needs them
     from torch import nn
 
-from flatlandia.fine import learned
+    from flatlandia.fine import learned
 
 #: errors above this many metres count as gross
 GROSS_M = 30.0
@@ -41,42 +42,6 @@ RECALL_DEG = (1.0, 3.0, 5.0)
 RECALL_COLUMNS = [f"recall_{m:g}m" for m in RECALL_M] + [f"recall_{d:g}deg" for d in RECALL_DEG]
 
 
-def training_priors(queries: pd.DataFrame, geo_config: dict | None = None):
-    """The solver's priors from one scene's training split: (prior cameras (P, 3) as x, y, heading
-    in radians, or None when ``camera_prior`` is off; per prior camera the reference ``obj_idx`` it
-    saw, for the co-visibility cost, or None). Test queries never contribute."""
-    cfg = {**config.section_defaults("fine.geo"), **(geo_config or {})}
-    if not cfg["camera_prior"]:
-        return None, None
-    tr = queries[queries["split"] == "train"]
-    prior = np.column_stack([tr["x_m"], tr["y_m"], np.radians(tr["theta_deg"])]).astype(float)
-    seen = [np.asarray(v, int) for v in tr["ref_idx"]] if float(cfg["covis_weight"]) > 0 else None
-    return prior, seen
-
-
-def seen_mask(obj_idx, prior_seen) -> np.ndarray | None:
-    """(P, N) booleans: prior camera p saw the reference object of row n (``obj_idx``: the rows'
-    ids; ``prior_seen``: per prior camera the ``obj_idx`` it saw, from :func:`training_priors`);
-    None without co-visibility sets. Ids outside ``obj_idx`` are ignored."""
-    if prior_seen is None:
-        return None
-    pos = {int(o): k for k, o in enumerate(obj_idx)}
-    seen = np.zeros((len(prior_seen), len(pos)), bool)
-    for k, objs in enumerate(prior_seen):
-        seen[k, [pos[int(o)] for o in objs if int(o) in pos]] = True
-    return seen
-
-
-def depth_scale_prior(queries, geo_config: dict | None = None) -> tuple[float, float] | None:
-    """The solver's log-scale prior of depth maps (:func:`solver.fit_priors`) from the training
-    split of every scene's queries, or None when ``fine.geo.scale_prior`` is off."""
-    cfg = {**config.section_defaults("fine.geo"), **(geo_config or {})}
-    if not cfg["scale_prior"]:
-        return None
-    train = [localmaps.xy(c) for q in queries for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
-    return solver.fit_priors(train)
-
-
 def solvable(query_classes, proposal_classes, min_objects: int = 3) -> bool:
     """Can the proposal hold a solution: at least ``min_objects`` objects of the query's classes.
 
@@ -89,13 +54,6 @@ def solvable(query_classes, proposal_classes, min_objects: int = 3) -> bool:
 
 
 # ----------------------------------------------------------------------------- errors
-
-
-def pose_errors(x, y, theta_rad, gt_x, gt_y, gt_theta_rad):
-    """Position error (m) and absolute wrapped heading error (deg); vectorised."""
-    e_m = np.hypot(np.asarray(x, float) - gt_x, np.asarray(y, float) - gt_y)
-    e_deg = np.abs(np.degrees(geo.wrap_angle(np.asarray(theta_rad, float) - np.asarray(gt_theta_rad, float))))
-    return e_m, e_deg
 
 
 @functools.lru_cache(maxsize=256)
@@ -159,26 +117,80 @@ def json_safe(d: dict) -> dict:
 # ----------------------------------------------------------------------------- solver evaluation
 
 
+def solver_errors(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
+    map_type: str,
+    proposal: str,
+    settings: dict | None,
+    learned: solver.LearnedPriors | None = None,
+    coarse: pd.DataFrame | None = None,
+    strategy: str | None = None,
+    split: str = "test",
+    every: int = 1,
+    progress: Callable[[str], Callable] | None = None,
+) -> pd.DataFrame:
+    """The fine stage's solver runs, as rule fine_eval and ``benchmarks/bench_fine_solver.py`` run
+    them: per-query errors of the ``split`` queries (every ``every``-th) of each scene (reference
+    map, queries) on their ``proposal`` (:func:`flatlandia.proposals.for_queries`), with the
+    scene's training priors and, for depth maps, the ``learned`` scale prior and verifier.
+    ``progress(scene)`` gives a progress wrapper per scene."""
+    parts = []
+    for ref, q in scenes:
+        test = q[q["split"] == split].iloc[::every]
+        props = proposals_module.for_queries(ref, test, proposal, map_type, coarse, strategy)
+        scene = str(ref["scene"].iloc[0]) if len(ref) else ""
+        parts.append(
+            evaluate_solver(
+                ref,
+                test,
+                props,
+                map_type,
+                settings,
+                priors=solver.scene_priors(ref, q, settings, learned if map_type == "depth" else None),
+                method="geometric solver",
+                progress=progress(f"scene {scene}") if progress else None,
+            )
+        )
+    return pd.concat(parts, ignore_index=True)
+
+
+def model_errors(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
+    model: nn.Module,
+    cfg: learned.FineConfig,
+    proposal: str,
+    coarse: pd.DataFrame | None = None,
+    strategy: str | None = None,
+    crop_m: float = 0.0,
+    split: str = "test",
+) -> pd.DataFrame:
+    """The fine stage's runs of a learned model, as rule fine_eval runs them: per-query errors of
+    the ``split`` queries of each scene on their ``proposal``; a model trained on simulated coarse
+    proposals (``crop_m`` > 0) sees real ones cut to their densest objects, as in its training."""
+    parts = []
+    for ref, q in scenes:
+        test = q[q["split"] == split]
+        props = proposals_module.for_queries(ref, test, proposal, cfg.map_type, coarse, strategy)
+        parts.append(evaluate_model(model, cfg, ref, test, proposals_module.crop_to_densest(ref, props, crop_m)))
+    return pd.concat(parts, ignore_index=True)
+
+
 def evaluate_solver(
     ref: pd.DataFrame,
     queries: pd.DataFrame,
     proposals: pd.DataFrame,
     map_type: str,
     config: dict | None = None,
-    prior_xy: np.ndarray | None = None,
-    scale_prior: tuple[float, float] | None = None,
+    priors: solver.TrainingPriors | None = None,
     method: str = "solver",
     progress: Callable | None = None,
-    prior_seen: list | None = None,
-    verifier: solver.Verifier | None = None,
 ) -> pd.DataFrame:
     """Run the geometric solver on every query of one scene; one row of errors per query.
 
     ``proposals`` has the shape scene, token, strategy, proposal (reference obj_idx); queries
-    without a proposal row get an empty proposal (counted as failures). ``prior_seen``: per prior
-    camera (rows of ``prior_xy``), the reference ``obj_idx`` it saw (training queries' ``ref_idx``),
-    for the solver's co-visibility cost. ``verifier``: the solver's verifier for depth maps
-    (``verify_fit.fit_verifier``), or None to keep the cheapest hypothesis.
+    without a proposal row get an empty proposal (counted as failures). ``priors``: the scene's
+    training priors over the rows of ``ref`` (:func:`flatlandia.solver.scene_priors`), with the
+    learned scale prior and verifier for depth maps; None: none.
     """
     cfg = solver.SolverConfig.from_dict(config)
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
@@ -187,7 +199,6 @@ def evaluate_solver(
     pos = {int(o): k for k, o in enumerate(obj)}
     lat = float(ref["lat"].mean())
     props = {str(t): (s, p) for t, s, p in zip(proposals["token"], proposals["strategy"], proposals["proposal"])}
-    seen = seen_mask(obj, prior_seen) if prior_xy is not None else None
     solver.warm_up()  # query times without the kernels' compilation
     rows = []
     items = list(queries.itertuples(index=False))
@@ -204,10 +215,7 @@ def evaluate_solver(
                 ref_cls[idx],
                 metric=(map_type == "gt"),
                 config=cfg,
-                prior_xy=prior_xy,
-                scale_prior=scale_prior,
-                prior_seen=seen[:, idx] if seen is not None else None,
-                verifier=verifier,
+                priors=priors.rows(idx) if priors is not None else None,
             )
             if len(idx) >= 2
             else None
@@ -257,7 +265,7 @@ def evaluate_model(
     import torch
     from torch_geometric.data import Batch
 
-from flatlandia.fine import learned
+    from flatlandia.fine import learned
 
     samples, kept = learned.samples_from_queries(ref, queries, proposals, cfg)
     ref_cls = ref["class_id"].to_numpy()

@@ -5,7 +5,7 @@ even when the camera centres lie on one line (a walk along a street) and a plane
 them is degenerate. The ground plane is therefore the plane normal to the cameras' mean "up"
 axis (:func:`camera_up`, :func:`plane_basis`: ours, pycolmap has no such step); camera centres
 projected on it are aligned to their GPS positions by pycolmap's robust similarity
-(:func:`flatlandia.similarity.ransac_scaled_rigid`: LO-RANSAC, no reflection: the up axis fixes
+(:func:`flatlandia.scaled_rigid.ransac_scaled_rigid`: LO-RANSAC, no reflection: the up axis fixes
 handedness). The compass is compared with the aligned viewing directions (ours too). The result
 is an affine map of SfM points onto the metric map, ``xy = A @ X + b`` (A: 2x3), as
 :mod:`flatlandia.images.image_queries` expects. Altitude is kept as a 1D fit along the up axis.
@@ -18,7 +18,7 @@ import numpy as np
 
 from flatlandia import geo
 from flatlandia.errors import InputError
-from flatlandia.similarity import ransac_scaled_rigid
+from flatlandia.scaled_rigid import ransac_scaled_rigid
 
 # --------------------------------------------------------------------------- GPS alignment
 
@@ -135,16 +135,21 @@ def fit_gps_alignment(
         "inliers": int(inl.sum()),
         "median_residual_m": float(np.nanmedian(res)),
         "max_residual_m": float(np.nanmax(res)),
-        "inlier_median_residual_m": float(np.median(res[inl])) if inl.any() else float("nan"),
+        "inlier_median_residual_m": float(np.median(res[inl])) if inl.any() else None,
         "residuals_m": [None if not np.isfinite(r) else float(r) for r in res],
         "inlier_mask": inl.tolist(),
         "heading_used": bool(heading_fit),
     }
-    if dst_theta is not None:
-        mapped = np.arctan2(*(view_dirs @ sim.rotation.T)[:, ::-1].T)
-        diff = np.degrees(np.abs(geo.wrap_angle(mapped - dst_theta)))
-        out["compass_median_diff_deg"] = float(np.nanmedian(diff))
-        out["compass_within_30deg"] = float(np.mean(diff[np.isfinite(diff)] < 30)) if np.isfinite(diff).any() else 0.0
+    # the compass against the aligned viewing directions, over the cameras that give a heading
+    # (None, JSON null, when none does: photos placed by a metadata.csv without a heading column)
+    given = np.isfinite(dst_theta) if dst_theta is not None else np.zeros(len(src), bool)
+    out["compass_cameras"] = int(given.sum())
+    out["compass_median_diff_deg"] = out["compass_within_30deg"] = None
+    if given.any():
+        mapped = np.arctan2(*(view_dirs[given] @ sim.rotation.T)[:, ::-1].T)
+        diff = np.degrees(np.abs(geo.wrap_angle(mapped - dst_theta[given])))
+        out["compass_median_diff_deg"] = float(np.median(diff))
+        out["compass_within_30deg"] = float(np.mean(diff < 30))
     if altitude is not None:
         alt = np.asarray(altitude, float).reshape(-1)[ok]
         h = sim.scale * (centres[ok] @ up)
@@ -154,6 +159,37 @@ def fit_gps_alignment(
             out["altitude_offset_m"] = off
             out["altitude_median_residual_m"] = float(np.median(np.abs(alt[good] - h[good] - off)))
     return out
+
+
+def align_camera_table(cams, views: dict, params: dict, seed: int, source: str, log=None) -> tuple:
+    """Rule gps_alignment in ``gps`` mode: the cameras of ``cams`` (a table with name, lat, lon, alt,
+    heading; NaN where not given) that have a GPS position, aligned to it. ``views`` maps each
+    name to its SfM view (``centre``, ``R``); ``params`` is the ``images.align`` section.
+    Returns (the cameras used, :func:`fit_gps_alignment`'s result)."""
+    has_gps = cams["lat"].notna() & cams["lon"].notna()
+    cams = cams[has_gps].reset_index(drop=True)
+    heading = cams["heading"].to_numpy(float) if "heading" in cams else np.full(len(cams), np.nan)
+    out = fit_gps_alignment(
+        np.array([views[n].centre for n in cams["name"]]).reshape(-1, 3),
+        np.array([views[n].R for n in cams["name"]]).reshape(-1, 3, 3),
+        cams[["lon", "lat"]].to_numpy(float),
+        altitude=cams["alt"].to_numpy(float) if "alt" in cams else None,
+        compass_deg=heading,
+        threshold_m=float(params["threshold_m"]),
+        iterations=int(params["iterations"]),
+        seed=int(seed),
+        use_heading=bool(params["use_heading"]),
+        source=source,
+    )
+    if log is not None and not out["compass_cameras"]:
+        log.info("no compass headings were given (EXIF or metadata.csv): no compass comparison")
+    if log is not None and bool(params["use_heading"]) and not out["heading_used"]:
+        log.info(
+            "images.align.use_heading is set, but only %d of %d cameras give a heading: aligned without it",
+            out["compass_cameras"],
+            len(cams),
+        )
+    return cams, out
 
 
 def local_frame(centres: np.ndarray, rotations: np.ndarray, unit_m: float = 1.0) -> dict:

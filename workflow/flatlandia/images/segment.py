@@ -36,6 +36,7 @@ from PIL import Image
 
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
+from flatlandia.images import image_audit
 
 #: Vistas label-name prefixes of things that move (their masks can be dilated).
 MOVING_PREFIXES = ("human--", "object--vehicle--", "animal--")
@@ -185,15 +186,42 @@ def watermark_mask(shape: tuple[int, int], box: list[float] | None) -> np.ndarra
     return m
 
 
+#: the shortest image side the backends process (the offline colour rules filter over 9 pixels);
+#: the audit's images.min_side_px (at least this) drops smaller images before they get here
+MIN_SIDE_PX = 16
+
+
+def read_rgb(path: Path) -> Image.Image:
+    """An image to segment, as RGB: a regular file only (:func:`flatlandia.images.image_audit.open_image`), refused
+    with one :class:`InputError` naming it when its shorter side is under :data:`MIN_SIDE_PX`."""
+    with image_audit.open_image(path) as im:
+        if min(im.size) < MIN_SIDE_PX:
+            raise InputError(
+                path,
+                f"image of {im.size[0]} x {im.size[1]} px is too small to segment (the shorter side must be "
+                f"at least {MIN_SIDE_PX} px; the audit drops such images: images.min_side_px)",
+            )
+        try:
+            return im.convert("RGB")
+        except Exception as e:  # PIL raises many types for broken files
+            raise InputError(path, f"unreadable image ({e})") from None
+
+
 # ----------------------------------------------------------------------- offline backend
 OFFLINE_NAMES = ["void", "nature--sky", "nature--vegetation", "human--person"]
 HOG_MIN_SCORE = 1.0  # on Lund: true pedestrians score 2-3, facade false positives below 1
+#: OpenCV's default people detector window (width, height): no one smaller can be found, and
+#: ``detectMultiScale`` on a smaller image corrupts memory (OpenCV 4.14: a 64 x 48 image segfaults)
+HOG_WINDOW = (64, 128)
 
 
 def detect_people(rgb: np.ndarray, min_score: float = HOG_MIN_SCORE) -> list[tuple[int, int, int, int]]:
-    """Upright people as (x, y, w, h) boxes, from OpenCV's HOG + linear SVM pedestrian detector."""
+    """Upright people as (x, y, w, h) boxes, from OpenCV's HOG + linear SVM pedestrian detector
+    (none in an image smaller than its :data:`HOG_WINDOW`)."""
     import cv2
 
+    if rgb.shape[1] < HOG_WINDOW[0] or rgb.shape[0] < HOG_WINDOW[1]:
+        return []
     hog = cv2.HOGDescriptor()
     hog.setSVMDetector(cv2.HOGDescriptor_getDefaultPeopleDetector())
     grey = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
@@ -243,9 +271,7 @@ class OfflineBackend(Backend):
     name = "offline"
 
     def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
-        with Image.open(path) as im:
-            rgb = np.asarray(im.convert("RGB"))
-        return offline_labels(rgb), OFFLINE_NAMES
+        return offline_labels(np.asarray(read_rgb(path))), OFFLINE_NAMES
 
 
 def read_label_names(path: Path) -> list[str]:
@@ -315,8 +341,7 @@ class TransformersBackend(Backend):
             raise InputError(self.weights, "the checkpoint's classes are not Mapillary Vistas labels")
 
     def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
-        with Image.open(path) as im:
-            rgb = im.convert("RGB")
+        rgb = read_rgb(path)
         with self.torch.no_grad():
             out = self.model(**self.processor(images=rgb, return_tensors="pt"))
         scores = semantic_scores(out.class_queries_logits[0], out.masks_queries_logits[0])

@@ -9,7 +9,7 @@
   the third *column* of Rpp. Rpp is a reflection in 18 of 20 scenes and "up" is not known, so
   normals are compared up to sign.
 - :func:`published_chain_transform` expresses the published SfM -> lon/lat chain as a metric
-  2D scaled rigid transform (:class:`flatlandia.similarity.ScaledRigid`, fitted by pycolmap).
+  2D scaled rigid transform (:class:`flatlandia.scaled_rigid.ScaledRigid`, fitted by pycolmap).
 
 Degenerate input (fewer than 3 points, NaN, points on a line) raises :class:`InputError`
 naming the source.
@@ -23,7 +23,7 @@ import numpy as np
 
 from flatlandia import config, geo
 from flatlandia.errors import InputError
-from flatlandia.similarity import ScaledRigid, least_squares
+from flatlandia.scaled_rigid import ScaledRigid, least_squares
 
 # --------------------------------------------------------------------------- plane
 

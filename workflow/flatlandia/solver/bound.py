@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from flatlandia.solver import kernels, pipeline
-from flatlandia.solver.priors import Priors
+from flatlandia.solver.priors import Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
 
 #: the evidence of each bound: (range terms, priors); without range terms the range weight is nil
@@ -31,19 +31,19 @@ def true_match_pose(
     start,
     ranges: bool,
     config: pipeline.SolverConfig | dict | None = None,
-    prior_xy=None,
-    scale_prior=None,
+    given: TrainingPriors | None = None,
 ) -> tuple[float, float, float]:
     """(x, y, heading in radians) of a depth local map whose object k is the reference object at
     ``matched_xy[k]``: robust Gauss-Newton (the solver's refinement) from ``start`` = (x, y,
     heading, metres per local unit), on bearings, plus log-ranges when ``ranges``, plus the camera
-    and scale priors when given."""
+    and scale priors of ``given`` (its co-visibility is not used: the matches are given)."""
     cfg = config if isinstance(config, pipeline.SolverConfig) else pipeline.SolverConfig.from_dict(config)
     if not ranges:  # bearings only: a vanishing range weight
         cfg = pipeline.SolverConfig(**{**cfg.to_dict(), "refine_log_range_sigma": 1e6})
     m = len(depth_xy)
     problem = Problem(depth_xy, np.zeros(m, int), matched_xy, np.zeros(m, int), False, cfg)
-    priors = Priors(cfg, False, prior_xy, scale_prior)
+    given = given or TrainingPriors()
+    priors = Priors(cfg, False, TrainingPriors(given.cameras, None, given.scale))
     x, y, theta, scale = start
     p = np.array([[x, y, theta, np.log(scale)]], float)
     matched = np.ascontiguousarray(np.asarray(matched_xy, float).reshape(1, m, 2))

@@ -49,17 +49,17 @@ import numpy as np
 
 from flatlandia import config
 from flatlandia.solver import hypotheses, scoring, verify
-from flatlandia.solver.priors import Priors
+from flatlandia.solver.priors import Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
 from flatlandia.solver.verify import Verifier
 
-#: Defaults of the solver: the `fine.geo` section of workflow/schemas/config.schema.yaml.
-_GEO = config.section_defaults("fine.geo")
+#: Defaults of the solver: the `solver` section of workflow/schemas/config.schema.yaml.
+_GEO = config.section_defaults("solver")
 
 
 @dataclass
 class SolverConfig:
-    """The solver's settings; each is described in config/README.md (`fine.geo.*`)."""
+    """The solver's settings; each is described in config/README.md (`solver.*`)."""
 
     bearing_sigma_deg: float = _GEO["bearing_sigma_deg"]
     log_range_sigma: float = _GEO["log_range_sigma"]
@@ -92,7 +92,7 @@ class SolverConfig:
     @classmethod
     def from_dict(cls, d: dict | None) -> SolverConfig:
         """Strict: a key that is not a solver setting raises, naming the closest one."""
-        return config.from_section(cls, "fine.geo", d)
+        return config.from_section(cls, "solver", d)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -117,28 +117,23 @@ def solve(
     ref_cls,
     metric: bool = False,
     config: SolverConfig | dict | None = None,
-    prior_xy: np.ndarray | None = None,
-    scale_prior: tuple[float, float] | None = None,
-    prior_seen: np.ndarray | None = None,
-    verifier: Verifier | None = None,
+    priors: TrainingPriors | None = None,
 ) -> Solution | None:
     """Camera pose in the reference frame, or None when no hypothesis can be formed.
 
     ``query_xy``: (M, 2) local map; ``query_cls``: (M,) classes; ``ref_xy``/``ref_cls``: the
     candidate reference objects (metric frame); ``metric``: True for GT (metre) local maps,
-    False for unscaled depth maps; ``prior_xy``: (P, 2) plausible camera positions (training
-    cameras; a third column, their headings in radians, enables the joint pose prior when
-    ``prior_heading_sigma_deg`` > 0) or None: hypotheses farther than ``prior_radius_m`` are
-    dropped and the distance to the nearest one is a soft cost; ``scale_prior``: (mean, std) of
-    log(metres per local unit) for depth maps (see :func:`fit_priors`); ``prior_seen``: (P, N)
-    booleans, prior camera p saw reference row n (the matched objects of training queries), for
-    the co-visibility cost (``covis_weight``) and gate (``covis_gate_above``); ``verifier``: picks
-    among the ``verify_top_k`` best hypotheses of a depth map (``solver_verify``; needs both
-    priors), else the cheapest of the ``top_k`` best wins. Inlier indices refer to rows of ``ref_xy``.
+    False for unscaled depth maps; ``priors`` (:class:`~flatlandia.solver.priors.TrainingPriors`,
+    its ``seen`` over the rows of ``ref_xy``): the training cameras (hypotheses farther than
+    ``prior_radius_m`` from every one are dropped, the distance to the nearest, and with headings
+    ``prior_heading_sigma_deg`` > 0 the heading difference, is a soft cost), what they saw (the
+    co-visibility cost ``covis_weight`` and gate ``covis_gate_above``), the depth maps' log-scale
+    prior, and a verifier that picks among the ``verify_top_k`` best hypotheses of a depth map
+    (``verify``; needs cameras and what they saw), else the cheapest of the ``top_k`` best wins.
+    Inlier indices refer to rows of ``ref_xy``.
     """
-    pool = candidates(
-        query_xy, query_cls, ref_xy, ref_cls, metric, config, prior_xy, scale_prior, prior_seen, verifier is not None
-    )
+    verifier = priors.verifier if priors is not None else None
+    pool = candidates(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors, verifier is not None)
     return None if pool is None else _best_refined(pool, verifier)
 
 
@@ -162,28 +157,26 @@ def candidates(
     ref_cls,
     metric: bool = False,
     config: SolverConfig | dict | None = None,
-    prior_xy: np.ndarray | None = None,
-    scale_prior: tuple[float, float] | None = None,
-    prior_seen: np.ndarray | None = None,
-    verify: bool = False,
+    priors: TrainingPriors | None = None,
+    use_verifier: bool = False,
 ) -> Pool | None:
     """The refined distinct best hypotheses (arguments as :func:`solve`): ``verify_top_k`` of them
-    when a verifier will choose (``verify``) and can, else ``top_k``."""
+    when a verifier will choose (``use_verifier``) and can, else ``top_k``."""
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
     problem = Problem(query_xy, query_cls, ref_xy, ref_cls, metric, cfg)
-    priors = Priors(cfg, metric, prior_xy, scale_prior, prior_seen, n_ref=len(problem.r))
+    query_priors = Priors(cfg, metric, priors, n_ref=len(problem.r))
     if not problem.solvable():
         return None
-    verified = verify and verify.usable(problem, priors)
+    verified = use_verifier and verify.usable(problem, query_priors)
     keep = cfg.verify_top_k if verified else cfg.top_k
-    scored = hypotheses.score_hypotheses(problem, priors, keep)
+    scored = hypotheses.score_hypotheses(problem, query_priors, keep)
     kept = scored.arrays()
     if kept is None:
         return None
     cost, t, theta, s = kept
     chosen = hypotheses.distinct_best(cost, t, theta, keep)
-    t, theta, s = scoring.refine(problem, priors, t[chosen], theta[chosen], s[chosen])
-    return Pool(problem, priors, t, theta, s, scored.n_hypotheses, verified)
+    t, theta, s = scoring.refine(problem, query_priors, t[chosen], theta[chosen], s[chosen])
+    return Pool(problem, query_priors, t, theta, s, scored.n_hypotheses, verified)
 
 
 def _best_refined(pool: Pool, verifier: Verifier | None) -> Solution | None:
@@ -236,18 +229,5 @@ def warm_up() -> None:
             ref_cls,
             metric=metric,
             config={"covis_weight": 1.0, "prior_heading_sigma_deg": 20.0},
-            prior_xy=prior,
-            scale_prior=(2.0, 0.5),
-            prior_seen=seen,
+            priors=TrainingPriors(prior, seen, (2.0, 0.5)),
         )
-
-
-def fit_priors(train_local_maps_m: list[np.ndarray]) -> tuple[float, float]:
-    """Log-scale prior of depth maps from training GT (metre) local maps.
-
-    Depth maps are normalised to a median object range of 1, so their scale in metres per unit
-    is the median object range of the view: its log mean and std over training views.
-    """
-    med = np.array([np.median(np.linalg.norm(np.asarray(m, float), axis=1)) for m in train_local_maps_m])
-    med = np.log(med[med > 0])
-    return float(med.mean()), float(max(med.std(), 1e-3))

@@ -2,19 +2,124 @@
 log-scale of depth maps, and which objects the training cameras saw (co-visibility).
 
 Why apart from the scoring: the priors gate hypotheses, add costs and add rows to the
-refinement; keeping them in one object keeps those three uses consistent.
+refinement; keeping them in one object keeps those three uses consistent. They travel as one
+value, :class:`TrainingPriors` (built for a scene by :func:`scene_priors`), from the rules that
+read them to :func:`flatlandia.solver.solve`; :class:`Priors` is that value as one query's
+solver reads it (gate, costs, refinement rows).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
+import pandas as pd
 from scipy.spatial import cKDTree
 
-from flatlandia import geo
+from flatlandia import config, geo
+from flatlandia.data import localmaps
 from flatlandia.solver import kernels
 from flatlandia.solver.kernels import CoSeen, PriorTerms
+
+if TYPE_CHECKING:
+    from flatlandia.solver.learned import LearnedPriors
+    from flatlandia.solver.verify import Verifier
+
+
+@dataclass(frozen=True)
+class TrainingPriors:
+    """Everything the solver may know beyond the query and the map, as one value; any part may be
+    None (it then costs and gates nothing).
+
+    ``cameras``: (P, 3) training cameras, x, y in metres and heading in radians (the camera
+    prior's gate and cost); ``seen``: (P, N) booleans, camera p saw candidate row n of the map the
+    value is for (co-visibility cost and gate); ``scale``: (mean, std) of log(metres per local
+    unit) of depth maps; ``verifier``: picks among the best hypotheses of a depth map. Metric (GT)
+    local maps use the cameras and co-visibility only."""
+
+    cameras: np.ndarray | None = None
+    seen: np.ndarray | None = None
+    scale: tuple[float, float] | None = None
+    verifier: Verifier | None = None
+
+    def rows(self, idx) -> TrainingPriors:
+        """The same priors for the candidate rows ``idx`` of the map (a proposal's objects)."""
+        return self if self.seen is None else replace(self, seen=self.seen[:, np.asarray(idx, int)])
+
+    def without_cameras(self, keep) -> TrainingPriors:
+        """The priors of the cameras where ``keep`` (bool per camera): leave-one-out fits."""
+        if self.cameras is None:
+            return self
+        seen = self.seen[keep] if self.seen is not None else None
+        return replace(self, cameras=self.cameras[keep], seen=seen)
+
+    def with_learned(self, learned: LearnedPriors | None) -> TrainingPriors:
+        """These priors with a benchmark's learned scale prior and verifier (None: without)."""
+        if learned is None:
+            return replace(self, scale=None, verifier=None)
+        return replace(self, scale=learned.scale, verifier=learned.verifier)
+
+
+def _settings(settings: dict | None) -> dict:
+    return {**config.section_defaults("solver"), **(settings or {})}
+
+
+def training_priors(queries: pd.DataFrame, settings: dict | None = None):
+    """The solver's priors from one scene's training split: (prior cameras (P, 3) as x, y, heading
+    in radians, or None when ``camera_prior`` is off; per prior camera the reference ``obj_idx`` it
+    saw, for the co-visibility cost, or None). Test queries never contribute."""
+    cfg = _settings(settings)
+    if not cfg["camera_prior"]:
+        return None, None
+    tr = queries[queries["split"] == "train"]
+    prior = np.column_stack([tr["x_m"], tr["y_m"], np.radians(tr["theta_deg"])]).astype(float)
+    seen = [np.asarray(v, int) for v in tr["ref_idx"]] if float(cfg["covis_weight"]) > 0 else None
+    return prior, seen
+
+
+def seen_mask(obj_idx, prior_seen) -> np.ndarray | None:
+    """(P, N) booleans: prior camera p saw the reference object of row n (``obj_idx``: the rows'
+    ids; ``prior_seen``: per prior camera the ``obj_idx`` it saw, from :func:`training_priors`);
+    None without co-visibility sets. Ids outside ``obj_idx`` are ignored."""
+    if prior_seen is None:
+        return None
+    pos = {int(o): k for k, o in enumerate(obj_idx)}
+    seen = np.zeros((len(prior_seen), len(pos)), bool)
+    for k, objs in enumerate(prior_seen):
+        seen[k, [pos[int(o)] for o in objs if int(o) in pos]] = True
+    return seen
+
+
+def scene_priors(
+    ref: pd.DataFrame, queries: pd.DataFrame, settings: dict | None = None, learned: LearnedPriors | None = None
+) -> TrainingPriors:
+    """The priors of one scene's whole map (rows of ``ref``): its training cameras and what they
+    saw (:func:`training_priors`), with a benchmark's ``learned`` scale prior and verifier."""
+    cams, seen_objs = training_priors(queries, settings)
+    seen = seen_mask(ref["obj_idx"].to_numpy(), seen_objs) if cams is not None else None
+    return TrainingPriors(cams, seen).with_learned(learned)
+
+
+def fit_scale(train_local_maps_m: list[np.ndarray]) -> tuple[float, float]:
+    """Log-scale prior of depth maps from training GT (metre) local maps.
+
+    Depth maps are normalised to a median object range of 1, so their scale in metres per unit
+    is the median object range of the view: its log mean and std over training views.
+    """
+    med = np.array([np.median(np.linalg.norm(np.asarray(m, float), axis=1)) for m in train_local_maps_m])
+    med = np.log(med[med > 0])
+    return float(med.mean()), float(max(med.std(), 1e-3))
+
+
+def depth_scale_prior(queries, settings: dict | None = None) -> tuple[float, float] | None:
+    """The solver's log-scale prior of depth maps (:func:`fit_scale`) from the training split of
+    every scene's queries (a list of query tables), or None when ``solver.scale_prior`` is off."""
+    if not _settings(settings)["scale_prior"]:
+        return None
+    train = [localmaps.xy(c) for q in queries for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
+    return fit_scale(train)
 
 
 class PriorGate:
@@ -97,10 +202,12 @@ def coseen(seen: np.ndarray) -> CoSeen:
 class Priors:
     """The priors of one query; any of them may be absent (then it costs nothing)."""
 
-    def __init__(self, cfg, metric: bool, prior_xy=None, scale_prior=None, prior_seen=None, n_ref: int = 0):
+    def __init__(self, cfg, metric: bool, given: TrainingPriors | None = None, n_ref: int = 0):
+        given = given or TrainingPriors()
+        prior_xy, prior_seen = given.cameras, given.seen
         self.cfg = cfg
         self.metric = metric
-        self.scale = scale_prior  # (mean, std) of log(metres per local unit), or None
+        self.scale = given.scale  # (mean, std) of log(metres per local unit), or None
         cams = np.asarray(prior_xy, float).reshape(len(prior_xy), -1) if prior_xy is not None else None
         self.gate = prior_gate(cams[:, :2], cfg.prior_radius_m) if cams is not None and len(cams) else None
         self.tree = self.gate.tree if self.gate is not None else None  # prior camera positions, or None

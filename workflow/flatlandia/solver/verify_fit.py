@@ -12,14 +12,14 @@ when within (``RIGHT_M``, ``RIGHT_DEG``) of its pose.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, proposals
+from flatlandia import geo, proposals
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation
-from flatlandia.solver import pipeline, scoring, verify
+from flatlandia.solver import pipeline, priors, scoring, verify
 
 #: a hypothesis within this of the true pose is right (the target the verifier is tuned for)
 RIGHT_M, RIGHT_DEG = 5.0, 5.0
@@ -30,18 +30,18 @@ REGIONS = {"whole": proposals.whole_map_proposals, "gtbb": proposals.gtbb_propos
 
 
 def scene_groups(
-    ref: pd.DataFrame, queries: pd.DataFrame, geo_config: dict, scale_prior, region: str = "whole", chosen=None
+    ref: pd.DataFrame, queries: pd.DataFrame, settings: dict, scale_prior, region: str = "whole", chosen=None
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """(features (C, F), right (C,)) of the training queries of one scene (those where ``chosen``,
     a boolean per training query, or all), each solved on its ``region`` with the priors of the
     scene's other training queries."""
-    cfg = pipeline.SolverConfig.from_dict(geo_config)
-    prior, seen_objs = evaluation.training_priors(queries, geo_config)
-    if prior is None or seen_objs is None:
+    cfg = pipeline.SolverConfig.from_dict(settings)
+    whole = priors.scene_priors(ref, queries, settings)
+    if whole.cameras is None or whole.seen is None:
         return []
+    whole = replace(whole, scale=scale_prior)
     ref_xy, ref_cls = ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy()
     pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}
-    seen = evaluation.seen_mask(ref["obj_idx"].to_numpy(), seen_objs)
     train = queries[queries["split"] == "train"]
     regions = dict(zip(train["token"].astype(str), REGIONS[region](ref, train)["proposal"]))
     groups = []
@@ -56,16 +56,14 @@ def scene_groups(
             ref_cls[idx],
             metric=False,
             config=cfg,
-            prior_xy=prior[others],
-            scale_prior=scale_prior,
-            prior_seen=seen[np.ix_(others, idx)],
-            verify=True,
+            priors=whole.without_cameras(others).rows(idx),
+            use_verifier=True,
         )
         if pool is None or not pool.verified:
             continue
         data, _, inl, match = scoring.score_terms(pool.problem, pool.priors, pool.t, pool.theta, pool.s)
         f = verify.features(pool.problem, pool.priors, pool.t, pool.theta, pool.s, data, inl, match)
-        e_m, e_deg = evaluation.pose_errors(
+        e_m, e_deg = geo.pose_errors(
             pool.t[:, 0], pool.t[:, 1], pool.theta, r["x_m"], r["y_m"], np.radians(r["theta_deg"])
         )
         ok = np.isfinite(f).all(1)
@@ -75,7 +73,7 @@ def scene_groups(
 
 def fit_verifier(
     scenes: Iterable[tuple[pd.DataFrame, pd.DataFrame]],
-    geo_config: dict,
+    settings: dict,
     scale_prior,
     region: str = "whole",
     fraction: float = 1.0,
@@ -91,22 +89,5 @@ def fit_verifier(
     for ref, q in scenes:
         n = int((q["split"] == "train").sum())
         chosen = None if rng is None else rng.random(n) < fraction
-        groups += scene_groups(ref, q, geo_config, scale_prior, region, chosen)
+        groups += scene_groups(ref, q, settings, scale_prior, region, chosen)
     return verify.fit(groups) if any(np.any(right) for _, right in groups) else None
-
-
-def depth_priors(
-    scenes: list[tuple[pd.DataFrame, pd.DataFrame]], geo_config: dict, region: str | None = "whole", **fit
-) -> tuple[tuple[float, float] | None, verify.Verifier | None]:
-    """What the solver learns from the training split for depth maps, as every rule that runs it
-    uses it (fine_eval, city_priors; coarse_solver takes the scale only): the log-scale prior and,
-    when ``fine.geo.verify`` and ``camera_prior`` are on (unset keys: the schema's defaults) and
-    ``region`` is a key of :data:`REGIONS`, the verifier learned on that region (None for a region
-    no training query has, e.g. a coarse proposal). ``fit``: ``fraction``, ``rng`` of
-    :func:`fit_verifier`."""
-    cfg = {**config.section_defaults("fine.geo"), **geo_config}
-    scale = evaluation.depth_scale_prior([q for _, q in scenes], cfg)
-    verifier = None
-    if cfg["verify"] and cfg["camera_prior"] and region in REGIONS:
-        verifier = fit_verifier(scenes, geo_config, scale, region, **fit)
-    return scale, verifier

@@ -53,7 +53,7 @@ class Estimate:
         if not self.has_pose:
             return "no pose"
         text = f"{self.error_m:.2f} m, {self.error_deg:.1f}°"
-        if self.run.method == "geo":
+        if self.run.method == "solver":
             text += f" ({self.n_inliers} inliers, {self.n_correct_inliers} correct)"
         return text
 
@@ -103,12 +103,12 @@ def featured_runs(errors: dict[str, pd.DataFrame]) -> tuple[str, ...]:
     queries) of one setting: the first of FEATURED_SETTINGS, then of the others, that has a solver
     run (any run, where no setting has one)."""
     runs = [Run.parse(name) for name in errors]
-    has_solver = any(r.method == "geo" for r in runs)
+    has_solver = any(r.method == "solver" for r in runs)
     settings = FEATURED_SETTINGS + sorted({(r.map_type, r.proposal) for r in runs} - set(FEATURED_SETTINGS))
     for map_type, proposal in settings:
         same = [r for r in runs if (r.map_type, r.proposal) == (map_type, proposal)]
-        solver = [r.name for r in same if r.method == "geo"]
-        learned = sorted((float(np.median(errors[r.name]["error_m"])), r.name) for r in same if r.method != "geo")
+        solver = [r.name for r in same if r.method == "solver"]
+        learned = sorted((float(np.median(errors[r.name]["error_m"])), r.name) for r in same if r.method != "solver")
         if solver or (learned and not has_solver):
             return tuple(solver[:1] + [name for _, name in learned[:1]])
     return ()

@@ -17,7 +17,7 @@ def city_eval_inputs(wildcards):
     inp = {
         "map": f"results/city/{wildcards.n}/map.parquet",
         "queries": f"results/city/{wildcards.n}/queries.parquet",
-        "priors": "results/city/priors.json",
+        "priors": "results/solver/priors/whole.json",
     }
     if wildcards.method == "index":
         inp["index"] = f"results/city/{wildcards.n}/index"

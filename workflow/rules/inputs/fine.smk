@@ -18,9 +18,11 @@ def fine_eval_inputs(wildcards):
         "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
         "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
     }
-    if wildcards.method != "geo":
+    if wildcards.method != "solver":
         regime = fine_train_regime(wildcards.proposal)
         inp["checkpoint"] = f"results/fine/models/{wildcards.method}_{wildcards.map_type}_{regime}/checkpoint.pt"
+    elif wildcards.map_type == "depth":
+        inp["solver_priors"] = solver_priors_file(wildcards.proposal)
     if wildcards.proposal in FINE_COARSE:
         loss = wildcards.proposal.split("-", 1)[1]
         inp["coarse"] = f"results/coarse/{loss}/proposals.parquet"
@@ -49,7 +51,7 @@ def fine_eval_params(wildcards):
     p = wildcards.proposal
     strategy = fine_coarse_strategy(p)
     label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
-    regime = fine_train_regime(p) if wildcards.method != "geo" else ""  # "": the solver, not trained
+    regime = fine_train_regime(p) if wildcards.method != "solver" else ""  # "": the solver, not trained
     crop = float(config["fine"]["coarse_training"]["crop_m"]) if regime == "coarse" else 0.0
     return {
         "method": wildcards.method,
@@ -98,7 +100,7 @@ def scene_localization_inputs(wildcards):
         "checkpoints": [
             f"results/fine/models/{m}_{t}_gtbb/checkpoint.pt"
             for m in runs["methods"]
-            if m != "geo"
+            if m != "solver"
             for t in runs["map_types"]
         ],
     }

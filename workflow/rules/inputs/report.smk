@@ -3,12 +3,12 @@
 
 
 def fine_trained_models():
-    """(model, map_type, training proposals) of every learned fine run of the config (geo needs no training)."""
+    """(model, map_type, training proposals) of every learned fine run of the config (the solver needs no training)."""
     out = []
     for run in fine_runs():
         method, map_type, proposal = run.rsplit("_", 2)
         key = (method, map_type, fine_train_regime(proposal))
-        if method != "geo" and key not in out:
+        if method != "solver" and key not in out:
             out.append(key)
     return out
 

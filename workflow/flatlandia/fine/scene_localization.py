@@ -28,16 +28,16 @@ def scene_rows(
     queries: pd.DataFrame,
     models: dict[tuple[str, str], tuple],
     map_types: list[str],
-    geo_config: dict,
+    solver_config: dict,
     progress: Callable | None = None,
 ) -> pd.DataFrame:
-    """Summary rows of the solver (``geo``) and of each model ``models[(slug, map_type)] =
+    """Summary rows of the solver (``solver``) and of each model ``models[(slug, map_type)] =
     (model, FineConfig)`` on every query of one scene; an empty table for a scene without queries."""
     scene = str(ref["scene"].iloc[0]) if len(ref) else ""
     rows = []
     if len(queries) == 0:
         return pd.DataFrame(columns=ROW_COLUMNS + ["queries", "median_m", "median_deg"])
-    no_prior = {**geo_config, "camera_prior": False, "scale_prior": False}
+    no_prior = {**solver_config, "camera_prior": False, "scale_prior": False}
     for proposal, label in SCENE_PROPOSALS.items():
         make = proposals.gtbb_proposals if proposal == "gtbb" else proposals.whole_map_proposals
         props = make(ref, queries)
@@ -45,7 +45,7 @@ def scene_rows(
             errors = evaluation.evaluate_solver(
                 ref, queries, props, map_type, no_prior, method="geometric solver", progress=progress
             )
-            rows.append(_row(scene, "geometric solver", "geo", map_type, proposal, label, errors))
+            rows.append(_row(scene, "geometric solver", "solver", map_type, proposal, label, errors))
             for (slug, mt), (model, cfg) in sorted(models.items()):
                 if mt == map_type:
                     errors = evaluation.evaluate_model(model, cfg, ref, queries, props)

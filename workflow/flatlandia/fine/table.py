@@ -12,7 +12,7 @@ from flatlandia import escape, paper, tables
 from flatlandia.fine import evaluation
 
 #: method slugs (rule wildcards) and their display names
-METHOD_LABELS = {"geo": "geometric solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+METHOD_LABELS = {"solver": "geometric solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 
 
 def paper_row(label: str, map_type: str, strategy: str):
@@ -75,7 +75,7 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
             model_mb=float(s.get("model_mb") or 0.0),
             ref_map_kb=f("ref_map_kb"),
             median_pu=f("median_pu"),
-            trained_on=str(s.get("trained_on") or ("GT-BB" if method != "geo" else "")),
+            trained_on=str(s.get("trained_on") or ("GT-BB" if method != "solver" else "")),
         )
         row.update({c: f(c) for c in evaluation.PAPER_UNIT_THRESHOLD_COLUMNS})
         row["paper_row"] = name
@@ -176,7 +176,7 @@ def recall_markdown(df: pd.DataFrame) -> list[str]:
         "",
         "% of test queries under 1 / 3 / 5 m (any heading) and, apart, under 1 / 3 / 5° (any position), true "
         "metres; failed queries are misses. The whole-map rows have no per-query location prior (the geometric "
-        "solver keeps its poses near the training split's cameras when `fine.geo.camera_prior` is on); GT-BB is "
+        "solver keeps its poses near the training split's cameras when `solver.camera_prior` is on); GT-BB is "
         "an oracle box around the query's objects; GT local maps make the task pure registration. OrienterNet's "
         "row is another benchmark (MGL: one image against an OpenStreetMap raster, a 100-200 m location prior, "
         "a GPU), quoted for scale, not as a baseline of this task (an object map registered against an object "

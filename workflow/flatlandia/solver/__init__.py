@@ -1,0 +1,31 @@
+"""The geometric solver: a camera's 3DoF pose from the objects one image sees and an object map.
+
+A stage of its own, used by the fine stage (rule fine_eval), the coarse stage (its training-free
+proposals, rule coarse_solver), the city search and the images scenes' localization. Its settings
+are the config section ``solver``; its learned priors (the depth maps' scale prior, the verifier)
+are fitted once per benchmark by rule solver_priors.
+
+Modules, in the order a query meets them: ``problem`` (the query's derived arrays), ``priors``
+(what the training split tells about a pose), ``hypotheses`` (generation, gating, chunked
+scoring, the distinct best), ``scoring`` (MSAC cost, refinement), ``verify`` (the verifier's
+features and score) and ``verify_fit`` (learning it), ``kernels`` (the compiled loops),
+``pipeline`` (the steps in order: :func:`solve`), ``learned`` (the fitted priors as one value,
+read and written as JSON), ``bound`` (the pose given the true matches).
+"""
+
+from flatlandia.solver.learned import LearnedPriors
+from flatlandia.solver.pipeline import Solution, SolverConfig, candidates, solve, warm_up
+from flatlandia.solver.priors import TrainingPriors, depth_scale_prior, fit_scale, scene_priors
+
+__all__ = [
+    "LearnedPriors",
+    "Solution",
+    "SolverConfig",
+    "TrainingPriors",
+    "candidates",
+    "depth_scale_prior",
+    "fit_scale",
+    "scene_priors",
+    "solve",
+    "warm_up",
+]

@@ -1,0 +1,81 @@
+"""The solver's learned priors: the depth maps' log-scale prior and the verifier, as one value.
+
+Why one value written once: the fine runs, the coarse stage's proposals and the city search all
+solve depth maps with the same priors learned from the benchmark's training split; rule
+solver_priors fits them once per region the queries are solved on (the verifier learns on the
+region the test queries get: the whole map, or the GT-BB box) and writes them as JSON, which the
+other rules read (fitting took 13-28 s of CPU per rule that needed it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from flatlandia import config, io
+from flatlandia.solver import verify, verify_fit
+from flatlandia.solver.priors import depth_scale_prior
+
+#: the regions a verifier can be learned on (:data:`verify_fit.REGIONS`); on any other region
+#: (a coarse proposal) the depth maps get the scale prior alone
+REGIONS = tuple(verify_fit.REGIONS)
+
+
+@dataclass(frozen=True)
+class LearnedPriors:
+    """What the solver learns from a benchmark's training split for depth maps; either may be None
+    (off in the settings, or nothing to learn)."""
+
+    scale: tuple[float, float] | None = None  # (mean, std) of log(metres per local unit)
+    verifier: verify.Verifier | None = None
+
+    def to_dict(self) -> dict:
+        v = self.verifier
+        return {
+            "scale_prior": list(self.scale) if self.scale else None,
+            "verifier": {"weights": v.weights.tolist(), "mean": v.mean.tolist(), "scale": v.scale.tolist()}
+            if v is not None
+            else None,
+            "features": list(verify.FEATURES),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> LearnedPriors:
+        scale = tuple(float(x) for x in d["scale_prior"]) if d.get("scale_prior") else None
+        v = d.get("verifier")
+        verifier = None
+        if v:
+            if d.get("features", list(verify.FEATURES)) != list(verify.FEATURES):
+                raise ValueError(f"the verifier's features {d.get('features')} are not this solver's {verify.FEATURES}")
+            verifier = verify.Verifier(*(np.asarray(v[k], float) for k in ("weights", "mean", "scale")))
+        return cls(scale, verifier)
+
+    def write(self, path: str | Path) -> None:
+        io.write_json(self.to_dict(), path)
+
+    @classmethod
+    def read(cls, path: str | Path) -> LearnedPriors:
+        from flatlandia.errors import InputError
+
+        try:
+            return cls.from_dict(io.read_json(path))
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(path, f"not the solver's learned priors ({e}); delete it to have it refitted") from None
+
+
+def fit(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]], settings: dict | None, region: str | None = "whole", **fit_args
+) -> LearnedPriors:
+    """The learned priors of depth maps from the training split of ``scenes`` (reference map,
+    queries): the log-scale prior and, when ``solver.verify`` and ``camera_prior`` are on (unset
+    keys: the schema's defaults) and ``region`` is one of :data:`REGIONS`, the verifier learned on
+    that region. ``fit_args``: ``fraction``, ``rng`` of :func:`verify_fit.fit_verifier`."""
+    cfg = {**config.section_defaults("solver"), **(settings or {})}
+    scale = depth_scale_prior([q for _, q in scenes], cfg)
+    verifier = None
+    if cfg["verify"] and cfg["camera_prior"] and region in REGIONS:
+        verifier = verify_fit.fit_verifier(scenes, cfg, scale, region, **fit_args)
+    return LearnedPriors(scale, verifier)
