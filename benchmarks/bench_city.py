@@ -121,15 +121,14 @@ def main():
             "  by objects (9 = 9 or more): "
             + ", ".join(f"{m}: {100 * r['mean']:.0f} % of {int(r['size'])}" for m, r in by_m.iterrows())
         )
-    templates = {s: simulate.Template(r, q) for s, r, q in scenes}
+    names = [s for s, _, _ in scenes]
+    refs, queries = {s: r for s, r, _ in scenes}, {s: q for s, _, q in scenes}
+    spacing_m, seed = config.section_defaults("city")["spacing_m"], config.section_defaults()["seed"]
     for n in sorted(set(args.objects) | set(args.solver_objects)):
         parts, whole, build = [], [], []
-        for k, (s, r, q) in enumerate(scenes):
-            test = q[q["split"] == args.split].iloc[:: args.every]
-            if not len(test):
-                continue
-            others = [templates[t] for t, _, _ in scenes if t != s]
-            ref, cq = simulate.city([r], [q], others, n, 1000.0, sim["jitter_m"], np.random.default_rng([0, k]))
+        # rule city_simulate's cities (its seed and spacing), built by the same function
+        for s, ref, cq in simulate.scene_cities(names, refs, queries, n, spacing_m, sim["jitter_m"], seed, args.split):
+            test = queries[s][queries[s]["split"] == args.split].iloc[:: args.every]
             c0 = time.process_time()
             ix = index.build(ref, cq[cq["split"] == "train"])
             build.append((time.process_time() - c0, ix.nbytes() / 1e6))

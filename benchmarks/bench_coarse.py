@@ -63,16 +63,15 @@ def bench_training(
     train = {**cfg.get("train", {}), "loss": loss}
     paper_epochs = int(train.get("epochs", 800))
     data = load_scenes(results, scenes)
-    ccfg = retrieval.CoarseConfig.from_dict({**train, "epochs": paper_epochs if full else epochs})
-    ds = retrieval.build_dataset(data, ccfg, splits=("train", "val"))
+    ccfg = retrieval.CoarseTrainConfig.from_dict({**train, "epochs": paper_epochs if full else epochs})
+    ds = training.training_dataset(data, ccfg)  # rule coarse_train's entry functions
     print(
         f"\n## Training ({retrieval.LOSSES[loss]}, {len(ds.split('train'))} train / {len(ds.split('val'))} val "
         f"queries, batch {ccfg.batch_size}, validation every {ccfg.eval_every} epochs)"
     )
     w0, c0 = time.perf_counter(), time.process_time()
-    res = training.train(ds, ccfg)
+    res, hist, _ = training.train_model(ds, ccfg)
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
-    hist = pd.DataFrame(res["history"])
     per_epoch = float(hist["epoch_seconds"].median())
     model = res["model"]
     v0 = time.perf_counter()
@@ -109,7 +108,7 @@ def bench_query(scenes: list[str], results: Path, n_queries: int) -> None:
     if not path.exists():
         print("no trained model: run the pipeline first")
         return
-    model, ccfg = checkpoints.load_checkpoint(path, retrieval.CoarseConfig, retrieval.build_model)
+    model, ccfg = checkpoints.load_checkpoint(path, retrieval.CoarseTrainConfig, retrieval.build_model)
     ds = retrieval.build_dataset(load_scenes(results, scenes, with_similarity=False), ccfg, splits=("test",))
     rng = np.random.default_rng(0)
     samples = [ds.samples[i] for i in rng.permutation(len(ds.samples))[:n_queries]]

@@ -38,39 +38,37 @@ TARGET_MEDIAN_M = 5.0
 
 def load_samples(
     results: Path,
-    cfg: learned.FineConfig,
+    cfg: learned.FineTrainConfig,
     simulated: int = 0,
     gtbb: bool = True,
-    seed: int = 0,
     crop_m: float = 0.0,
     val_coarse_only: bool = False,
 ) -> dict[str, list]:
-    out: dict[str, list] = {"train": [], "val": [], "test": [], "test_coarse": []}
-    rng = np.random.default_rng(seed)
+    """Train and val samples as rule fine_train builds them (flatlandia.fine.training.training_samples:
+    ``simulated`` copies with simulated coarse proposals, GT-BB kept when ``gtbb``), test samples
+    with GT-BB proposals and, where results/coarse/simtrip/proposals.parquet exists, its 2N_LM ones."""
+    out: dict[str, list] = {"test": [], "test_coarse": []}
     coarse_p = results / "coarse/simtrip/proposals.parquet"
     coarse = pd.read_parquet(coarse_p) if coarse_p.exists() else None
     if coarse is not None:
         coarse = coarse[(coarse["strategy"] == "2N_LM") & (coarse["map_type"] == cfg.map_type)]
     published = [p for p in results.glob("*/queries/queries.parquet") if p.parts[-3].isdigit()]
+    scenes = []
     for qp in sorted(published, key=lambda p: int(p.parts[-3])):  # the workflow's scenes, in its order
         ref_p = qp.parent.parent / "maps/reference_map.parquet"
         if not ref_p.exists():
             continue
         ref, q = pd.read_parquet(ref_p), pd.read_parquet(qp)
-        for split in ("train", "val", "test"):
-            qs = q[q["split"] == split]
-            if split == "test":
-                out[split] += learned.samples_from_queries(ref, qs, proposals.gtbb_proposals(ref, qs), cfg)[0]
-                continue
-            regime = "coarse" if simulated else "gtbb"
-            copies = simulated if split == "train" else min(simulated, 1)
-            keep = gtbb and not (split == "val" and val_coarse_only)
-            for props in proposals.training_proposals(ref, qs, regime, rng, copies, keep, crop_m):
-                out[split] += learned.samples_from_queries(ref, qs, props, cfg)[0]
+        scenes.append((ref, q))
+        qs = q[q["split"] == "test"]
+        out["test"] += learned.samples_from_queries(ref, qs, proposals.gtbb_proposals(ref, qs), cfg)[0]
         if coarse is not None:
-            qs = q[q["split"] == "test"]
             props = proposals.crop_to_densest(ref, coarse[coarse["scene"].astype(str) == qp.parts[-3]], crop_m)
             out["test_coarse"] += learned.samples_from_queries(ref, qs, props, cfg)[0]
+    ct = {"copies": simulated, "keep_gtbb": gtbb, "crop_m": crop_m}
+    out["train"], out["val"] = training.training_samples(
+        scenes, cfg, "coarse" if simulated else "gtbb", ct, val_keep_gtbb=gtbb and not val_coarse_only
+    )
     return out
 
 
@@ -114,17 +112,11 @@ def main() -> None:
     for slug in args.models:
         for mt in args.map_types:
             train_cfg = {**fcfg.get("train", {}), **fcfg.get("train_overrides", {}).get(slug, {})}
-            cfg = learned.FineConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
+            cfg = learned.FineTrainConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
             if not args.full:
                 cfg.epochs = args.epochs
             s = load_samples(
-                args.results,
-                cfg,
-                args.simulated_proposals,
-                not args.no_gtbb,
-                cfg.seed,
-                args.crop_m,
-                args.val_coarse_only,
+                args.results, cfg, args.simulated_proposals, not args.no_gtbb, args.crop_m, args.val_coarse_only
             )
             if not s["train"]:
                 raise SystemExit(f"{args.results}: no */queries/queries.parquet with maps; run the pipeline first")

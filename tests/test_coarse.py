@@ -224,7 +224,7 @@ def test_draw_triplets_hard_negatives_are_the_best_ranked_unmatched():
 def test_fused_scores_equal_separately_embedded_graphs():
     rng = np.random.default_rng(0)
     ref = _ref_table(rng.uniform(-60, 60, (30, 2)), rng.integers(0, 42, 30))
-    cfg = retrieval.CoarseConfig(seed=0)
+    cfg = retrieval.CoarseTrainConfig(seed=0)
     torch.manual_seed(0)
     model = retrieval.build_model(cfg).eval()
     rg = graphs.reference_graph(ref)
@@ -242,8 +242,8 @@ def test_fused_scores_equal_separately_embedded_graphs():
 
 def test_cosine_schedule_and_config_checks():
     with pytest.raises(ValueError):
-        retrieval.CoarseConfig(lr_schedule="step")
-    d = retrieval.CoarseConfig().to_dict()
+        retrieval.CoarseTrainConfig(lr_schedule="step")
+    d = retrieval.CoarseTrainConfig().to_dict()
     assert d["lr_schedule"] in ("constant", "cosine") and 0 <= d["hard_negatives"] <= 1
 
 
@@ -304,9 +304,9 @@ def test_summarise_and_markdown_have_the_paper_beside():
 
 def test_config_rejects_unknown_keys_and_losses():
     with pytest.raises(ValueError):
-        retrieval.CoarseConfig.from_dict({"epochz": 3})
+        retrieval.CoarseTrainConfig.from_dict({"epochz": 3})
     with pytest.raises(ValueError):
-        retrieval.CoarseConfig(loss="contrastive")
+        retrieval.CoarseTrainConfig(loss="contrastive")
 
 
 # ----------------------------------------------------------------------------- training on real scenes
@@ -342,7 +342,7 @@ def test_similarity_on_real_scene_ranks_matched_objects_first(real_data):
 
 
 def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_path):
-    cfg = retrieval.CoarseConfig(loss="simtrip", epochs=8, seed=0)
+    cfg = retrieval.CoarseTrainConfig(loss="simtrip", epochs=8, seed=0)
     ds = retrieval.build_dataset(real_data, cfg)
     assert cfg.depth_unit_m is not None and 10 < cfg.depth_unit_m < 60
     res = training.train(ds, cfg)
@@ -368,21 +368,21 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
     # checkpoint round trip, with the resolved config
     path = tmp_path / "model.pt"
     checkpoints.save_checkpoint(res, path)
-    model, cfg2 = checkpoints.load_checkpoint(path, retrieval.CoarseConfig, retrieval.build_model)
+    model, cfg2 = checkpoints.load_checkpoint(path, retrieval.CoarseTrainConfig, retrieval.build_model)
     assert cfg2.to_dict() == cfg.to_dict()
     test = ds.split("test")
     a = retrieval.score_samples(res["model"], ds, test, "gt")
     b = retrieval.score_samples(model, ds, test, "gt")
     assert all(np.allclose(x, y) for x, y in zip(a, b))
     # same seed, same weights (CPU)
-    res2 = training.train(ds, retrieval.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
-    res3 = training.train(ds, retrieval.CoarseConfig(**{**cfg.to_dict(), "epochs": 2}))
+    res2 = training.train(ds, retrieval.CoarseTrainConfig(**{**cfg.to_dict(), "epochs": 2}))
+    res3 = training.train(ds, retrieval.CoarseTrainConfig(**{**cfg.to_dict(), "epochs": 2}))
     assert all(torch.equal(res2["state_dict"][k], res3["state_dict"][k]) for k in res2["state_dict"])
 
 
 @pytest.mark.parametrize("loss", ["sim", "trip"])
 def test_each_loss_trains(real_data, loss):
-    cfg = retrieval.CoarseConfig(loss=loss, epochs=3, seed=1, batching="mixed")
+    cfg = retrieval.CoarseTrainConfig(loss=loss, epochs=3, seed=1, batching="mixed")
     ds = retrieval.build_dataset(real_data[:2], cfg, splits=("train", "val"))
     hist = pd.DataFrame(training.train(ds, cfg)["history"])
     key = "loss_sim" if loss == "sim" else "loss_trip"

@@ -69,17 +69,69 @@ def test_resolve_fills_defaults_under_a_partial_section():
     assert full["objects"]["cluster"]["split_extent_m"] is None
 
 
-@dataclasses.dataclass
-class _Toy:
-    top_k: int = 0
-    model: str = "x"
+def _toy(dotted: str = "solver", **kwargs):
+    """A settings class made for a test, left out of the registry tests/test_settings.py walks."""
+
+    def make(cls):
+        made = config.settings(dotted, **kwargs)(cls)
+        config.SETTINGS_CLASSES.remove(made)
+        return made
+
+    return make
 
 
-def test_from_section_is_strict_and_takes_the_schema_defaults():
-    toy = config.from_section(_Toy, "solver", {}, model="mlp")
-    assert toy == _Toy(top_k=config.section_defaults("solver")["top_k"], model="mlp")
+def test_settings_classes_take_fields_types_and_defaults_from_the_schema():
+    @_toy()
+    class Toy:
+        """A toy."""
+
+        model: str = "x"
+
+        def doubled(self) -> int:
+            return 2 * self.top_k
+
+    defaults = config.section_defaults("solver")
+    names = [f.name for f in dataclasses.fields(Toy)]
+    assert names == ["model", *defaults]  # the extras first, then the schema's keys in schema order
+    assert Toy.SECTION == "solver" and Toy.EXTRAS == ("model",) and Toy.__doc__ == "A toy."
+    toy = Toy.from_dict({"top_k": 3}, model="mlp")
+    assert (toy.top_k, toy.model, toy.max_pairs, toy.doubled()) == (3, "mlp", defaults["max_pairs"], 6)
+    assert Toy().to_dict() == {"model": "x", **defaults}
+    assert Toy.from_dict(None) == Toy() == Toy.from_dict(Toy().to_dict())
+    assert Toy.of(toy) is toy and Toy.of({"top_k": 3}) == Toy(top_k=3) and Toy.of(None) == Toy()
+    types = {f.name: f.type for f in dataclasses.fields(Toy)}
+    assert (types["top_k"], types["tau"], types["covis_metric"]) == (int, float, bool)
     with pytest.raises(config.ConfigError, match="'solver.top_kk' \\(did you mean 'solver.top_k'\\?\\)"):
-        config.from_section(_Toy, "solver", {"top_kk": 1})
+        Toy.from_dict({"top_kk": 1})
+    with pytest.raises(config.ConfigError, match="'solver.modle' \\(did you mean 'solver.model'\\?\\)"):
+        Toy.from_dict({}, modle="mlp")
+
+
+def test_settings_fields_hold_copies_of_mutable_defaults_and_leave_out_sub_sections():
+    @_toy("objects", frozen=True)
+    class Objects:
+        pass
+
+    assert [f.name for f in dataclasses.fields(Objects)] == ["audit_radius_m"]  # cluster, principal_plane: own classes
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        Objects().audit_radius_m = 1.0
+
+    @_toy("objects.cluster")
+    class Cluster:
+        pass
+
+    a, b = Cluster(), Cluster()
+    a.eps_m_by_class["pole"] = 9.0
+    assert b.eps_m_by_class == config.section_defaults("objects.cluster")["eps_m_by_class"]
+    assert {f.name: f.type for f in dataclasses.fields(Cluster)}["split_extent_m"] == float | None
+
+
+def test_a_settings_class_cannot_declare_a_schema_key_again():
+    with pytest.raises(TypeError, match="top_k already is a key of the config section 'solver'"):
+
+        @_toy()
+        class Twice:
+            top_k: int = 6
 
 
 def test_a_typo_in_a_config_file_stops_the_run_before_any_job(repo, flat_root, tmp_path):

@@ -232,7 +232,7 @@ def _toy_samples(n, cfg, seed=0):
 
 @pytest.mark.parametrize("name", learned.MODELS)
 def test_models_forward_backward_shapes(name):
-    cfg = learned.FineConfig(model=name, hidden=16, heads=2, rounds=1)
+    cfg = learned.FineTrainConfig(model=name, hidden=16, heads=2, rounds=1)
     samples = _toy_samples(5, cfg)
     model = learned.build_model(cfg)
     batch = learned.Batch.from_data_list(samples)
@@ -245,7 +245,7 @@ def test_models_forward_backward_shapes(name):
 
 @pytest.mark.parametrize("name", learned.MODELS)
 def test_batching_equals_one_by_one(name):
-    cfg = learned.FineConfig(model=name, hidden=16, heads=2, rounds=1)
+    cfg = learned.FineTrainConfig(model=name, hidden=16, heads=2, rounds=1)
     samples = _toy_samples(4, cfg)
     torch.manual_seed(0)
     model = learned.build_model(cfg).eval()
@@ -258,7 +258,7 @@ def test_batching_equals_one_by_one(name):
 @pytest.mark.parametrize("name", ["MLP", "MLP+ATT"])
 def test_dense_row_selection_equals_graph_batch(name):
     """The MLPs train on padded rows selected from the whole split: same outputs as collated graphs."""
-    cfg = learned.FineConfig(model=name, hidden=16, heads=2)
+    cfg = learned.FineTrainConfig(model=name, hidden=16, heads=2)
     samples = _toy_samples(6, cfg)
     samples[2] = learned.make_sample(np.zeros((3, 2)), [1, 2, 3], np.ones((30, 2)), np.arange(30) % 5, cfg, (0, 0), 0.1)
     torch.manual_seed(0)
@@ -287,7 +287,7 @@ def test_loss_and_angle_wrap():
 
 
 def test_augmentation_is_a_rigid_motion_of_region_and_target():
-    cfg = learned.FineConfig(model="MLP", map_type="gt", aug_depth_scale=0.0)
+    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", aug_depth_scale=0.0)
     samples = _toy_samples(3, cfg)
     batch = learned.Batch.from_data_list(samples)
     aug = training.augment(batch, cfg, torch.Generator().manual_seed(0))
@@ -302,7 +302,9 @@ def test_augmentation_is_a_rigid_motion_of_region_and_target():
 
 
 def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
-    cfg = learned.FineConfig(model="MLP", map_type="gt", hidden=32, epochs=8, batch_size=16, lr=3e-3, augment=False)
+    cfg = learned.FineTrainConfig(
+        model="MLP", map_type="gt", hidden=32, epochs=8, batch_size=16, lr=3e-3, augment=False
+    )
     train = _toy_samples(64, cfg, seed=1)
     val = _toy_samples(16, cfg, seed=2)
     res = training.train(train, val, cfg)
@@ -313,7 +315,7 @@ def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
     assert [h["train_loss"] for h in res2["history"]] == losses  # seeded, deterministic on CPU
     path = tmp_path / "ck.pt"
     checkpoints.save_checkpoint(res, path)
-    model, cfg2 = checkpoints.load_checkpoint(path, learned.FineConfig, learned.build_model)
+    model, cfg2 = checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
     assert cfg2 == cfg
     assert np.allclose(learned.predict(model, val), learned.predict(res["model"], val), atol=1e-6)
 
@@ -321,10 +323,12 @@ def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
 def test_warm_start_continues_from_the_given_weights(tmp_path):
     """Training on simulated coarse proposals starts from the GT-BB model (fine.coarse_training.warm_start):
     with a vanishing step it keeps that model's predictions; without the weights it does not."""
-    cfg = learned.FineConfig(model="MLP", map_type="gt", hidden=32, epochs=30, batch_size=16, lr=3e-3, augment=False)
+    cfg = learned.FineTrainConfig(
+        model="MLP", map_type="gt", hidden=32, epochs=30, batch_size=16, lr=3e-3, augment=False
+    )
     train, val = _toy_samples(64, cfg, seed=1), _toy_samples(16, cfg, seed=2)
     first = training.train(train, val, cfg)
-    short = learned.FineConfig(**{**cfg.to_dict(), "epochs": 1, "lr": 1e-12})
+    short = learned.FineTrainConfig(**{**cfg.to_dict(), "epochs": 1, "lr": 1e-12})
     cold = training.train(train, val, short)
     warm = training.train(train, val, short, init_state=first["state_dict"])
     assert np.allclose(learned.predict(warm["model"], val), learned.predict(first["model"], val), atol=1e-4)
@@ -345,7 +349,7 @@ def test_coarse_training_starts_from_the_gtbb_model_unless_told_otherwise(repo, 
 
 def test_learned_model_on_real_scene_samples(scene):
     ref, q = scene
-    cfg = learned.FineConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
+    cfg = learned.FineTrainConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
     tr = q[q["split"] == "train"]
     samples, kept = learned.samples_from_queries(ref, tr, proposals.gtbb_proposals(ref, tr), cfg)
     assert len(samples) == len(kept) == len(tr) > 3
@@ -435,7 +439,7 @@ def test_a_new_scene_is_localized_by_the_benchmark_methods_without_its_own_prior
 
     ref, q = scene
     q = q.iloc[:12]
-    cfg = learned.FineConfig(model="MLP", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
+    cfg = learned.FineTrainConfig(model="MLP", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
     models = {("mlp", "depth"): (learned.build_model(cfg), cfg)}
     rows = scene_localization.scene_rows(ref, q, models, ["gt", "depth"], {"camera_prior": True, "scale_prior": True})
     assert len(rows) == 2 * (2 + 1)  # proposals x (solver per map type + the depth model)

@@ -1,5 +1,6 @@
 """Command line: ``flatlandia audit`` prints the audit trail of a run (one scene or all);
-``flatlandia config`` checks or rewrites the files generated from the config schema."""
+``flatlandia config`` checks or rewrites the files generated from the config schema;
+``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.debug)."""
 
 from __future__ import annotations
 
@@ -57,6 +58,62 @@ def config_files(args) -> int:
     return 0
 
 
+def debug_rule(args) -> int:
+    """Build one job of the workflow and run its script here (``--show``: only print the job)."""
+    from snakemake.cli import parse_config
+
+    from flatlandia import debug
+
+    wildcards = {}
+    for item in args.wildcards:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            print(f"ERROR: wildcard {item!r}: expected key=value, e.g. scene=12")
+            return 2
+        wildcards[key] = value
+    try:
+        smk = debug.mock_snakemake(
+            args.rule,
+            workdir=args.directory,
+            configfiles=args.configfile,
+            config=parse_config(args.config),
+            snakefile=args.snakefile,
+            cores=args.cores,
+            **wildcards,
+        )
+    except debug.DebugError as e:
+        print(f"ERROR: {e}")
+        return 2
+    if args.log_to_terminal:
+        smk.log = type(smk.log)()  # no log file: the script's logger writes to stderr
+    print(debug.describe(smk), flush=True)
+    if args.show:
+        return 0
+    print(f"running {smk.script.name} in this process ...", flush=True)
+    try:
+        debug.run_script(smk)
+    except debug.DebugError as e:
+        print(f"ERROR: {e}")
+        return 2
+    except SystemExit as e:  # runlog.run ends a script with bad input with exit status 1
+        return int(e.code or 0) if not isinstance(e.code, str) else 1
+    except Exception:
+        if not args.pdb:
+            raise
+        import pdb
+        import traceback
+
+        traceback.print_exc()
+        pdb.post_mortem()
+        return 1
+    print("done; outputs:")
+    for p in smk.output:
+        print(f"  {p}{'' if (smk.workdir / p).exists() else ' (not written)'}")
+    if smk.log:
+        print(f"log: {smk.log[0]}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="flatlandia", description=__doc__)
     sub = ap.add_subparsers(dest="command", required=True)
@@ -70,6 +127,24 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--write", action="store_true", help="rewrite them instead of checking")
     c.add_argument("--repo", default=str(config.SCHEMA_PATH.parents[2]), help="repository root")
     c.set_defaults(func=config_files)
+    d = sub.add_parser(
+        "debug",
+        help="run one rule's script in this process (breakpoints and print work)",
+        description="Build the job of RULE for the given wildcards from the workflow (default config, then "
+        "--configfile and --config as for snakemake), print its input/output/params/log, then run the rule's "
+        "script in this Python process in the working folder. Its inputs must exist (run snakemake first).",
+    )
+    d.add_argument("rule", help="rule name, e.g. reference_map")
+    d.add_argument("wildcards", nargs="*", metavar="key=value", help="the job's wildcards, e.g. scene=12")
+    d.add_argument("-d", "--directory", default=".", help="the workflow's working folder (default: here)")
+    d.add_argument("--configfile", nargs="*", default=[], help="config files over config/config.yaml")
+    d.add_argument("--config", nargs="*", default=[], metavar="KEY=VALUE", help="config overrides, as snakemake's")
+    d.add_argument("--snakefile", default=None, help="default: this package's workflow/Snakefile")
+    d.add_argument("--cores", type=int, default=1, help="caps the job's threads, as snakemake --cores (default 1)")
+    d.add_argument("--show", action="store_true", help="only print the job, run nothing")
+    d.add_argument("--log-to-terminal", action="store_true", help="log to stderr instead of the rule's log file")
+    d.add_argument("--pdb", action="store_true", help="open pdb where the script fails")
+    d.set_defaults(func=debug_rule)
     args = ap.parse_args(argv)
     return args.func(args)
 

@@ -2,8 +2,9 @@
 
 Why one place: defaults that live in a YAML file, in ``.get`` fallbacks and in dataclass fields
 drift apart, and a typo in a key is silently ignored. Here :func:`resolve` refuses unknown keys
-(naming the closest valid one) and fills in the defaults, :func:`section_defaults` gives the
-dataclasses their defaults, and :func:`from_section` builds them strictly. config/config.yaml and
+(naming the closest valid one) and fills in the defaults, and :func:`settings` makes a section's
+settings class (a dataclass whose fields, types and defaults are read from the schema, with a
+strict ``from_dict``) so that no key is written out a second time. config/config.yaml and
 config/README.md are generated views of the schema (:func:`render_config_yaml`,
 :func:`render_readme`; ``flatlandia config --write``).
 """
@@ -15,6 +16,7 @@ import dataclasses
 import difflib
 import functools
 import math
+import operator
 import textwrap
 from pathlib import Path
 
@@ -180,19 +182,109 @@ def resolve(cfg: dict | None) -> dict:
     return full
 
 
-def from_section(cls, dotted: str, values: dict | None, **fixed):
-    """A dataclass from a config section: the section's defaults, ``values`` over them, then
-    ``fixed`` (settings a rule decides, e.g. the model). A key that is neither a field of ``cls``
-    nor of the section raises :class:`ConfigError` naming ``dotted.key`` and the closest field."""
-    fields = {f.name for f in dataclasses.fields(cls)}
-    values = dict(values or {})
-    bad = [k for k in values if k not in fields and k not in _node(dotted).get("properties", {})]
+# ----------------------------------------------------------------------------- settings classes
+
+#: JSON Schema type -> Python type of a settings field (a list of types is their union)
+_PY_TYPES = {
+    "number": float,
+    "integer": int,
+    "boolean": bool,
+    "string": str,
+    "array": list,
+    "object": dict,
+    "null": type(None),
+}
+
+#: every settings class made by :func:`settings`, in the order their modules were imported
+SETTINGS_CLASSES: list[type] = []
+
+
+def _py_type(node: dict):
+    kinds = [_PY_TYPES[k] for k in sorted(_types(node), key=list(_PY_TYPES).index)]
+    return functools.reduce(operator.or_, kinds) if kinds else object
+
+
+def _is_subsection(node: dict) -> bool:
+    return "properties" in node and "default" not in node
+
+
+def section_keys(dotted: str) -> list[str]:
+    """The keys of a section that :func:`settings` makes fields of: its leaves (a key with a
+    default), in schema order; nested sub-sections are left out (each gets a class of its own)."""
+    return [k for k, v in _node(dotted).get("properties", {}).items() if not _is_subsection(v)]
+
+
+def settings(dotted: str, *, frozen: bool = False):
+    """Class decorator: the settings class of the config section ``dotted`` (e.g. ``"solver"``).
+
+    The class becomes a dataclass (``frozen`` as asked, compared by value) whose fields are the
+    section's keys (:func:`section_keys`), typed and defaulted from the schema, in schema order. The
+    only fields written in the class body are *extras*: settings that a rule or a caller fixes and
+    the schema does not hold (a model's name, a seed derived from the master seed); a body
+    annotation naming a schema key is refused, so no key is written twice. The body keeps its
+    methods (``__post_init__`` checks included). The class gets:
+
+    - ``from_dict(d, **fixed)``: the schema defaults, ``d`` over them, then ``fixed``; a key that is
+      not a field raises :class:`ConfigError` naming ``dotted.key`` and the closest field;
+    - ``to_dict()``: every field (``dataclasses.asdict``), what checkpoints and tables store;
+    - ``of(value)``: ``value`` itself when it is already one, else ``from_dict(value)``;
+    - ``SECTION`` (``dotted``) and ``EXTRAS`` (the extras' names), read by tests/test_settings.py.
+    """
+
+    def build(cls):
+        own = {k: v for k, v in cls.__dict__.get("__annotations__", {}).items() if "ClassVar" not in str(v)}
+        twice = [k for k in own if k in _node(dotted).get("properties", {})]
+        if twice:
+            raise TypeError(
+                f"{cls.__name__}: {', '.join(twice)} already {'is a key' if len(twice) == 1 else 'are keys'} "
+                f"of the config section '{dotted}'; the class body declares only settings the schema lacks"
+            )
+        annotations = {}
+        for key in section_keys(dotted):
+            node = _node(dotted)["properties"][key]
+            annotations[key] = _py_type(node)
+            default = node.get("default")
+            if isinstance(default, (dict, list)):
+                setattr(cls, key, dataclasses.field(default_factory=functools.partial(copy.deepcopy, default)))
+            else:
+                setattr(cls, key, default)
+        # extras first (what a rule fixes), then the schema's keys; class variables stay as they are
+        cls.__annotations__ = {**cls.__dict__.get("__annotations__", {}), **annotations}
+        for name, method in (("from_dict", _from_dict), ("to_dict", _to_dict), ("of", _of)):
+            if name not in cls.__dict__:
+                setattr(cls, name, method)
+        out = dataclasses.dataclass(frozen=frozen)(cls)
+        out.SECTION, out.EXTRAS = dotted, tuple(own)
+        SETTINGS_CLASSES.append(out)
+        return out
+
+    return build
+
+
+@classmethod
+def _from_dict(cls, values: dict | None = None, **fixed):
+    """The section's defaults, ``values`` over them, then ``fixed`` (settings a rule decides).
+    Strict: a key that is not a setting raises ConfigError naming the closest one."""
+    fields = [f.name for f in dataclasses.fields(cls)]
+    given = {**dict(values or {}), **fixed}
+    bad = [k for k in given if k not in fields]
     if bad:
         raise ConfigError(
-            "unknown key " + "; unknown key ".join(f"'{_join(dotted, k)}'{_closest(k, fields, dotted)}" for k in bad)
+            "unknown key "
+            + "; unknown key ".join(f"'{_join(cls.SECTION, k)}'{_closest(str(k), fields, cls.SECTION)}" for k in bad)
         )
-    merged = {**section_defaults(dotted), **values, **fixed}
-    return cls(**{k: copy.deepcopy(v) for k, v in merged.items() if k in fields})
+    return cls(**{k: copy.deepcopy(v) for k, v in given.items()})
+
+
+def _to_dict(self) -> dict:
+    """Every setting by name: JSON-ready when the values are (what checkpoints store)."""
+    return dataclasses.asdict(self)
+
+
+@classmethod
+def _of(cls, value):
+    """``value`` when it is already one of these settings, else :meth:`from_dict` of it (a dict or None)."""
+    return value if isinstance(value, cls) else cls.from_dict(value)
 
 
 # ----------------------------------------------------------------------------- generated views

@@ -37,7 +37,7 @@ rule principal_plane:
     conda:
         "../../envs/flatlandia.yaml"
     params:
-        max_points=20000,  # subsample for the frame origin (median point)
+        max_points=config["objects"]["principal_plane"]["max_points"],
         ground_scale_m=config["objects"]["principal_plane"]["ground_scale_m"],
         fallback_scale_m=config["objects"]["principal_plane"]["fallback_scale_m"],
         min_ground_points=config["objects"]["principal_plane"]["min_ground_points"],

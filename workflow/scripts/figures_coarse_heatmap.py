@@ -11,7 +11,7 @@ def main(smk, log):
     torch.set_num_threads(1)
     ref, q, sim = (pd.read_parquet(p) for p in (smk.input.reference_map, smk.input.queries, smk.input.similarity))
     models = {
-        retrieval.LOSSES[loss]: checkpoints.load_checkpoint(p, retrieval.CoarseConfig, retrieval.build_model)
+        retrieval.LOSSES[loss]: checkpoints.load_checkpoint(p, retrieval.CoarseTrainConfig, retrieval.build_model)
         for loss, p in zip(smk.params.losses, smk.input.models)
     }
     cfg0 = next(iter(models.values()))[1]

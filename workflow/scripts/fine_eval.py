@@ -36,7 +36,7 @@ def main(smk, log):
         from flatlandia.fine import learned as models
 
         torch.set_num_threads(int(smk.threads))
-        model, cfg = checkpoints.load_checkpoint(smk.input.checkpoint, models.FineConfig, models.build_model)
+        model, cfg = checkpoints.load_checkpoint(smk.input.checkpoint, models.FineTrainConfig, models.build_model)
         errors = evaluation.model_errors(scenes, model, cfg, p["proposal"], coarse, p["strategy"], float(p["crop_m"]))
     errors["strategy"] = p["strategy_label"]
     meta = {

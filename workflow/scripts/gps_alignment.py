@@ -1,37 +1,36 @@
-"""Rule gps_alignment: SfM cameras of an images scene -> the map's ground plane (affine map + residuals).
+"""Rule gps_alignment: SfM cameras of an images scene -> the map's ground plane (affine map + residuals;
+flatlandia.images.gps_alignment.scene_alignment).
 
 ``images.align.mode: gps`` aligns the cameras to their GPS fixes (metres, lon/lat); ``none``
 keeps the SfM frame on its ground plane (photos without GPS: SfM units, no lon/lat).
 """
 
-import numpy as np
 import pandas as pd
 import pycolmap
 
 from flatlandia import io, runlog
-from flatlandia.images import gps_alignment, image_queries
+from flatlandia.images import gps_alignment
 
 
 def main(smk, log):
-    rec = pycolmap.Reconstruction(smk.input.model)
-    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
-    cams = pd.read_parquet(smk.input.cameras)
-    cams = cams[cams["name"].isin(views)].sort_values("name").reset_index(drop=True)
-    p = dict(smk.params.align)
     scene = smk.wildcards.scene
-    if p["mode"] == "none":
-        out = gps_alignment.local_frame(
-            np.array([views[n].centre for n in cams["name"]]).reshape(-1, 3),
-            np.array([views[n].R for n in cams["name"]]).reshape(-1, 3, 3),
-            unit_m=float(p["unit_m"]),
-        )
-        method = "camera up axes -> ground plane; local frame, no GPS (images.align.mode: none)"
-    else:
-        cams, out = gps_alignment.align_camera_table(cams, views, p, smk.params.seed, str(smk.input.cameras), log)
-        method = "camera up axes -> ground plane; RANSAC similarity to GPS"
-    io.write_json({"scene": scene, "method": method, "cameras": cams["name"].tolist(), **out}, smk.output.json)
+    out = gps_alignment.scene_alignment(
+        scene,
+        pycolmap.Reconstruction(smk.input.model),
+        pd.read_parquet(smk.input.cameras),
+        dict(smk.params.align),
+        smk.params.seed,
+        source=str(smk.input.cameras),
+        log=log,
+    )
+    io.write_json(out, smk.output.json)
     if gps_alignment.is_local(out):
-        log.info("scene %s: local frame on the SfM ground plane of %d cameras, unit: %s", scene, len(cams), out["unit"])
+        log.info(
+            "scene %s: local frame on the SfM ground plane of %d cameras, unit: %s",
+            scene,
+            len(out["cameras"]),
+            out["unit"],
+        )
         return
     compass = out["compass_median_diff_deg"]
     log.info(

@@ -1,4 +1,5 @@
-"""Rule reproduction_audit: our objects vs the published reference maps, per scene."""
+"""Rule reproduction_audit: our objects vs the published reference maps, per scene
+(flatlandia.objects.audit: ``audit_objects`` per scene, ``reproduction_table`` over them)."""
 
 import pandas as pd
 
@@ -21,26 +22,10 @@ def main(smk, log):
             radius_m=float(smk.params.radius_m),
         )
         rows.append(row)
-        ours_xy = ours[["x_m", "y_m"]].to_numpy()
         title = f"scene {escape.mathtext(scene)}: {row['within_0.5m']}/{row['published']} within 0.5 m"
-        panels.append((title, ours_xy, ref_xy))
+        panels.append((title, ours[["x_m", "y_m"]].to_numpy(), ref_xy))
         log.info("%s", row)
-    df = pd.DataFrame(rows)
-    counts = ["published", "ours", "matched", "within_0.05m", "within_0.5m", "within_2m", "extra"]
-    total = {
-        "scene": "all",
-        **{c: int(df[c].sum()) for c in counts},
-        "median_dist_m": float(df["median_dist_m"].median()) if len(df) else float("nan"),
-    }
-    total["frac_within_0.5m"] = total["within_0.5m"] / max(1, total["published"])
-    df = pd.concat([df, pd.DataFrame([total])], ignore_index=True)
-    df = df[[c.name for c in tables.SCHEMAS["reference_map_reproduction"]]]
-    note = (
-        f"Our objects (clusters of the published class point clouds) matched to the published reference maps, "
-        f"same macro-class, Hungarian within {float(smk.params.radius_m):g} m; 'all' sums the scenes "
-        f"(its median_dist_m is the median of the scenes'). Targets: frac_within_0.5m >= 0.9, extra <= 10% of "
-        f"published."
-    )
+    df, total, note = audit.reproduction_table(rows, float(smk.params.radius_m))
     tables.write_table(
         df,
         "reference_map_reproduction",

@@ -19,7 +19,7 @@ def main(smk, log):
         log.warning("scene %s: %s", scene, meta["empty_because"])
     models = {}
     for path in smk.input.checkpoints:
-        model, cfg = checkpoints.load_checkpoint(path, learned.FineConfig, learned.build_model)
+        model, cfg = checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
         slug = Path(path).parent.name.rsplit("_", 2)[0]  # {model}_{map_type}_{train}
         models[(slug, cfg.map_type)] = (model, cfg)
     rows = scene_localization.scene_rows(

@@ -9,12 +9,13 @@ index adds whether the true place was among its regions (``region_hit``).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pandas as pd
 
 from flatlandia import proposals, solver
-from flatlandia.city import search
+from flatlandia.city import index, search, simulate
 from flatlandia.city.index import ViewIndex
 from flatlandia.data import localmaps
 from flatlandia.fine import evaluation
@@ -100,3 +101,93 @@ def summary(errors: pd.DataFrame) -> dict:
         region_hit_pct=float(100 * errors["region_hit"].mean()) if "region_hit" in errors else float("nan"),
     )
     return out
+
+
+# --------------------------------------------------------------------------- rules city_eval, city_simulate
+
+
+def tiled_errors(
+    maps: pd.DataFrame,
+    queries: pd.DataFrame,
+    scenes_per_city: int,
+    method: str,
+    split: str,
+    cfg: search.SearchConfig,
+    settings: dict,
+    learned: solver.LearnedPriors | None,
+    index_of: Callable[[str], ViewIndex] | None = None,
+    built: list[dict] | None = None,
+    log=None,
+) -> tuple[pd.DataFrame, dict]:
+    """Rule city_eval: one method on every city of the tiled maps -> (per-query errors, summary row).
+
+    ``maps``/``queries``: the tiled cities of ``scenes_per_city`` scenes (rule city_maps, column
+    ``city``); ``method`` ``solver``
+    (today's solver on each whole city map, :func:`solver_errors`) or ``index`` (the city search,
+    :func:`index_errors`, with ``index_of(city)`` the city's saved index and ``built`` rule city_index's
+    build records: bytes and CPU seconds per city)."""
+    parts = []
+    for city, ref in maps.groupby("city", sort=True):
+        q = queries[queries["city"] == city]
+        if method == "solver":
+            parts.append(solver_errors(ref, q, split, settings, learned))
+        else:
+            parts.append(index_errors(index_of(city), q, split, cfg, settings, learned))
+        if log is not None:
+            log.info("city %s: %s", city, summary(parts[-1]) if len(parts[-1]) else "no queries")
+    built = built or []
+    errors = pd.concat(parts, ignore_index=True)
+    out = summary(errors)
+    out.update(
+        map="tiled",
+        scenes=int(scenes_per_city),
+        cities=int(maps["city"].nunique()),
+        objects=int(round(maps.groupby("city").size().mean())),
+        method=str(errors["method"].iloc[0]),
+        index_mb=float(np.mean([b["bytes"] for b in built]) / 1e6) if built else float("nan"),
+        index_build_s=float(np.mean([b["cpu_s"] for b in built])) if built else float("nan"),
+    )
+    return errors, out
+
+
+def simulated_errors(
+    scenes: list[str],
+    refs: dict[str, pd.DataFrame],
+    queries: dict[str, pd.DataFrame],
+    n_objects: int,
+    spacing_m: float,
+    simulate_cfg: dict,
+    seed: int,
+    split: str,
+    cfg: search.SearchConfig,
+    settings: dict,
+    learned: solver.LearnedPriors | None,
+    log=None,
+) -> tuple[pd.DataFrame, dict]:
+    """Rule city_simulate: the city search in synthetic cities of ``n_objects`` objects ->
+    (per-query errors, summary row). Each scene's ``split`` queries are localized in its city
+    (:func:`flatlandia.city.simulate.scene_cities`), indexed from the city's training views as rule
+    city_index does (build CPU seconds and size averaged into the summary)."""
+    parts, built, sizes, tiles = [], [], [], []
+    cities = simulate.scene_cities(scenes, refs, queries, n_objects, spacing_m, simulate_cfg["jitter_m"], seed, split)
+    for s, ref, q in cities:
+        c0 = time.process_time()
+        ix = index.build(ref, q[q["split"] == "train"])
+        built.append((ix.nbytes(), time.process_time() - c0))
+        sizes.append(len(ref))
+        tiles.append(ref["scene"].nunique())
+        parts.append(index_errors(ix, q[q["scene"] == s], split, cfg, settings, learned))
+        if log is not None:
+            log.info("scene %s: %d objects, %s", s, len(ref), summary(parts[-1]))
+    errors = pd.concat(parts, ignore_index=True)
+    out = summary(errors)
+    out.update(
+        map="simulated",
+        scenes=int(round(np.mean(tiles))),
+        cities=len(parts),
+        objects=int(round(np.mean(sizes))),
+        method=str(errors["method"].iloc[0]),
+        index_mb=float(np.mean([b for b, _ in built]) / 1e6),
+        index_build_s=float(np.mean([c for _, c in built])),
+    )
+    return errors, out

@@ -15,7 +15,7 @@ takes 42 ms and, at 10,000 objects, 1.3 s).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -23,27 +23,11 @@ from flatlandia import config, solver
 from flatlandia.city import kernels
 from flatlandia.city.index import ViewIndex
 
-_SEARCH = config.section_defaults("city.search")
 
-
-@dataclass
+@config.settings("city.search")
 class SearchConfig:
-    """The search's settings; each is described in config/README.md (`city.search.*`)."""
-
-    top_views: int = _SEARCH["top_views"]
-    bearing_tol_deg: float = _SEARCH["bearing_tol_deg"]
-    log_range_tol: float = _SEARCH["log_range_tol"]
-    bow_weight: float = _SEARCH["bow_weight"]
-    regions: int = _SEARCH["regions"]
-    nms_m: float = _SEARCH["nms_m"]
-    region_radius_m: float = _SEARCH["region_radius_m"]
-
-    @classmethod
-    def from_dict(cls, d: dict | None) -> SearchConfig:
-        return config.from_section(cls, "city.search", d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+    """The search's settings: the config section ``city.search`` (each is described in
+    config/README.md, ``city.search.*``)."""
 
 
 def view_scores(ix: ViewIndex, q_xy: np.ndarray, q_cls: np.ndarray, cfg: SearchConfig) -> tuple[np.ndarray, np.ndarray]:

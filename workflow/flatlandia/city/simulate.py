@@ -14,6 +14,8 @@ scene out of the templates.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import pandas as pd
 
@@ -93,3 +95,27 @@ def city(
         )
         base += len(xy)
     return pd.concat([ref] + objs, ignore_index=True), pd.concat([q] + views, ignore_index=True)
+
+
+def scene_cities(
+    scenes: list[str],
+    refs: dict[str, pd.DataFrame],
+    queries: dict[str, pd.DataFrame],
+    n_objects: int,
+    spacing_m: float,
+    jitter_m: float,
+    seed: int,
+    split: str,
+) -> Iterator[tuple[str, pd.DataFrame, pd.DataFrame]]:
+    """(scene, city map, city queries) for each scene that has ``split`` queries, in order: the
+    scene among synthetic tiles of the *other* scenes (:func:`city`), ``n_objects`` in all, drawn
+    from a generator seeded with (``seed``, the scene's position in ``scenes``). Rule city_simulate's
+    cities, which ``benchmarks/bench_city.py`` times."""
+    templates = {s: Template(refs[s], queries[s]) for s in scenes}
+    for k, s in enumerate(scenes):
+        if not (queries[s]["split"] == split).any():
+            continue
+        rng = np.random.default_rng([int(seed), k])
+        others = [templates[t] for t in scenes if t != s]
+        ref, q = city([refs[s]], [queries[s]], others, n_objects, float(spacing_m), jitter_m, rng)
+        yield s, ref, q

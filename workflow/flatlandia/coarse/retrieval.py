@@ -12,7 +12,7 @@ as one disjoint union (:func:`fused_scores`). Graphs and targets of every query:
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -30,41 +30,16 @@ LOSSES = {"sim": "Sim", "trip": "Trip", "simtrip": "Sim+Trip"}
 MAP_TYPES = ["gt", "depth"]
 
 
-#: Defaults: the `coarse.train` section of workflow/schemas/config.schema.yaml.
-_TRAIN = config.section_defaults("coarse.train")
+@config.settings("coarse.train")
+class CoarseTrainConfig:
+    """How one coarse retrieval model is trained: the config section ``coarse.train`` (each key is
+    described in config/README.md, ``coarse.train.*``), plus what the rule fixes per model: the
+    loss (its wildcard) and the seed (``seed`` + ``coarse.seed_offset``). Stored in the checkpoint
+    (``to_dict``) and read back with ``from_dict``. ``scale_m``, ``depth_unit_m`` and ``knn`` are
+    the graphs' normalisation (:meth:`graph_config`)."""
 
-
-@dataclass
-class CoarseConfig:
     loss: str = "simtrip"  # sim | trip | simtrip
-    epochs: int = _TRAIN["epochs"]
-    batch_size: int = _TRAIN["batch_size"]
-    lr: float = _TRAIN["lr"]
-    weight_decay: float = _TRAIN["weight_decay"]
-    margin: float = _TRAIN["margin"]
-    trip_weight: float = _TRAIN["trip_weight"]
-    hard_negatives: float = _TRAIN["hard_negatives"]
-    sim_weight_floor: float = _TRAIN["sim_weight_floor"]
-    grad_clip: float = _TRAIN["grad_clip"]
-    lr_schedule: str = _TRAIN["lr_schedule"]
-    lr_min_factor: float = _TRAIN["lr_min_factor"]
-    hidden: int = _TRAIN["hidden"]
-    heads: int = _TRAIN["heads"]
-    layers: int = _TRAIN["layers"]
-    out_dim: int = _TRAIN["out_dim"]
-    dropout: float = _TRAIN["dropout"]
-    normalize: bool = _TRAIN["normalize"]
-    conv: str = _TRAIN["conv"]
-    train_maps: list = field(default_factory=lambda: list(_TRAIN["train_maps"]))
-    batching: str = _TRAIN["batching"]
-    eval_every: int = _TRAIN["eval_every"]
     seed: int = 0
-    # graph normalisation (graphs.GraphConfig); depth_unit_m null = median range of training GT maps
-    scale_m: float = _TRAIN["scale_m"]
-    depth_unit_m: float | None = _TRAIN["depth_unit_m"]
-    knn: int = _TRAIN["knn"]
-    radius_m: float = _TRAIN["radius_m"]
-    bb_enlarge: float = _TRAIN["bb_enlarge"]
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -76,14 +51,6 @@ class CoarseConfig:
         bad = [m for m in self.train_maps if m not in MAP_TYPES]
         if bad or not self.train_maps:
             raise ValueError(f"train_maps must be a non-empty subset of {MAP_TYPES}, got {self.train_maps}")
-
-    @classmethod
-    def from_dict(cls, d: dict | None) -> CoarseConfig:
-        """Strict: a key that is not a coarse training setting raises, naming the closest one."""
-        return config.from_section(cls, "coarse.train", d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
     def graph_config(self) -> graphs.GraphConfig:
         return graphs.GraphConfig(
@@ -124,7 +91,7 @@ class Dataset:
 
 def build_dataset(
     scenes: list[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame | None]],
-    cfg: CoarseConfig,
+    cfg: CoarseTrainConfig,
     splits: tuple[str, ...] = ("train", "val", "test"),
 ) -> Dataset:
     """Graphs and targets from (reference map, queries, similarity table or None) per scene.
@@ -181,7 +148,7 @@ def build_dataset(
 class CoarseGAT(nn.Module):
     """Shared node encoder: linear lift, ``layers`` GAT layers with edge features, linear head."""
 
-    def __init__(self, cfg: CoarseConfig, in_dim: int = N_CLASSES + 2):
+    def __init__(self, cfg: CoarseTrainConfig, in_dim: int = N_CLASSES + 2):
         super().__init__()
         conv = {"gatv2": GATv2Conv, "gat": GATConv}[cfg.conv]
         self.lift = nn.Linear(in_dim, cfg.hidden)
@@ -237,7 +204,7 @@ def gatv2_forward(conv: GATv2Conv, x: torch.Tensor, edge_index: torch.Tensor, ed
     return out.mean(1) + conv.bias
 
 
-def build_model(cfg: CoarseConfig) -> CoarseGAT:
+def build_model(cfg: CoarseTrainConfig) -> CoarseGAT:
     """The encoder of a config (the signature :func:`flatlandia.checkpoints.load_checkpoint` wants)."""
     return CoarseGAT(cfg)
 

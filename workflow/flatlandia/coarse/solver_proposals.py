@@ -20,7 +20,7 @@ proposals, which hold only the matched objects, the MLP is 2.5-3.5 times worse, 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -33,25 +33,11 @@ MAP_TYPES = list(localmaps.LOCAL_MAP_COLUMNS)  # gt, depth
 #: the label of its rows in Table 3 (column ``loss``) and of its fine runs
 LABEL = "Solver"
 
-_CFG = config.section_defaults("coarse.solver")
 
-
-@dataclass(frozen=True)
+@config.settings("coarse.solver", frozen=True)
 class SolverProposalConfig:
-    """Settings of the solver's proposals; each is described in config/README.md (``coarse.solver.*``)."""
-
-    alternatives: int = _CFG["alternatives"]
-    cost_gap: float = _CFG["cost_gap"]
-    radius_m: float = _CFG["radius_m"]
-    bb_enlarge: float = _CFG["bb_enlarge"]
-
-    @classmethod
-    def from_dict(cls, d: dict | None) -> SolverProposalConfig:
-        """Strict: a key that is not a setting raises, naming the closest one."""
-        return config.from_section(cls, "coarse.solver", d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+    """Settings of the solver's proposals: the config section ``coarse.solver`` (each is described in
+    config/README.md, ``coarse.solver.*``)."""
 
 
 @dataclass

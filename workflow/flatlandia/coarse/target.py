@@ -38,7 +38,6 @@ one (hypotheses x query objects x neighbourhood) array per chunk.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
@@ -46,31 +45,21 @@ import pandas as pd
 from flatlandia import config
 from flatlandia.data import localmaps
 
-#: Defaults: the `coarse.similarity` section of workflow/schemas/config.schema.yaml.
-_SIMILARITY = config.section_defaults("coarse.similarity")
 
-
-@dataclass(frozen=True)
+@config.settings("coarse.similarity", frozen=True)
 class SimilarityConfig:
-    radius_m: float = _SIMILARITY["radius_m"]
-    max_neighbours: int = _SIMILARITY["max_neighbours"]
-    cap_m: float = _SIMILARITY["cap_m"]
-    pair_tol_m: float = _SIMILARITY["pair_tol_m"]
-    chunk: int = _SIMILARITY["chunk"]
+    """Settings of the Sim loss's target: the config section ``coarse.similarity`` (each is described
+    in config/README.md, ``coarse.similarity.*``)."""
 
-    @classmethod
-    def from_dict(cls, d: dict | None) -> SimilarityConfig:
-        """Strict: a key that is not a target setting raises, naming the closest one."""
-        return config.from_section(cls, "coarse.similarity", d)
 
-    def to_dict(self) -> dict:
-        return asdict(self)
+#: the settings at the schema's defaults (the functions' default argument)
+DEFAULT_SIMILARITY = SimilarityConfig()
 
 
 class SceneIndex:
     """Per-scene precomputation: neighbourhoods and every (node, ordered pair) hypothesis anchor."""
 
-    def __init__(self, ref_xy: np.ndarray, ref_cls, cfg: SimilarityConfig = SimilarityConfig(), n_classes: int = 64):
+    def __init__(self, ref_xy: np.ndarray, ref_cls, cfg: SimilarityConfig = DEFAULT_SIMILARITY, n_classes: int = 64):
         self.xy = np.asarray(ref_xy, float).reshape(-1, 2)
         self.cls = np.asarray(ref_cls, int)
         self.cfg = cfg
@@ -225,7 +214,7 @@ def node_similarity(index: SceneIndex, q_xy: np.ndarray, q_cls) -> pd.DataFrame:
 
 
 def scene_similarity(
-    ref: pd.DataFrame, queries: pd.DataFrame, cfg: SimilarityConfig = SimilarityConfig(), progress=None
+    ref: pd.DataFrame, queries: pd.DataFrame, cfg: SimilarityConfig = DEFAULT_SIMILARITY, progress=None
 ) -> pd.DataFrame:
     """The similarity table of a scene: one row per (query, reference object), GT local maps.
 
@@ -251,7 +240,7 @@ def scene_similarity(
     return out[cols]
 
 
-def benchmark(ref: pd.DataFrame, queries: pd.DataFrame, cfg: SimilarityConfig = SimilarityConfig()) -> dict:
+def benchmark(ref: pd.DataFrame, queries: pd.DataFrame, cfg: SimilarityConfig = DEFAULT_SIMILARITY) -> dict:
     """Seconds for the scene index and per query (mean) of :func:`scene_similarity`."""
     t0 = time.perf_counter()
     SceneIndex(ref[["x_m", "y_m"]].to_numpy(float), ref["class_id"].to_numpy(), cfg)

@@ -31,11 +31,13 @@ import copy
 import time
 
 import numpy as np
+import pandas as pd
 import torch
 from torch import nn
 
 from flatlandia import checkpoints
 from flatlandia.coarse import graphs, retrieval
+from flatlandia.errors import InputError
 
 # ----------------------------------------------------------------------------- losses
 
@@ -98,7 +100,7 @@ def batch_loss(
     ds: retrieval.Dataset,
     batch_samples: list[retrieval.Sample],
     map_types: list[str],
-    cfg: retrieval.CoarseConfig,
+    cfg: retrieval.CoarseTrainConfig,
     rng: np.random.Generator,
 ) -> tuple[torch.Tensor, dict]:
     """The configured loss of one batch (map type per sample given); only the reference graphs of
@@ -139,7 +141,7 @@ def batch_loss(
 
 
 def validation_metric(
-    model, ds: retrieval.Dataset, samples: list[retrieval.Sample], cfg: retrieval.CoarseConfig
+    model, ds: retrieval.Dataset, samples: list[retrieval.Sample], cfg: retrieval.CoarseTrainConfig
 ) -> float:
     """Mean of the 2N_LM recall and the R_30 success over GT and depth maps (higher is better)."""
     vals = []
@@ -158,7 +160,7 @@ def validation_metric(
 
 
 def epoch_batches(
-    train_s: list[retrieval.Sample], cfg: retrieval.CoarseConfig, rng: np.random.Generator
+    train_s: list[retrieval.Sample], cfg: retrieval.CoarseTrainConfig, rng: np.random.Generator
 ) -> list[np.ndarray]:
     """Index batches of one epoch. ``scene``: each scene's queries shuffled and cut into batches
     of at most ``batch_size``, then the batches shuffled (one reference graph per step);
@@ -176,7 +178,7 @@ def epoch_batches(
     return [out[i] for i in rng.permutation(len(out))]
 
 
-def train(ds: retrieval.Dataset, cfg: retrieval.CoarseConfig, log=None, progress=None) -> dict:
+def train(ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, progress=None) -> dict:
     """Adam over batches of (query, reference) pairs; keeps the best-on-validation weights.
 
     Returns {'model', 'state_dict', 'config', 'history', 'best_epoch', 'best_val', 'seconds',
@@ -249,3 +251,52 @@ def train(ds: retrieval.Dataset, cfg: retrieval.CoarseConfig, log=None, progress
         "seconds": time.perf_counter() - t0,
         "seconds_per_epoch": train_time / max(cfg.epochs, 1),
     }
+
+
+# ----------------------------------------------------------------------------- rule coarse_train
+
+
+def training_dataset(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]],
+    cfg: retrieval.CoarseTrainConfig,
+    log=None,
+    source: str = "benchmark_scenes",
+) -> retrieval.Dataset:
+    """The train and val queries of every scene's (reference map, queries, similarity target) as
+    graphs (:func:`flatlandia.coarse.retrieval.build_dataset`). Raises :class:`InputError` (naming
+    ``source``) when either split is empty."""
+    ds = retrieval.build_dataset(scenes, cfg, splits=("train", "val"))
+    n_train, n_val = len(ds.split("train")), len(ds.split("val"))
+    if log is not None:
+        log.info(
+            "%s: %d train / %d val queries over %d scenes; config %s",
+            retrieval.LOSSES[cfg.loss],
+            n_train,
+            n_val,
+            len(scenes),
+            cfg.to_dict(),
+        )
+    if not n_train or not n_val:
+        raise InputError(
+            source,
+            f"{n_train} training and {n_val} validation queries for the coarse "
+            f"{cfg.loss} model: the benchmark scenes (config benchmark_scenes) hold too few queries to train on",
+        )
+    return ds
+
+
+def train_model(
+    ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, progress=None
+) -> tuple[dict, pd.DataFrame, dict]:
+    """Rule coarse_train: one model (loss ``cfg.loss``) trained on ``ds`` (:func:`training_dataset`)
+    -> (:func:`train`'s result, the training history, the history table's metadata)."""
+    res = train(ds, cfg, log=log, progress=progress)
+    meta = {
+        "config": res["config"],
+        "best_epoch": res["best_epoch"],
+        "best_val": res["best_val"],
+        "seconds": res["seconds"],
+        "seconds_per_epoch": res["seconds_per_epoch"],
+        "n_parameters": checkpoints.n_parameters(res["model"]),
+    }
+    return res, pd.DataFrame(res["history"]), meta

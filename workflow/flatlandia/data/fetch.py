@@ -29,7 +29,6 @@ import urllib.request
 import zipfile
 import zlib
 from collections.abc import Callable
-from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -52,7 +51,6 @@ SCHEMES = ("https", "file")
 MB = 1_000_000
 CHUNK = 1 << 20
 
-_DEFAULTS = config.section_defaults("fetch")
 _LOG = logging.getLogger("flatlandia.fetch")  # into the rule's log (flatlandia.runlog)
 
 
@@ -64,19 +62,16 @@ class DownloadError(FetchError):
     """The source could not be read (offline, not found): the user can point at a local copy."""
 
 
-@dataclass(frozen=True)
+@config.settings("fetch", frozen=True)
 class Limits:
-    """Caps on one fetch (config ``fetch``), so a hostile or broken archive cannot fill disk or memory."""
-
-    max_download_mb: float = _DEFAULTS["max_download_mb"]
-    max_unpacked_mb: float = _DEFAULTS["max_unpacked_mb"]
-    max_members: int = _DEFAULTS["max_members"]
+    """The config section ``fetch`` (each key is described in config/README.md, ``fetch.*``): the
+    downloads and unpacking read its caps (``max_download_mb``, ``max_unpacked_mb``,
+    ``max_members``), so a hostile or broken archive cannot fill disk or memory."""
 
     @classmethod
     def from_config(cls, fetch_cfg: dict | None) -> Limits:
-        """The caps of a config's ``fetch`` section (its other keys ignored)."""
-        keys = ("max_download_mb", "max_unpacked_mb", "max_members")
-        return cls(**{k: fetch_cfg[k] for k in keys if k in (fetch_cfg or {})})
+        """The settings of a config's ``fetch`` section, or of part of it (strict: :meth:`from_dict`)."""
+        return cls.from_dict(fetch_cfg)
 
 
 # ----------------------------------------------------------------------------- download

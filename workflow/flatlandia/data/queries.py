@@ -107,3 +107,27 @@ def build_queries(
             )
         )
     return pd.DataFrame(rows, columns=QUERY_COLUMNS)
+
+
+def split_fractions(split: dict) -> tuple[float, float, float]:
+    """The (train, val, test) fractions of the config's ``split`` section."""
+    return tuple(split[k] for k in ("train", "val", "test"))
+
+
+def published_scene_queries(
+    scene: str,
+    recovered: pd.DataFrame,
+    ref: pd.DataFrame,
+    ref_meta: dict,
+    local_maps: dict[str, dict[str, np.ndarray]],
+    seed: int,
+    split: dict,
+) -> tuple[pd.DataFrame, dict]:
+    """Rule queries on a published scene -> (query table, its Parquet metadata): the recovered
+    poses (rule recover) joined with the published local maps in the reference map's metric frame
+    (``ref_meta``: the reference map's metadata, lon0/lat0) and a seeded split (config ``seed``
+    and ``split``; :func:`split_queries` salted with the scene id)."""
+    frame = geo.MetricFrame(ref_meta["lon0"], ref_meta["lat0"])
+    labels = split_queries(list(recovered["token"]), seed, split_fractions(split), salt=scene)
+    q = build_queries(scene, recovered, ref, local_maps, frame, labels)
+    return q, {**ref_meta, "seed": seed, "split": split}

@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import figures, geo
+from flatlandia.classes import CLASSES
 from flatlandia.io import atomic_path, write_text
 
 
@@ -67,6 +68,30 @@ def local_frame_metadata(scene: str, unit: str) -> dict:
 
 def is_local(meta: dict) -> bool:
     return meta.get("frame") == "local"
+
+
+def published_reference_map(scene: str, lonlat: np.ndarray, classes: np.ndarray) -> tuple[pd.DataFrame, dict]:
+    """Rule reference_map on a published scene -> (table, metadata): the published map
+    (lon/lat, class ids) in the scene's metric frame (:func:`flatlandia.geo.frame_for`)."""
+    frame = geo.frame_for(lonlat)
+    return reference_table(scene, lonlat, classes, CLASSES, frame), frame_metadata(scene, frame)
+
+
+def images_reference_map(scene: str, objects: pd.DataFrame, objects_meta: dict) -> tuple[pd.DataFrame, dict]:
+    """Rule reference_map on an images scene -> (table, metadata): its objects (rule objects'
+    table and metadata) that carry a 42-class label, in the frame of its GPS alignment (a local
+    frame without GPS: x/y on the SfM ground plane, no lon/lat); ``object_id`` links them back."""
+    objs = objects[objects["class_id"].astype(int) < len(CLASSES)].reset_index(drop=True)
+    lonlat = objs[["lon", "lat"]].to_numpy(float).reshape(-1, 2)
+    xy = objs[["x_m", "y_m"]].to_numpy(float).reshape(-1, 2)
+    if objects_meta.get("frame") == "local":  # photos without GPS: the SfM ground plane, no lon/lat
+        frame, frame_meta = None, local_frame_metadata(scene, objects_meta["unit"])
+    else:
+        frame = geo.MetricFrame(lon0=objects_meta["lon0"], lat0=objects_meta["lat0"])
+        frame_meta = frame_metadata(scene, frame)
+    ref = reference_table(scene, lonlat, objs["class_id"].to_numpy(np.int64), CLASSES, frame, xy)
+    ref["object_id"] = objs["object_id"].to_numpy(np.int64)
+    return ref, {**frame_meta, "source": "images: objects from the classified SfM model"}
 
 
 def geojson(ref: pd.DataFrame, meta: dict) -> dict:

@@ -157,7 +157,7 @@ def solver_errors(
 def model_errors(
     scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
     model: nn.Module,
-    cfg: learned.FineConfig,
+    cfg: learned.FineTrainConfig,
     proposal: str,
     coarse: pd.DataFrame | None = None,
     strategy: str | None = None,
@@ -253,7 +253,7 @@ def evaluate_solver(
 
 def evaluate_model(
     model: nn.Module,
-    cfg: learned.FineConfig,
+    cfg: learned.FineTrainConfig,
     ref: pd.DataFrame,
     queries: pd.DataFrame,
     proposals: pd.DataFrame,

@@ -26,7 +26,7 @@ the MLP models. Training, loss and augmentation: :mod:`flatlandia.fine.training`
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -43,41 +43,16 @@ from flatlandia.data import localmaps
 MODELS = ("MLP", "MLP+ATT", "GAT", "GAT+ATT")
 
 
-#: Defaults: the `fine.train` section of workflow/schemas/config.schema.yaml.
-_TRAIN = config.section_defaults("fine.train")
+@config.settings("fine.train")
+class FineTrainConfig:
+    """How one fine model is trained: the config section ``fine.train`` (each key is described in
+    config/README.md, ``fine.train.*``), plus what the rule fixes per run: the model (one of
+    :data:`MODELS`), the local maps it reads (``gt`` | ``depth``) and ``extra``, free-form
+    bookkeeping. Stored in the checkpoint (``to_dict``) and read back with ``from_dict``."""
 
-
-@dataclass
-class FineConfig:
     model: str = "MLP"
     map_type: str = "depth"  # gt | depth
-    hidden: int = _TRAIN["hidden"]
-    heads: int = _TRAIN["heads"]
-    rounds: int = _TRAIN["rounds"]
-    knn: int = _TRAIN["knn"]
-    epochs: int = _TRAIN["epochs"]
-    batch_size: int = _TRAIN["batch_size"]
-    lr: float = _TRAIN["lr"]
-    weight_decay: float = _TRAIN["weight_decay"]
-    lr_schedule: str = _TRAIN["lr_schedule"]
-    scale_m: float = _TRAIN["scale_m"]
-    depth_unit_m: float = _TRAIN["depth_unit_m"]
-    angle_weight: float = _TRAIN["angle_weight"]
-    augment: bool = _TRAIN["augment"]
-    aug_rotate_deg: float = _TRAIN["aug_rotate_deg"]
-    aug_translate: float = _TRAIN["aug_translate"]
-    aug_depth_scale: float = _TRAIN["aug_depth_scale"]
-    seed: int = _TRAIN["seed"]
-    eval_every: int = _TRAIN["eval_every"]
     extra: dict = field(default_factory=dict)
-
-    @classmethod
-    def from_dict(cls, d: dict | None) -> FineConfig:
-        """Strict: a key that is not a training setting raises, naming the closest one."""
-        return config.from_section(cls, "fine.train", d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 # ----------------------------------------------------------------------------- samples
@@ -97,7 +72,7 @@ def _knn_edges(pos: np.ndarray, k: int) -> np.ndarray:
 
 
 def make_sample(
-    q_local: np.ndarray, q_cls, r_xy: np.ndarray, r_cls, cfg: FineConfig, cam_xy=None, theta: float | None = None
+    q_local: np.ndarray, q_cls, r_xy: np.ndarray, r_cls, cfg: FineTrainConfig, cam_xy=None, theta: float | None = None
 ) -> Data:
     """One query as a graph: nodes = query objects then region objects (positions normalised).
 
@@ -139,7 +114,7 @@ def make_sample(
 
 
 def samples_from_queries(
-    ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.DataFrame, cfg: FineConfig
+    ref: pd.DataFrame, queries: pd.DataFrame, proposals: pd.DataFrame, cfg: FineTrainConfig
 ) -> tuple[list[Data], pd.DataFrame]:
     """Samples of one scene's queries with their proposals; also the kept query rows (same order)."""
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
@@ -249,7 +224,7 @@ def _edge_geom(pos: torch.Tensor, ei: torch.Tensor) -> torch.Tensor:
 
 
 class _Base(nn.Module):
-    def __init__(self, cfg: FineConfig):
+    def __init__(self, cfg: FineTrainConfig):
         super().__init__()
         self.cfg = cfg
         h = cfg.hidden
@@ -265,7 +240,7 @@ class _Base(nn.Module):
 
 
 class MLPModel(_Base):
-    def __init__(self, cfg: FineConfig, attention: bool = False):
+    def __init__(self, cfg: FineTrainConfig, attention: bool = False):
         super().__init__(cfg)
         h = cfg.hidden
         self.pi_q = _mlp([N_CLASSES + 2, h, h])
@@ -304,7 +279,7 @@ class _EdgeLayer(nn.Module):
 
 
 class GATModel(_Base):
-    def __init__(self, cfg: FineConfig, attention: bool = False):
+    def __init__(self, cfg: FineTrainConfig, attention: bool = False):
         super().__init__(cfg)
         h = cfg.hidden
         self.pi_n = _mlp([N_CLASSES + 2, h, h])
@@ -337,7 +312,7 @@ class GATModel(_Base):
         return self.head(psi)
 
 
-def build_model(cfg: FineConfig) -> nn.Module:
+def build_model(cfg: FineTrainConfig) -> nn.Module:
     """The model a config names (the signature :func:`flatlandia.checkpoints.load_checkpoint` wants)."""
     if cfg.model not in MODELS:
         raise ValueError(f"model must be one of {MODELS}, got {cfg.model!r}")
@@ -373,7 +348,7 @@ def predict(model: nn.Module, samples, batch_size: int = 256) -> np.ndarray:
     return torch.cat(out).numpy() if out else np.zeros((0, 3))
 
 
-def errors_metres(pred: np.ndarray, samples: list[Data], cfg: FineConfig) -> tuple[np.ndarray, np.ndarray]:
+def errors_metres(pred: np.ndarray, samples: list[Data], cfg: FineTrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """Position error (m) and heading error (deg) of normalised predictions."""
     y = torch.cat([s.y for s in samples]).numpy()
     e_m = np.hypot(*(pred[:, :2] - y[:, :2]).T) * cfg.scale_m
@@ -382,7 +357,7 @@ def errors_metres(pred: np.ndarray, samples: list[Data], cfg: FineConfig) -> tup
     return e_m, e_deg
 
 
-def to_world(pred: np.ndarray, samples: list[Data], cfg: FineConfig) -> np.ndarray:
+def to_world(pred: np.ndarray, samples: list[Data], cfg: FineTrainConfig) -> np.ndarray:
     """Normalised predictions back to the scene's metric frame: (N, 3) as x, y (metres), theta."""
     centre = torch.cat([s.centre for s in samples]).numpy()
     return np.column_stack([pred[:, :2] * cfg.scale_m + centre, pred[:, 2]])

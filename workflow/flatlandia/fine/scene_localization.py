@@ -32,7 +32,7 @@ def scene_rows(
     progress: Callable | None = None,
 ) -> pd.DataFrame:
     """Summary rows of the solver (``solver``) and of each model ``models[(slug, map_type)] =
-    (model, FineConfig)`` on every query of one scene; an empty table for a scene without queries."""
+    (model, FineTrainConfig)`` on every query of one scene; an empty table for a scene without queries."""
     scene = str(ref["scene"].iloc[0]) if len(ref) else ""
     rows = []
     if len(queries) == 0:

@@ -15,10 +15,12 @@ import math
 import time
 
 import numpy as np
+import pandas as pd
 import torch
 from torch_geometric.data import Data
 
-from flatlandia import checkpoints
+from flatlandia import checkpoints, proposals
+from flatlandia.errors import InputError
 from flatlandia.fine import learned
 
 
@@ -34,7 +36,7 @@ def pose_loss(pred: torch.Tensor, target: torch.Tensor, angle_weight: float = 1.
     return (d_o + angle_weight * angle_distance(pred[:, 2], target[:, 2])).mean()
 
 
-def augment(batch, cfg: learned.FineConfig, gen: torch.Generator):
+def augment(batch, cfg: learned.FineTrainConfig, gen: torch.Generator):
     """Random rigid roto-translation of every region (and its target pose); query maps unchanged
     but for an optional random scale of depth maps. Takes a graph batch or ``learned.DenseMaps``
     (same random draws for the same samples); returns a new one."""
@@ -68,7 +70,7 @@ def augment(batch, cfg: learned.FineConfig, gen: torch.Generator):
 def train(
     train_samples: list[Data],
     val_samples: list[Data],
-    cfg: learned.FineConfig,
+    cfg: learned.FineTrainConfig,
     log=None,
     progress=None,
     init_state: dict | None = None,
@@ -133,3 +135,87 @@ def train(
         "best_val_median_m": best,
         "seconds": time.perf_counter() - t0,
     }
+
+
+# --------------------------------------------------------------------------- rule fine_train
+
+
+def training_samples(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
+    cfg: learned.FineTrainConfig,
+    regime: str,
+    coarse_training: dict,
+    val_keep_gtbb: bool | None = None,
+) -> tuple[list[Data], list[Data]]:
+    """The (train, val) samples of every scene's (reference map, queries) with the proposals of
+    ``regime`` (:func:`flatlandia.proposals.training_proposals`: ``gtbb``, or ``coarse`` with
+    ``coarse_training['copies']`` simulated proposals per training query, one per validation query,
+    GT-BB kept when ``keep_gtbb``, cut to ``crop_m``), drawn from one generator seeded with
+    ``cfg.seed`` over the scenes in order. ``val_keep_gtbb`` overrides ``keep_gtbb`` for the
+    validation split (a benchmark's experiment; the rule keeps one setting for both)."""
+    rng = np.random.default_rng(cfg.seed)
+    copies, crop_m = int(coarse_training["copies"]), float(coarse_training["crop_m"])
+    keep = bool(coarse_training["keep_gtbb"])
+    train_s: list[Data] = []
+    val_s: list[Data] = []
+    for ref, q in scenes:
+        for split, dest, n in (("train", train_s, copies), ("val", val_s, 1)):
+            qs = q[q["split"] == split]
+            keep_split = keep if split == "train" or val_keep_gtbb is None else bool(val_keep_gtbb)
+            for props in proposals.training_proposals(ref, qs, regime, rng, n, keep_split, crop_m):
+                dest += learned.samples_from_queries(ref, qs, props, cfg)[0]
+    return train_s, val_s
+
+
+def train_model(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
+    cfg: learned.FineTrainConfig,
+    regime: str,
+    coarse_training: dict,
+    init: str | None = None,
+    log=None,
+    progress=None,
+    source: str = "benchmark_scenes",
+) -> tuple[dict, pd.DataFrame, dict]:
+    """Rule fine_train: one learned model on every scene's train split (validated on the val split).
+
+    Samples from :func:`training_samples`; ``init`` is a checkpoint to start from (a warm start:
+    the GT-BB-trained model of the same model and map type), else the seeded initialisation.
+    Returns (:func:`train`'s result, the training history, the history table's metadata). Raises
+    :class:`InputError` (naming ``source``) when the scenes hold no training or validation sample.
+    """
+    train_s, val_s = training_samples(scenes, cfg, regime, coarse_training)
+    if log is not None:
+        log.info(
+            "%s on %s maps, %s proposals: %d train / %d val samples, config %s, coarse training %s",
+            cfg.model,
+            cfg.map_type,
+            regime,
+            len(train_s),
+            len(val_s),
+            cfg.to_dict(),
+            coarse_training if regime == "coarse" else "-",
+        )
+    if not train_s or not val_s:
+        raise InputError(
+            source,
+            f"{len(train_s)} training and {len(val_s)} validation samples for {cfg.model} on {cfg.map_type} maps: "
+            "the benchmark scenes (config benchmark_scenes) hold too few queries to train on",
+        )
+    init_state = None
+    if init:
+        start, _ = checkpoints.load_checkpoint(init, learned.FineTrainConfig, learned.build_model)
+        init_state = start.state_dict()
+        if log is not None:
+            log.info("starting from %s", init)
+    res = train(train_s, val_s, cfg, log=log, progress=progress, init_state=init_state)
+    meta = {
+        "config": cfg.to_dict(),
+        "best_epoch": res["best_epoch"],
+        "train_proposals": regime,
+        "coarse_training": coarse_training if regime == "coarse" else None,
+        "warm_start": str(init) if init else None,
+        "n_parameters": checkpoints.n_parameters(res["model"]),
+        "train_seconds": res["seconds"],
+    }
+    return res, pd.DataFrame(res["history"]), meta

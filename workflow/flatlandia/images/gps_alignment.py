@@ -264,3 +264,28 @@ def gps_outliers(
     al = fit_gps_alignment(centres, rotations, lonlat, threshold_m=threshold_m, seed=seed)
     res = np.array([np.nan if r is None else r for r in al["residuals_m"]], float)
     return np.nan_to_num(res, nan=0.0) > max_residual_m
+
+
+def scene_alignment(scene: str, rec, cameras, params: dict, seed: int, source: str = "cameras", log=None) -> dict:
+    """Rule gps_alignment: an images scene's SfM model ``rec`` (pycolmap) -> the map's ground plane.
+
+    ``cameras`` is rule sfm's camera table (name, lat, lon, alt, heading), of which the registered
+    ones are used, sorted by name; ``params`` is the ``images.align`` section: mode ``gps``
+    (:func:`align_camera_table`: metres, lon/lat) or ``none`` (:func:`local_frame`: the SfM ground
+    plane in ``unit_m``, no lon/lat). Returns the record written to alignment.json: scene, method,
+    the cameras used and the alignment (affine map ``A``, ``b``, residuals, frame)."""
+    from flatlandia.images import image_queries
+
+    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
+    cams = cameras[cameras["name"].isin(views)].sort_values("name").reset_index(drop=True)
+    if params["mode"] == "none":
+        out = local_frame(
+            np.array([views[n].centre for n in cams["name"]]).reshape(-1, 3),
+            np.array([views[n].R for n in cams["name"]]).reshape(-1, 3, 3),
+            unit_m=float(params["unit_m"]),
+        )
+        method = "camera up axes -> ground plane; local frame, no GPS (images.align.mode: none)"
+    else:
+        cams, out = align_camera_table(cams, views, params, seed, source, log)
+        method = "camera up axes -> ground plane; RANSAC similarity to GPS"
+    return {"scene": scene, "method": method, "cameras": cams["name"].tolist(), **out}

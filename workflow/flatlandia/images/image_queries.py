@@ -229,3 +229,78 @@ def query_table(q: pd.DataFrame, frame: geo.MetricFrame | None, split: dict[str,
     q["second_residual_m"] = np.nan
     q["second_cam_dist_m"] = np.nan
     return q[QUERY_COLUMNS + IMAGES_ONLY_QUERY_COLUMNS].reset_index(drop=True)
+
+
+def images_scene_queries(
+    scene: str,
+    rec,
+    alignment: dict,
+    ref: pd.DataFrame,
+    objects: pd.DataFrame,
+    members: pd.DataFrame,
+    images: dict,
+    seed: int,
+    split: dict,
+) -> tuple[pd.DataFrame, dict]:
+    """Rule queries on an images scene -> (query table, its Parquet metadata).
+
+    ``rec``: the GPS-aligned SfM model (a ``pycolmap.Reconstruction``); ``alignment``: rule
+    gps_alignment's record; ``ref``, ``objects``, ``members``: the scene's reference map, objects
+    and point -> object table; ``images``: the config's images section (min_objects, min_points,
+    depth, images_dir). Queries are the registered images that see at least ``min_objects`` of the
+    reference map's objects (:func:`scene_queries`), indexed by the map's row (``obj_idx``) as the
+    published scenes are, split as the published scenes are (config ``seed``, ``split``).
+    """
+    from flatlandia.data import queries
+    from flatlandia.images import depth, gps_alignment
+    from flatlandia.objects import clustering
+
+    views = views_from_colmap(rec)
+    objs = objects[objects["object_id"].isin(ref["object_id"])].reset_index(drop=True)
+    members = members[members["object_id"].isin(objs["object_id"])]
+    point_object = dict(zip(members["point3D_id"].astype(int), members["object_id"].astype(int)))
+    point_xyz = {int(pid): np.asarray(p.xyz, float) for pid, p in rec.points3D.items()}
+    objs["corners"] = [clustering.box_corners(r).tolist() for r in objs.itertuples(index=False)]
+    # queries index the reference map by its row (obj_idx), as the published scenes do
+    idx_of = dict(zip(ref["object_id"].astype(int), ref["obj_idx"].astype(int)))
+    objs["object_id"] = objs["object_id"].map(idx_of)
+    point_object = {k: idx_of[v] for k, v in point_object.items()}
+    obj_xy = {int(r.obj_idx): np.array([r.x_m, r.y_m]) for r in ref.itertuples(index=False)}
+    obj_class = dict(zip(ref["obj_idx"].astype(int), ref["class_id"].astype(int)))
+    A, b = np.asarray(alignment["A"], float), np.asarray(alignment["b"], float)
+    dcfg = dict(images["depth"])
+    lift = depth.make_lifter(
+        dcfg["backend"],
+        point_xyz,
+        images_dir=images["images_dir"],
+        weights=dcfg["weights"],
+        inverse=bool(dcfg["inverse"]),
+    )
+    q = scene_queries(
+        scene,
+        views,
+        objs,
+        point_object,
+        point_xyz,
+        A,
+        b,
+        obj_xy,
+        obj_class,
+        min_objects=int(images["min_objects"]),
+        min_points=int(images["min_points"]),
+        lift=lift,
+    )
+    frame = gps_alignment.frame_of(alignment)  # None: a local frame (no GPS), no lon/lat
+    labels = queries.split_queries(q["token"].tolist(), int(seed), queries.split_fractions(split), salt=scene)
+    q = query_table(q, frame, labels)
+    meta = {
+        "scene": scene,
+        "source": "images",
+        "frame": "local" if frame is None else "gps",
+        "crs": None if frame is None else frame.proj4,
+        "unit": alignment.get("unit", "m"),
+        "views": len(views),
+        "min_objects": int(images["min_objects"]),
+        "depth_backend": dcfg["backend"],
+    }
+    return q, meta

@@ -7,13 +7,12 @@ and :func:`check_version` refuses an untested one with a clear message.
 from __future__ import annotations
 
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from flatlandia import figures
+from flatlandia import config, figures
 from flatlandia.errors import InputError
 
 TESTED_PYCOLMAP = "4.2.1"
@@ -29,16 +28,14 @@ def check_version() -> None:
         )
 
 
-@dataclass
+@config.settings("sfm")
 class SfmOptions:
-    matcher: str = "exhaustive"  # or "sequential"
-    mapper: str = "global"  # or "incremental"
-    camera_model: str = "SIMPLE_RADIAL"
-    max_image_size: int = 1600
-    max_num_features: int = 8192
+    """The SfM stage's settings: the config section ``sfm`` (each key is described in
+    config/README.md, ``sfm.*``), plus what the rule fixes per job: the seed (the config's ``seed``)
+    and COLMAP's threads (1 when ``deterministic``, else the job's threads)."""
+
     seed: int = 0
     num_threads: int = 2
-    height_mad_k: float = 6.0  # cameras this many MADs off the camera plane are removed
 
 
 def run_sfm(image_dir: Path, image_names: list[str], mask_dir: Path | None, work: Path, opts: SfmOptions, log=print):
@@ -260,3 +257,87 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", bbox_inches="tight")
     plt.close(fig)
+
+
+# --------------------------------------------------------------------------- rule sfm
+
+
+def clean_cameras(
+    rec, gps: pd.DataFrame, height_mad_k: float, gps_max_residual_m: float, seed: int = 0
+) -> pd.DataFrame:
+    """Deregister the badly localised cameras of ``rec``; returns them (image_id, name, reason).
+
+    Two tests, in order: cameras off the street-level camera plane (:func:`height_outliers`, MAD
+    factor ``height_mad_k``), then, among the others, cameras over ``gps_max_residual_m`` from
+    their own GPS fix once the model is aligned to GPS (:func:`flatlandia.images.gps_alignment.gps_outliers`:
+    up axes + RANSAC, seeded). ``gps`` is indexed by image name with lon, lat (NaN: no GPS)."""
+    from flatlandia.images import gps_alignment, image_queries
+
+    cams = camera_centres(rec)
+    bad = height_outliers(cams[["x", "y", "z"]].to_numpy(), height_mad_k)
+    removed = cams.loc[bad, ["image_id", "name"]].assign(reason="off the street-level camera plane")
+    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
+    kept = cams.loc[~bad].reset_index(drop=True)
+    far = gps_alignment.gps_outliers(
+        kept[["x", "y", "z"]].to_numpy(),
+        np.array([views[n].R for n in kept["name"]]),
+        gps.reindex(kept["name"])[["lon", "lat"]].to_numpy(float),
+        float(gps_max_residual_m),
+        seed=int(seed),
+    )
+    reason = f"over {gps_max_residual_m} m from its GPS fix after aligning the model to GPS"
+    removed = pd.concat([removed, kept.loc[far, ["image_id", "name"]].assign(reason=reason)])
+    remove_cameras(rec, removed["image_id"].tolist())
+    return removed
+
+
+def reconstruct(
+    image_dir: Path,
+    table: pd.DataFrame,
+    mask_dir: Path | None,
+    work: Path,
+    options: dict,
+    seed: int,
+    threads: int = 1,
+    log=print,
+    native_log: str | Path | None = None,
+) -> tuple[object, pd.DataFrame, pd.DataFrame]:
+    """Rule sfm's model of an images scene -> (pycolmap.Reconstruction, one-row stats, cameras).
+
+    SfM (:func:`run_sfm`) of the kept images of ``table`` (rule images_audit's table: name, kept,
+    lon, lat, alt, heading) with their masks, in the scratch folder ``work``; then
+    :func:`clean_cameras` and the final bundle adjustment (:func:`final_bundle_adjustment`, with
+    the images' GPS as pose priors when ``options['gps_prior']``: the model comes out metric).
+    ``options`` is the config's sfm section; COLMAP runs on 1 thread when ``options['deterministic']``,
+    else on ``threads``. ``log`` takes one message; what COLMAP prints goes to ``native_log``.
+    """
+    import pycolmap
+
+    from flatlandia import runlog
+
+    names = list(table.loc[table["kept"], "name"])
+    o = dict(options)
+    opts = SfmOptions.from_dict(o, seed=seed, num_threads=1 if o["deterministic"] else threads)
+    pycolmap.logging.logtostderr = True  # COLMAP's own log, into native_log below
+    with runlog.native_output_to(native_log):
+        rec = run_sfm(Path(image_dir), names, None if mask_dir is None else Path(mask_dir), work, opts, log=log)
+    gps = table.set_index("name")
+    removed = clean_cameras(rec, gps, opts.height_mad_k, o["gps_max_residual_m"], seed=int(seed))
+    log(f"removed {len(removed)} badly localised cameras; final bundle adjustment")
+    with runlog.native_output_to(native_log):
+        priors, frame = (
+            gps_priors(rec, gps, float(o["gps_prior_sigma_m"]), float(o["gps_prior_alt_sigma_m"]))
+            if o["gps_prior"]
+            else ([], None)
+        )
+        used = final_bundle_adjustment(rec, priors, seed=int(seed))
+    stats = stats_table(rec, len(names), removed)
+    stats["gps_prior_images"] = len(priors) if used else 0
+    stats["model_frame"] = (
+        (f"metric, x east / y north / z up (m) around lon {frame.lon0}, lat {frame.lat0} (aligned to the GPS priors)")
+        if used
+        else "arbitrary SfM frame (no GPS priors)"
+    )
+    log("final bundle adjustment " + (f"with {len(priors)} GPS position priors" if used else "without priors"))
+    cameras = camera_centres(rec).merge(table[["name", "lat", "lon", "alt", "heading"]], on="name")
+    return rec, stats, cameras

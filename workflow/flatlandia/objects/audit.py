@@ -7,11 +7,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import figures, geo, io
+from flatlandia import config, figures, geo, io, tables
 from flatlandia.io import atomic_path
 from flatlandia.objects.cloud import BACKGROUND, macro_of_class, metres_per_unit, read_classified_cloud
-from flatlandia.objects.clustering import ClusterParams, cluster_objects
-from flatlandia.objects.labels import objects_reference_map
 
 AUDIT_THRESHOLDS_M = (0.05, 0.5, 2.0)
 
@@ -142,19 +140,47 @@ def audit_objects(
     return row, ref_xy
 
 
-def audit_published_scene(
-    root: str | Path, scene: str, params: ClusterParams | None = None
-) -> tuple[dict, pd.DataFrame]:
-    """Run the whole chain on one published scene and audit it (tests and benchmarks)."""
+def audit_published_scene(root: str | Path, scene: str, cluster: dict | None = None) -> tuple[dict, pd.DataFrame]:
+    """Run the objects stage on one published scene (:func:`flatlandia.objects.scene.published_objects`,
+    config objects.cluster or ``cluster``) and audit it (tests and benchmarks); labels are not
+    audited, so no other scene's map is read for them."""
+    from flatlandia.objects import scene as scene_objects
+
     root = Path(root)
-    pts, labels = read_classified_cloud(root / "maps" / scene / "class_segmented_point_cloud.ply")
+    cloud_path = root / "maps" / scene / "class_segmented_point_cloud.ply"
+    pts, labels = read_classified_cloud(cloud_path)
     t = io.read_transformations(root / "maps" / scene / "transformations.json")
     ref_ll, ref_cl = io.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
-    frame = geo.frame_for(ref_ll)  # frame only; no published position places an object
-    objs = cluster_objects(pts, labels, metres_per_unit(t), params, source=str(root / "maps" / scene))
-    ours = objects_reference_map(objs, t, frame)
+    cluster = config.section_defaults("objects.cluster") if cluster is None else cluster
+    ours = scene_objects.published_objects(scene, pts, labels, t, ref_ll, [], cluster, source=str(cloud_path)).objects
     row, _ = audit_objects(scene, ours, (pts, labels), t, (ref_ll, ref_cl))
     return row, ours
+
+
+#: the counts of a reference_map_reproduction row summed over the scenes into its 'all' row
+REPRODUCTION_COUNTS = ["published", "ours", "matched", "within_0.05m", "within_0.5m", "within_2m", "extra"]
+
+
+def reproduction_table(rows: list[dict], radius_m: float) -> tuple[pd.DataFrame, dict, str]:
+    """Rule reproduction_audit's table from its per-scene rows (:func:`audit_objects`): the rows,
+    an 'all' row summing them (its median_dist_m is the median of the scenes'), in the columns of
+    ``tables.SCHEMAS['reference_map_reproduction']``; also that 'all' row and the table's note."""
+    df = pd.DataFrame(rows)
+    total = {
+        "scene": "all",
+        **{c: int(df[c].sum()) for c in REPRODUCTION_COUNTS},
+        "median_dist_m": float(df["median_dist_m"].median()) if len(df) else float("nan"),
+    }
+    total["frac_within_0.5m"] = total["within_0.5m"] / max(1, total["published"])
+    df = pd.concat([df, pd.DataFrame([total])], ignore_index=True)
+    df = df[[c.name for c in tables.SCHEMAS["reference_map_reproduction"]]]
+    note = (
+        f"Our objects (clusters of the published class point clouds) matched to the published reference maps, "
+        f"same macro-class, Hungarian within {float(radius_m):g} m; 'all' sums the scenes "
+        f"(its median_dist_m is the median of the scenes'). Targets: frac_within_0.5m >= 0.9, extra <= 10% of "
+        f"published."
+    )
+    return df, total, note
 
 
 def plot_audit_grid(panels: list[tuple[str, np.ndarray, np.ndarray]], path: str | Path) -> None:

@@ -30,7 +30,6 @@ Measured on the published data (docs/conventions.md, "Class clouds and reference
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -41,32 +40,19 @@ from flatlandia.errors import InputError
 from flatlandia.io import atomic_path
 from flatlandia.objects.cloud import BACKGROUND, MACRO_BY_NAME
 
-#: Per-class DBSCAN radius (m) measured on the 12 published class clouds (see module doc):
-#: thin poles are clustered much tighter than signs, lights and markings.
-#: Defaults: the `objects.cluster` section of workflow/schemas/config.schema.yaml (measured, docs/measurements.md).
-_CLUSTER = config.section_defaults("objects.cluster")
 
-
-@dataclass(frozen=True)
+@config.settings("objects.cluster", frozen=True)
 class ClusterParams:
-    """Clustering settings, all lengths in metres (defaults = the measured published procedure).
+    """Clustering settings, all lengths in metres: the config section ``objects.cluster``, whose
+    defaults are the measured published procedure (docs/measurements.md; each key is described in
+    config/README.md, ``objects.cluster.*``).
 
-    ``eps_m`` is the radius of every macro-class not named in ``eps_m_by_class``. The split of
-    long clusters is off by default (``split_extent_m`` None): the published objects are
-    plain single-radius clusters, and re-clustering long ones lowered the reproduction.
+    ``eps_m`` is the DBSCAN radius of every macro-class not named in ``eps_m_by_class``: per-class
+    radii measured on the 12 published class clouds (thin poles are clustered much tighter than
+    signs, lights and markings). The split of long clusters is off by default (``split_extent_m``
+    None): the published objects are plain single-radius clusters, and re-clustering long ones
+    lowered the reproduction.
     """
-
-    eps_m: float = _CLUSTER["eps_m"]  # DBSCAN neighbourhood radius (signs, lights, markings)
-    eps_m_by_class: dict = field(default_factory=lambda: dict(_CLUSTER["eps_m_by_class"]))
-    min_points: int = _CLUSTER["min_points"]  # DBSCAN core-point neighbourhood size (the point included)
-    min_cluster_points: int = _CLUSTER["min_cluster_points"]  # clusters with fewer points are dropped
-    split_extent_m: float | None = _CLUSTER["split_extent_m"]  # clusters longer than this are re-clustered ...
-    split_eps_factor: float = _CLUSTER["split_eps_factor"]  # ... with eps * this factor
-
-    @classmethod
-    def from_dict(cls, d: dict | None) -> ClusterParams:
-        """Strict: a key that is not a clustering setting raises, naming the closest one."""
-        return config.from_section(cls, "objects.cluster", d)
 
     def eps_for(self, macro_class: str) -> float:
         """DBSCAN radius (m) of one macro-class."""

@@ -23,6 +23,7 @@ import numpy as np
 
 from flatlandia import config, geo
 from flatlandia.errors import InputError
+from flatlandia.objects import cloud
 from flatlandia.scaled_rigid import ScaledRigid, least_squares
 
 # --------------------------------------------------------------------------- plane
@@ -112,8 +113,14 @@ def irls_plane(points: np.ndarray, scale: float, iterations: int = 20, source: s
     return Plane(normal=n / np.linalg.norm(n), point=c, inliers=inl, rms=rms)
 
 
-#: Defaults: the `objects.principal_plane` section of workflow/schemas/config.schema.yaml.
-_PLANE = config.section_defaults("objects.principal_plane")
+@config.settings("objects.principal_plane", frozen=True)
+class PlaneConfig:
+    """Settings of rule principal_plane: the config section ``objects.principal_plane`` (each key is
+    described in config/README.md, ``objects.principal_plane.*``); :func:`fit_ground_plane` takes
+    its defaults from here."""
+
+
+_PLANE = PlaneConfig()
 
 
 def fit_ground_plane(
@@ -121,9 +128,9 @@ def fit_ground_plane(
     labels: np.ndarray,
     metres_per_unit: float,
     ground_classes: tuple[str, ...] = GROUND_CLASSES,
-    min_ground_points: int = _PLANE["min_ground_points"],
-    ground_scale_m: float = _PLANE["ground_scale_m"],
-    fallback_scale_m: float = _PLANE["fallback_scale_m"],
+    min_ground_points: int = _PLANE.min_ground_points,
+    ground_scale_m: float = _PLANE.ground_scale_m,
+    fallback_scale_m: float = _PLANE.fallback_scale_m,
     source: str = "cloud",
 ) -> tuple[Plane, str]:
     """Principal plane of a classified cloud -> (plane, which points were used).
@@ -193,3 +200,58 @@ def published_chain_transform(transformations: dict, frame: geo.MetricFrame, sam
     if ok.sum() < 3:
         raise ValueError("fewer than 3 sample points project into the metric frame")
     return least_squares(project_to_plane(samples[ok], rpp), xy[ok], allow_reflection=True)
+
+
+# --------------------------------------------------------------------------- rule principal_plane
+
+
+def published_plane_report(
+    scene: str,
+    points: np.ndarray,
+    labels: np.ndarray,
+    transformations: dict,
+    max_points: int = _PLANE.max_points,
+    min_ground_points: int = _PLANE.min_ground_points,
+    ground_scale_m: float = _PLANE.ground_scale_m,
+    fallback_scale_m: float = _PLANE.fallback_scale_m,
+    source: str = "cloud",
+) -> dict:
+    """Rule principal_plane's record of a published scene: our street plane of its class cloud
+    (:func:`fit_ground_plane`) against the published ``to_principal_plane`` (angle, reflections)
+    and the published SfM -> map chain as a metric 2D transform (:func:`published_chain_transform`,
+    fitted on every ``len(points) // max_points``-th point in a frame on their median)."""
+    pts = np.asarray(points, float)
+    step = max(1, len(pts) // int(max_points))
+    mpu = cloud.metres_per_unit(transformations)
+    plane, plane_points = fit_ground_plane(
+        pts,
+        labels,
+        mpu,
+        min_ground_points=int(min_ground_points),
+        ground_scale_m=float(ground_scale_m),
+        fallback_scale_m=float(fallback_scale_m),
+        source=source,
+    )
+    rpp = np.asarray(transformations["to_principal_plane"], float)
+    r2 = np.asarray(transformations["to_mapillary"]["rotation"], float)
+    pub_n = published_normal(rpp)
+    # frame on the median point: clouds hold far outliers that a bounding-box centre would follow
+    med = np.median(geo.sfm_to_lonlat(pts[::step], transformations), axis=0)
+    frame = geo.MetricFrame(lon0=round(float(med[0]), 7), lat0=round(float(med[1]), 7))
+    chain = published_chain_transform(transformations, frame, pts[::step])
+    return {
+        "scene": scene,
+        "method": "published chain (no camera GPS in the published data)",
+        "plane_source": f"class point cloud, {plane_points} (Cauchy IRLS)",
+        "plane_normal": plane.normal.tolist(),
+        "plane_inlier_fraction": float(plane.inliers.mean()),
+        "published_normal": pub_n.tolist(),
+        "plane_angle_deg": normal_angle_deg(plane.normal, pub_n),
+        "published_rpp_is_reflection": bool(np.linalg.det(rpp) < 0),
+        "published_r2_is_reflection": bool(np.linalg.det(r2) < 0),
+        "metres_per_sfm_unit": mpu,
+        "chain_metric_scale_m_per_unit": chain.scale,
+        "chain_rotation_deg": chain.angle_deg(),
+        "chain_is_reflection": chain.reflection,
+        "our_plane_rotation": plane_rotation(plane.normal).tolist(),
+    }

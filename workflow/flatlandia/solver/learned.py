@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, io
+from flatlandia import io
 from flatlandia.solver import verify, verify_fit
 from flatlandia.solver.priors import depth_scale_prior
+from flatlandia.solver.settings import SolverConfig
 
 #: the regions a verifier can be learned on (:data:`verify_fit.REGIONS`); on any other region
 #: (a coarse proposal) the depth maps get the scale prior alone
@@ -67,15 +68,18 @@ class LearnedPriors:
 
 
 def fit(
-    scenes: list[tuple[pd.DataFrame, pd.DataFrame]], settings: dict | None, region: str | None = "whole", **fit_args
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
+    settings: SolverConfig | dict | None,
+    region: str | None = "whole",
+    **fit_args,
 ) -> LearnedPriors:
     """The learned priors of depth maps from the training split of ``scenes`` (reference map,
     queries): the log-scale prior and, when ``solver.verify`` and ``camera_prior`` are on (unset
     keys: the schema's defaults) and ``region`` is one of :data:`REGIONS`, the verifier learned on
     that region. ``fit_args``: ``fraction``, ``rng`` of :func:`verify_fit.fit_verifier`."""
-    cfg = {**config.section_defaults("solver"), **(settings or {})}
+    cfg = SolverConfig.of(settings)
     scale = depth_scale_prior([q for _, q in scenes], cfg)
     verifier = None
-    if cfg["verify"] and cfg["camera_prior"] and region in REGIONS:
-        verifier = verify_fit.fit_verifier(scenes, cfg, scale, region, **fit_args)
+    if cfg.verify and cfg.camera_prior and region in REGIONS:
+        verifier = verify_fit.fit_verifier(scenes, cfg.to_dict(), scale, region, **fit_args)
     return LearnedPriors(scale, verifier)

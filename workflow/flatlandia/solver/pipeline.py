@@ -43,59 +43,15 @@ and score) and ``solver_verify_fit`` (learning it), ``solver_kernels`` (the comp
 from __future__ import annotations
 
 import functools
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from flatlandia import config
 from flatlandia.solver import hypotheses, scoring, verify
 from flatlandia.solver.priors import Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
+from flatlandia.solver.settings import SolverConfig
 from flatlandia.solver.verify import Verifier
-
-#: Defaults of the solver: the `solver` section of workflow/schemas/config.schema.yaml.
-_GEO = config.section_defaults("solver")
-
-
-@dataclass
-class SolverConfig:
-    """The solver's settings; each is described in config/README.md (`solver.*`)."""
-
-    bearing_sigma_deg: float = _GEO["bearing_sigma_deg"]
-    log_range_sigma: float = _GEO["log_range_sigma"]
-    refine_log_range_sigma: float = _GEO["refine_log_range_sigma"]
-    position_sigma_m: float = _GEO["position_sigma_m"]
-    tau: float = _GEO["tau"]
-    max_pairs: int = _GEO["max_pairs"]
-    max_triples: int = _GEO["max_triples"]
-    max_triple_hyp: int = _GEO["max_triple_hyp"]
-    max_hyp: int = _GEO["max_hyp"]
-    top_k: int = _GEO["top_k"]
-    refine_rounds: int = _GEO["refine_rounds"]
-    min_scale: float = _GEO["min_scale"]
-    max_scale: float = _GEO["max_scale"]
-    prior_radius_m: float = _GEO["prior_radius_m"]
-    prior_sigma_m: float = _GEO["prior_sigma_m"]
-    prior_weight: float = _GEO["prior_weight"]
-    prior_heading_sigma_deg: float = _GEO["prior_heading_sigma_deg"]
-    prior_knn: int = _GEO["prior_knn"]
-    scale_prior_weight: float = _GEO["scale_prior_weight"]
-    covis_weight: float = _GEO["covis_weight"]
-    covis_radius_m: float = _GEO["covis_radius_m"]
-    covis_metric: bool = _GEO["covis_metric"]
-    covis_gate_above: int = _GEO["covis_gate_above"]
-    verify_top_k: int = _GEO["verify_top_k"]
-    pair_len_tol_m: float = _GEO["pair_len_tol_m"]
-    chunk: int = _GEO["chunk"]
-    early_stop: bool = _GEO["early_stop"]
-
-    @classmethod
-    def from_dict(cls, d: dict | None) -> SolverConfig:
-        """Strict: a key that is not a solver setting raises, naming the closest one."""
-        return config.from_section(cls, "solver", d)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 @dataclass

@@ -18,10 +18,11 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
-from flatlandia import config, geo
+from flatlandia import geo
 from flatlandia.data import localmaps
 from flatlandia.solver import kernels
 from flatlandia.solver.kernels import CoSeen, PriorTerms
+from flatlandia.solver.settings import SolverConfig
 
 if TYPE_CHECKING:
     from flatlandia.solver.learned import LearnedPriors
@@ -62,20 +63,17 @@ class TrainingPriors:
         return replace(self, scale=learned.scale, verifier=learned.verifier)
 
 
-def _settings(settings: dict | None) -> dict:
-    return {**config.section_defaults("solver"), **(settings or {})}
-
-
-def training_priors(queries: pd.DataFrame, settings: dict | None = None):
+def training_priors(queries: pd.DataFrame, settings: SolverConfig | dict | None = None):
     """The solver's priors from one scene's training split: (prior cameras (P, 3) as x, y, heading
     in radians, or None when ``camera_prior`` is off; per prior camera the reference ``obj_idx`` it
-    saw, for the co-visibility cost, or None). Test queries never contribute."""
-    cfg = _settings(settings)
-    if not cfg["camera_prior"]:
+    saw, for the co-visibility cost, or None). Test queries never contribute. ``settings``: the
+    solver's (a dict is read strictly, unset keys at the schema's defaults)."""
+    cfg = SolverConfig.of(settings)
+    if not cfg.camera_prior:
         return None, None
     tr = queries[queries["split"] == "train"]
     prior = np.column_stack([tr["x_m"], tr["y_m"], np.radians(tr["theta_deg"])]).astype(float)
-    seen = [np.asarray(v, int) for v in tr["ref_idx"]] if float(cfg["covis_weight"]) > 0 else None
+    seen = [np.asarray(v, int) for v in tr["ref_idx"]] if float(cfg.covis_weight) > 0 else None
     return prior, seen
 
 
@@ -113,10 +111,10 @@ def fit_scale(train_local_maps_m: list[np.ndarray]) -> tuple[float, float]:
     return float(med.mean()), float(max(med.std(), 1e-3))
 
 
-def depth_scale_prior(queries, settings: dict | None = None) -> tuple[float, float] | None:
+def depth_scale_prior(queries, settings: SolverConfig | dict | None = None) -> tuple[float, float] | None:
     """The solver's log-scale prior of depth maps (:func:`fit_scale`) from the training split of
     every scene's queries (a list of query tables), or None when ``solver.scale_prior`` is off."""
-    if not _settings(settings)["scale_prior"]:
+    if not SolverConfig.of(settings).scale_prior:
         return None
     train = [localmaps.xy(c) for q in queries for c in q.loc[q["split"] == "train", "gt_local_xy_m"]]
     return fit_scale(train)
