@@ -1,19 +1,24 @@
 # One-command entry points (see README.md):
 #   make all    set everything up, then run `snakemake --cores 2 all` on the default config
 #   make test   set everything up, then lint (ruff, snakefmt, snakemake --lint) and run the whole test suite
+#   make test-fast  set everything up, then run the tests that need neither the published data nor
+#               Snakemake jobs (pytest -m "not slow"; tests/conftest.py says which are slow)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 CORES  ?= 2
 
-.PHONY: all test check format install system-deps bench report clean
+.PHONY: all test test-fast check format install system-deps bench report clean
 
 all: install
 	$(BIN)/snakemake --cores $(CORES) all
 
 test: install check
 	$(BIN)/python -m pytest -q
+
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not slow"
 
 # Formatting and lint: ruff for Python, snakefmt for the rule files, Snakemake's own lint.
 check: install

@@ -1,13 +1,24 @@
-"""Shared fixtures: the real published data (../shared/flatlandia) and the repo root."""
+"""Shared fixtures: the real published data (../shared/flatlandia), the tiny committed scene
+(tests/data/tiny) and the repo root; and the `slow` marker, set here for every test that needs
+the published data or runs Snakemake jobs (`make test-fast` runs the others: `pytest -m "not slow"`).
+"""
 
 from __future__ import annotations
 
+import functools
+import inspect
 import os
+import types
 from pathlib import Path
 
 import pytest
+from snakemake_runner import smk
 
 REPO = Path(__file__).resolve().parents[1]
+TESTS = REPO / "tests"
+#: the tiny synthetic scene in the published format, made by tests/data/make_tiny_scene.py
+TINY_ROOT = REPO / "tests" / "data" / "tiny"
+TINY_SCENE = "0"
 
 
 def data_root() -> Path:
@@ -54,3 +65,128 @@ def published_scene(flat_root: Path, scene: str):
 def scene9(flat_root):
     """Scene 9's reference map and queries (shared by the fine-stage and coarse-solver tests)."""
     return published_scene(flat_root, "9")
+
+
+@pytest.fixture(scope="session")
+def tiny_root() -> Path:
+    """The tiny committed scene (30 objects, 12 queries; no published data needed)."""
+    return TINY_ROOT
+
+
+def smk_dry_run(repo: Path, workdir: Path, *args: str, **kw):
+    """``snakemake -n``: plans the jobs, runs none (the fast lane may call it; ``smk`` is slow)."""
+    return smk(repo, workdir, "-n", *args, **kw)
+
+
+# ---------------------------------------------------------------- the slow lane
+# A test is slow when it uses a fixture of the published data (or one built on them: the closure
+# holds them), or when its code, its fixtures' code or the test-module helpers they call reach
+# the published data (conftest.data_root, a module-level Path under it or under ../shared, such as
+# ROOT = data_root() or LUND = .../shared/images/lund) or the Snakemake runner (snakemake_runner.smk).
+# Anything else that is slow carries an explicit @pytest.mark.slow.
+DATA_FIXTURES = {"flat_root", "all_local_maps", "scene9"}
+
+
+@functools.cache
+def _shared_roots() -> tuple[Path, ...]:
+    return (data_root(), (REPO.parent / "shared").resolve())
+
+
+def _code_names(code: types.CodeType) -> set[str]:
+    names = set(code.co_names)
+    for const in code.co_consts:
+        if isinstance(const, types.CodeType):  # nested functions, lambdas, comprehensions
+            names |= _code_names(const)
+    return names
+
+
+def _under_shared(value) -> bool:
+    if not isinstance(value, Path):
+        return False
+    path = value.resolve()
+    return any(path == root or path.is_relative_to(root) for root in _shared_roots())
+
+
+def _value_reason(value) -> str | None:
+    if value is smk:
+        return "runs Snakemake jobs"
+    if value is data_root or value is published_scene or _under_shared(value):
+        return "reads the published data"
+    return None
+
+
+def _test_helper(func) -> bool:
+    """A function of a test module (not conftest's: smk_dry_run runs no job)."""
+    path = Path(func.__code__.co_filename).resolve()
+    return path.parent == TESTS and path.name != "conftest.py"
+
+
+def _slow_reason(func, seen: set) -> str | None:
+    """Why a function (and the helpers of the test modules it calls, transitively) is slow, or None."""
+    func = inspect.unwrap(func)
+    code = getattr(func, "__code__", None)
+    if code is None or func in seen:
+        return None
+    seen.add(func)
+    module_globals = func.__globals__
+    for name in _code_names(code):
+        if name not in module_globals:
+            continue
+        value = module_globals[name]
+        reason = _value_reason(value)
+        if reason:
+            return reason
+        if isinstance(value, types.FunctionType) and _test_helper(value):
+            reason = _slow_reason(value, seen)
+            if reason:
+                return f"{reason} via {name}()"
+    return None
+
+
+def item_slow_reason(item) -> str | None:
+    """Why a collected test belongs to the slow lane, or None (explicit marks are not looked at)."""
+    used = DATA_FIXTURES & set(getattr(item, "fixturenames", ()))
+    if used:
+        return f"uses the published data (fixture {sorted(used)[0]})"
+    seen: set = set()
+    if isinstance(item, pytest.Function):
+        reason = _slow_reason(item.function, seen)
+        if reason:
+            return reason
+        for value in getattr(getattr(item, "callspec", None), "params", {}).values():
+            if _under_shared(value):
+                return f"reads the published data (parameter {value})"
+    info = getattr(item, "_fixtureinfo", None)
+    for name in getattr(item, "fixturenames", ()):
+        for fixturedef in info.name2fixturedefs.get(name, ()) if info else ():
+            reason = _slow_reason(fixturedef.func, seen)
+            if reason:
+                return f"{reason} (fixture {name})"
+    return None
+
+
+SLOW_COUNTS = pytest.StashKey[dict]()
+
+
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
+def pytest_collection_modifyitems(config, items):
+    counts = {"published data": 0, "Snakemake jobs": 0, "marked": 0, "of": len(items)}
+    for item in items:
+        if item.get_closest_marker("slow") is not None:
+            counts["marked"] += 1
+            continue
+        reason = item_slow_reason(item)
+        if reason:
+            item.add_marker(pytest.mark.slow)
+            counts["Snakemake jobs" if "Snakemake" in reason else "published data"] += 1
+    config.stash[SLOW_COUNTS] = counts
+
+
+def pytest_report_collectionfinish(config, start_path, items):
+    c = config.stash.get(SLOW_COUNTS, None)
+    if c:
+        slow = c["published data"] + c["Snakemake jobs"] + c["marked"]
+        return (
+            f"slow lane: {slow} of {c['of']} tests (published data {c['published data']}, "
+            f"Snakemake jobs {c['Snakemake jobs']}, @pytest.mark.slow {c['marked']}); fast lane: -m 'not slow'"
+        )

@@ -34,9 +34,10 @@ def lund_run(repo, flat_root, tmp_path_factory):
         "results/lund/queries/queries.parquet",
         "results/lund/maps/reference_map.geojson",
         "results/lund/localization/localization.parquet",
+        "--configfile",
+        str(repo / "config/test/images_lund.yaml"),  # the solver only: no benchmark model to train here
         "--config",
         f"flatlandia_root={flat_root}",
-        "fine={runs: {methods: [solver]}}",  # the solver only: no benchmark model to train here
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd

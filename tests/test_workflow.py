@@ -18,10 +18,16 @@ from snakemake_runner import smk
 
 from flatlandia import io
 
+TEST_CONFIGS = Path(__file__).resolve().parents[1] / "config" / "test"
 
-def two_scenes(flat_root, select="[9,12]") -> list[str]:
-    """--config of the two-scene runs: scenes 9 and 12 are both the selection and the benchmark."""
-    return ["--config", f"select={select}", "benchmark_scenes=[9,12]", f"flatlandia_root={flat_root}"]
+
+def two_scenes(flat_root, *more: str, select: str | None = None) -> list[str]:
+    """Arguments of the two-scene runs: config/test/two_scenes.yaml (scenes 9 and 12 are both the
+    selection and the benchmark), then the files of config/test named in ``more``; on the command
+    line the data folder, and another selection when given."""
+    files = [str(TEST_CONFIGS / name) for name in ("two_scenes.yaml", *more)]
+    settings = [f"flatlandia_root={flat_root}", *([f"select={select}"] if select else [])]
+    return ["--configfile", *files, "--config", *settings]
 
 
 @pytest.fixture(scope="module")
@@ -95,8 +101,7 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
 def test_city_target_tiles_the_benchmark_scenes_and_writes_the_table(run_two_scenes, repo, flat_root):
     """`snakemake city` on the two-scene benchmark: cities of 1 and 2 scenes, a small simulated one;
     the table has both methods at each tiled size, every test query localized at every size."""
-    city = "city={'scene_counts': [1, 2], 'simulate': {'objects': [150]}}"
-    res = smk(repo, run_two_scenes, "--cores", "2", "city", *two_scenes(flat_root), city)
+    res = smk(repo, run_two_scenes, "--cores", "2", "city", *two_scenes(flat_root, "city_small.yaml"))
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     df = pd.read_parquet(run_two_scenes / "results/tables/city_scale.parquet")
     tiled = df[df["map"] == "tiled"].set_index(["scenes", "method"])
@@ -107,7 +112,6 @@ def test_city_target_tiles_the_benchmark_scenes_and_writes_the_table(run_two_sce
     assert "City scale" in (run_two_scenes / "results/tables/city_scale.md").read_text()
 
 
-@pytest.mark.slow
 def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)

@@ -145,3 +145,9 @@ def checkpoint_info(path) -> dict:
 def n_parameters(model: nn.Module) -> int:
     """Number of weights of a model, for the tables' model sizes."""
     return int(sum(p.numel() for p in model.parameters()))
+
+
+def weights_mb(model: nn.Module) -> float:
+    """Size of a model's stored tensors (parameters and buffers) in MB: the model's size, which the
+    checkpoint file exceeds by its bookkeeping (whose training time varies run to run)."""
+    return float(sum(t.numel() * t.element_size() for t in model.state_dict().values()) / 1e6)

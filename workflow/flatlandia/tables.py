@@ -112,7 +112,7 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("train_s", "float", "s", "training wall time (learned models; 0 for the solver), 1 CPU thread"),
         Column("epochs", "int", "", "training epochs (0 for the solver)"),
         Column("n_parameters", "int", "", "trainable parameters (0 for the solver)"),
-        Column("model_mb", "float", "MB", "checkpoint size on disk (0 for the solver)"),
+        Column("model_mb", "float", "MB", "size of the model's weights (0 for the solver)"),
         Column(
             "ref_map_kb",
             "float",

@@ -6,8 +6,6 @@ rule solver_priors' scale prior and verifier) or a trained model checkpoint. Pro
 strategy, proposal) filtered on the configured strategy (flatlandia.fine.evaluation).
 """
 
-import os
-
 import numpy as np
 import pandas as pd
 
@@ -67,7 +65,7 @@ def main(smk, log):
         info = checkpoints.checkpoint_info(smk.input.checkpoint)
         summary.update(
             n_parameters=checkpoints.n_parameters(model),
-            model_mb=os.path.getsize(smk.input.checkpoint) / 1e6,
+            model_mb=checkpoints.weights_mb(model),
             train_s=float(info.get("seconds") or 0.0),
             epochs=int(cfg.epochs),
         )
