@@ -19,7 +19,7 @@ STAGES = {
         "reproduction_audit",
     ],
     "images branch, Lund (target < 300 s)": [
-        "images_audit",
+        "image_audit",
         "segment",
         "sfm",
         "classify_points",

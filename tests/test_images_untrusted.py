@@ -197,7 +197,7 @@ def test_the_audit_rule_stops_with_one_line_when_nothing_usable_is_left(tmp_path
         config={"images": IMAGES},
         log=[str(tmp_path / "audit.log")],
     )
-    errors = _run_script("images_audit.py", smk_, capsys)
+    errors = _run_script("image_audit.py", smk_, capsys)
     assert len(errors) == 1 and errors[0].startswith(f"ERROR: {photos}: no image is left after the audit (3 images")
     assert "smaller than images.min_side_px" in errors[0] and "larger than images.max_megapixels" in errors[0]
     assert "not a regular file" in errors[0]
@@ -255,7 +255,7 @@ def test_a_malformed_metadata_csv_is_one_error_naming_line_column_and_value(tmp_
         config={"images": IMAGES},
         log=[str(tmp_path / "audit.log")],
     )
-    assert _run_script("images_audit.py", smk_, capsys) == [f"ERROR: {err.value}"]
+    assert _run_script("image_audit.py", smk_, capsys) == [f"ERROR: {err.value}"]
     assert not table.exists()
 
 

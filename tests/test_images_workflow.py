@@ -333,22 +333,22 @@ def test_editing_the_photo_folder_reruns_the_audit(repo, flat_root, tmp_path):
     assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
     assert "Nothing to be done" in smk(repo, tmp_path, "-n", target, *args).stdout
     (photos / "metadata.csv").write_text("name,lat,lon\n01.jpg,55.70,13.19\n")
-    assert "images_audit" in smk(repo, tmp_path, "-n", target, *args).stdout
+    assert "image_audit" in smk(repo, tmp_path, "-n", target, *args).stdout
     assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
     # an edit in place leaves the folder's own time alone: the fingerprint param sees it
     with open(photos / "metadata.csv", "a") as f:
         f.write("02.jpg,55.71,13.19\n")
     res = smk(repo, tmp_path, "-n", target, *args)
-    assert "images_audit" in res.stdout and "params" in res.stdout.lower(), res.stdout[-2000:]
+    assert "image_audit" in res.stdout and "params" in res.stdout.lower(), res.stdout[-2000:]
     assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
     shutil.copy(flat_root.parent / "images" / "lund" / "04.jpg", photos / "04.jpg")
-    assert "images_audit" in smk(repo, tmp_path, "-n", target, *args).stdout
+    assert "image_audit" in smk(repo, tmp_path, "-n", target, *args).stdout
     # a manifest of this run, whose target is one artifact, not `all`
     flatlandia = str(Path(sys.executable).parent / "flatlandia")
     res = subprocess.run([flatlandia, "audit", "--write", "m.parquet"], cwd=tmp_path, capture_output=True, text=True)
     assert res.returncode == 0 and res.stdout.startswith("wrote m.parquet: 1 artifacts"), res.stdout + res.stderr
     man = pd.read_parquet(tmp_path / "m.parquet")
-    assert list(man["artifact"]) == [target] and man["rule"].iloc[0] == "images_audit"
+    assert list(man["artifact"]) == [target] and man["rule"].iloc[0] == "image_audit"
 
 
 def _photos_without_gps(src, dest, names):

@@ -29,8 +29,6 @@ def name_problem(name) -> str | None:
         return "holds '/' or '\\' (a folder)"
     if any(ord(c) < 32 or ord(c) == 127 for c in name):
         return "holds a control character"
-    if name.startswith("-"):
-        return "starts with '-' (read as an option by command-line tools)"
     if len(name.encode()) > MAX_NAME_BYTES:
         return f"longer than {MAX_NAME_BYTES} bytes"
     return None

@@ -21,13 +21,13 @@ rule fetch_images:
         "../scripts/fetch_images.py"
 
 
-rule images_audit:
+rule image_audit:
     input:
         images=images_dir,
     output:
         table="results/{scene}/images/images.parquet",
     log:
-        "logs/images_audit/{scene}.log",
+        "logs/image_audit/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
     params:
@@ -38,7 +38,7 @@ rule images_audit:
         align_mode=config["images"]["align"]["mode"],
         folder_fingerprint=images_folder_fingerprint,
     script:
-        "../scripts/images_audit.py"
+        "../scripts/image_audit.py"
 
 
 rule segment:

@@ -304,7 +304,7 @@ def reconstruct(
 ) -> tuple[object, pd.DataFrame, pd.DataFrame]:
     """Rule sfm's model of an images scene -> (pycolmap.Reconstruction, one-row stats, cameras).
 
-    SfM (:func:`run_sfm`) of the kept images of ``table`` (rule images_audit's table: name, kept,
+    SfM (:func:`run_sfm`) of the kept images of ``table`` (rule image_audit's table: name, kept,
     lon, lat, alt, heading) with their masks, in the scratch folder ``work``; then
     :func:`clean_cameras` and the final bundle adjustment (:func:`final_bundle_adjustment`, with
     the images' GPS as pose priors when ``options['gps_prior']``: the model comes out metric).

@@ -1,4 +1,4 @@
-"""Rule images_audit: metadata of every image, kept or dropped and why."""
+"""Rule image_audit: metadata of every image, kept or dropped and why."""
 
 from flatlandia import io, runlog
 from flatlandia.images import image_audit
