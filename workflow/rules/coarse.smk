@@ -44,6 +44,7 @@ rule coarse_train:
         "logs/benchmarks/coarse_train/{loss}.tsv"
     wildcard_constraints:
         loss="|".join(COARSE_LOSSES),
+    priority: 1
     conda:
         "../../envs/flatlandia.yaml"
     threads: 1

@@ -22,6 +22,7 @@ rule fine_train:
         model="|".join(FINE_MODELS),
         map_type="gt|depth",
         train="gtbb|coarse",
+    priority: fine_train_priority
     conda:
         "../../envs/flatlandia.yaml"
     threads: 1

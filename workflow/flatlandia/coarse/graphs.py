@@ -28,10 +28,10 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 import torch
-from torch_geometric.data import Batch, Data
 
 from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
+from flatlandia.pyg import Batch, Data
 
 REF_KNN = 7
 

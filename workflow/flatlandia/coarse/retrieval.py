@@ -18,13 +18,11 @@ import numpy as np
 import pandas as pd
 import torch
 from torch import nn
-from torch_geometric.data import Batch
-from torch_geometric.nn import GATConv, GATv2Conv, global_mean_pool
-from torch_geometric.utils import add_self_loops
 
 from flatlandia import config
 from flatlandia.classes import N_CLASSES
 from flatlandia.coarse import graphs
+from flatlandia.pyg import Batch, GATConv, GATv2Conv, add_self_loops, global_mean_pool
 
 LOSSES = {"sim": "Sim", "trip": "Trip", "simtrip": "Sim+Trip"}
 MAP_TYPES = ["gt", "depth"]

@@ -263,9 +263,9 @@ def evaluate_model(
     columns). Query time is the single-query inference time (batch of one, after building the
     sample)."""
     import torch
-    from torch_geometric.data import Batch
 
     from flatlandia.fine import learned
+    from flatlandia.pyg import Batch
 
     samples, kept = learned.samples_from_queries(ref, queries, proposals, cfg)
     ref_cls = ref["class_id"].to_numpy()

@@ -32,13 +32,11 @@ import numpy as np
 import pandas as pd
 import torch
 from torch import nn
-from torch_geometric.data import Batch, Data
-from torch_geometric.nn import GATv2Conv
-from torch_geometric.utils import scatter, to_dense_batch
 
 from flatlandia import config
 from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
+from flatlandia.pyg import Batch, Data, GATv2Conv, scatter, to_dense_batch
 
 MODELS = ("MLP", "MLP+ATT", "GAT", "GAT+ATT")
 

@@ -17,11 +17,11 @@ import time
 import numpy as np
 import pandas as pd
 import torch
-from torch_geometric.data import Data
 
 from flatlandia import checkpoints, proposals
 from flatlandia.errors import InputError
 from flatlandia.fine import learned
+from flatlandia.pyg import Data
 
 
 def angle_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
