@@ -1,6 +1,8 @@
 """Command line: ``flatlandia audit`` prints the audit trail of a run (one scene or all);
 ``flatlandia config`` checks or rewrites the files generated from the config schema;
-``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.debug)."""
+``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.debug);
+``flatlandia localize --map MAP --query QUERY.json`` localizes your own query (flatlandia.localize);
+``flatlandia score POSES --name NAME --out DIR`` scores your own poses as the benchmark's methods (flatlandia.score)."""
 
 from __future__ import annotations
 
@@ -114,6 +116,65 @@ def debug_rule(args) -> int:
     return 0
 
 
+def localize_query(args) -> int:
+    """Localize the query (or queries) of a JSON file on a map; print the answer as JSON."""
+    from flatlandia import localize
+    from flatlandia.errors import InputError
+
+    try:
+        near = None
+        if args.near is not None:
+            parts = args.near.split(",")
+            try:
+                near = tuple(float(v) for v in parts)
+            except ValueError:
+                near = ()
+            if len(near) != 2:
+                raise InputError("--near", f"{args.near!r} is not LON,LAT (degrees, e.g. 2.3704,48.8981)")
+        if (near is None) != (args.radius_m is None):
+            raise InputError("--near", "a prior position needs both --near LON,LAT and --radius-m R")
+        if args.alternatives < 0:
+            raise InputError("--alternatives", f"{args.alternatives} is negative")
+        learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
+        result = localize.localize_file(
+            args.map, args.query, args.map_type, near, args.radius_m, args.alternatives, learned=learned
+        )
+    except InputError as e:
+        print(f"ERROR: {e}")
+        return 1
+    text = localize.dumps(result)
+    if args.out:
+        from flatlandia import io
+
+        io.write_text(text + "\n", args.out)
+    print(text)
+    return 0
+
+
+def score_poses(args) -> int:
+    """Score a poses file against a results folder's benchmark: DIR/{NAME}_{map_type}_{proposal}/
+    (errors.parquet, summary.json: rule fine_eval's shapes) and DIR/scores.md; a bad file is one
+    ERROR line, exit status 1 and nothing written."""
+    from flatlandia import score
+    from flatlandia.errors import InputError
+
+    try:
+        scores = score.score_file(args.poses, args.name, args.results, args.split)
+    except InputError as e:
+        print(f"ERROR: {e}")
+        return 1
+    for note in scores.notes:
+        print(f"note: {note}")
+    for warning in scores.warnings:
+        print(f"WARNING: {warning}")
+    for run in scores.runs:
+        print(run.describe())
+    score.write_scores(scores, args.name, args.poses, args.out)
+    runs = ", ".join(f"{r.run}/" for r in scores.runs)
+    print(f"wrote {Path(args.out) / 'scores.md'} and, in {args.out}, {runs} (errors.parquet, summary.json)")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="flatlandia", description=__doc__)
     sub = ap.add_subparsers(dest="command", required=True)
@@ -145,6 +206,46 @@ def main(argv: list[str] | None = None) -> int:
     d.add_argument("--log-to-terminal", action="store_true", help="log to stderr instead of the rule's log file")
     d.add_argument("--pdb", action="store_true", help="open pdb where the script fails")
     d.set_defaults(func=debug_rule)
+    lq = sub.add_parser(
+        "localize",
+        help="localize your own query: a camera pose from the objects one image sees, on a map",
+        description='Localize the query of a JSON file ({"objects": [{"class": "<Vistas label>", "x": forward, '
+        '"y": left}, ...]}, or {"queries": [{"id": ..., "objects": [...]}, ...]}) on a scene\'s reference map '
+        "(.parquet, .geojson: the workflow's, with its training cameras and learned priors, or any map of classed "
+        "points with lon/lat) or a city index (results/city/{n}/index or one of its .npz); print the pose(s) as JSON "
+        "(flatlandia.localize).",
+    )
+    lq.add_argument("--map", required=True, help="reference map (.parquet, .geojson) or city index (folder, .npz)")
+    lq.add_argument("--query", required=True, help='query JSON: one query, or {"queries": [...]}')
+    lq.add_argument("--map-type", default="gt", help="gt: x/y in metres (default); depth: any unit, scale unknown")
+    lq.add_argument("--near", metavar="LON,LAT", help="a prior position: search only the map objects near it")
+    lq.add_argument("--radius-m", type=float, metavar="R", help="with --near: the radius searched, metres")
+    lq.add_argument("--alternatives", type=int, default=3, metavar="K", help="next-best distinct poses (default 3)")
+    lq.add_argument(
+        "--priors",
+        default="auto",
+        metavar="auto|none|FILE",
+        help="depth maps' learned priors: auto (the workflow's results/solver/priors/whole.json for its maps), "
+        "none, or a priors JSON",
+    )
+    lq.add_argument("--out", metavar="OUT.json", help="also write the JSON here")
+    lq.set_defaults(func=localize_query)
+    sc = sub.add_parser(
+        "score",
+        help="score your own poses of the benchmark's queries, as the built-in methods are scored",
+        description="Score a poses file (CSV or Parquet; one row per query: scene, token and either x_m, y_m, "
+        "theta_deg in the scene's metric frame or lon, lat, heading_deg with a compass heading; optional map_type, "
+        "proposal, seconds: README 'Score your own method') against the benchmark of a results folder, with the "
+        "functions of rule fine_eval. Writes OUT/{NAME}_{map_type}_{proposal}/errors.parquet and summary.json per "
+        "setting and OUT/scores.md (its rows beside the built-in rows of the same setting); queries without a pose "
+        "count as failures.",
+    )
+    sc.add_argument("poses", help="the poses file (.csv or .parquet)")
+    sc.add_argument("--name", required=True, help="the method's name: a lowercase id, not a built-in method's")
+    sc.add_argument("--out", required=True, metavar="DIR", help="where the runs and scores.md go")
+    sc.add_argument("--results", default="results", metavar="RESULTS_DIR", help="the workflow's results folder")
+    sc.add_argument("--split", default="test", choices=["train", "val", "test"], help="queries scored (default: test)")
+    sc.set_defaults(func=score_poses)
     args = ap.parse_args(argv)
     return args.func(args)
 

@@ -8,6 +8,7 @@ type, a panel per proposal setting), the query figures and the map viewer includ
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,6 +85,35 @@ def plot_training_curves(curves: dict[str, pd.DataFrame], path: str | Path) -> N
 METHOD_COLOURS = {"solver": "#000000", "mlp": "#1f77b4", "mlp_att": "#9467bd", "gat": "#ff7f0e", "gat_att": "#8c564b"}
 #: the methods' names as the paper writes them (its tables' keys); ``geo`` is our solver
 METHOD_LABELS = {"solver": "solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+#: colours of external methods (config ``external``, ``flatlandia score``), none of the built-ins', the
+#: truth's, the wrong match's or the splits': picked by a hash of the name, so a method keeps its colour
+#: in every figure and viewer whatever else is shown (two of many externals may share one)
+EXTERNAL_COLOURS = ("#17becf", "#e377c2", "#bcbd22", "#01665e", "#e6ab02")
+
+
+def is_builtin(method: str) -> bool:
+    """One of the benchmark's own methods (else an external one, scored from its poses)."""
+    return method in METHOD_COLOURS
+
+
+def method_colour(method: str) -> str:
+    """A method's colour: the built-ins' own, an external method's from :data:`EXTERNAL_COLOURS`."""
+    if is_builtin(method):
+        return METHOD_COLOURS[method]
+    return EXTERNAL_COLOURS[zlib.crc32(method.encode()) % len(EXTERNAL_COLOURS)]
+
+
+def method_label(method: str) -> str:
+    """A method's name in the figures: the paper's for the built-ins, an external method's own name."""
+    return METHOD_LABELS.get(method, method)
+
+
+def method_order(methods) -> list[str]:
+    """Methods in legend order: the built-ins in :data:`METHOD_COLOURS` order, then the external ones by name."""
+    methods = set(methods)
+    return [m for m in METHOD_COLOURS if m in methods] + sorted(m for m in methods if not is_builtin(m))
+
+
 #: one line style per local-map type (matplotlib, and the viewer's SVG dash pattern)
 MAP_TYPE_STYLES = {"gt": "-", "depth": "--"}
 MAP_TYPE_DASHES = {"gt": "", "depth": "6 3"}
@@ -103,7 +133,8 @@ TRUTH_COLOUR = "#00b050"
 
 @dataclass(frozen=True)
 class Run:
-    """A fine run named ``{method}_{map_type}_{proposal}`` (config fine.runs), with its style."""
+    """A fine run named ``{method}_{map_type}_{proposal}`` (config fine.runs, or an external method's:
+    config ``external``), with its style."""
 
     name: str
     method: str
@@ -116,13 +147,16 @@ class Run:
         return cls(name, method, map_type, proposal)
 
     def sort_key(self) -> tuple:
-        """Panel order: proposal setting (one unknown here last, by name), method, local-map type."""
+        """Panel order: proposal setting (one unknown here last, by name), method (the built-ins in
+        their order, then external methods by name), local-map type."""
         known = list(PROPOSAL_LABELS)
         rank = known.index(self.proposal) if self.proposal in known else len(known)
+        builtin = list(METHOD_COLOURS)
         return (
             rank,
             self.proposal,
-            list(METHOD_COLOURS).index(self.method),
+            builtin.index(self.method) if self.method in builtin else len(builtin),
+            "" if self.method in builtin else self.method,
             list(MAP_TYPE_STYLES).index(self.map_type),
         )
 
@@ -132,13 +166,18 @@ class Run:
         return PROPOSAL_LABELS.get(self.proposal, self.proposal)
 
     @property
+    def external(self) -> bool:
+        """An external method's run (scored from its poses: no matches, no training)."""
+        return not is_builtin(self.method)
+
+    @property
     def colour(self) -> str:
-        return METHOD_COLOURS[self.method]
+        return method_colour(self.method)
 
     @property
     def short_label(self) -> str:
         """Method and local-map type: the run's name within its proposal setting's panel."""
-        return f"{METHOD_LABELS[self.method]}, {MAP_TYPE_LABELS[self.map_type]}"
+        return f"{method_label(self.method)}, {MAP_TYPE_LABELS[self.map_type]}"
 
     @property
     def label(self) -> str:
@@ -147,7 +186,10 @@ class Run:
 
 def paper_median(run: Run, strategy: str) -> tuple[float, float] | None:
     """The paper's median error of a run, (its "m" = local-map units x 215, degrees), where it
-    publishes one: Table 4 (GT-BB proposals), Table 5 (Sim+Trip coarse proposals, 2N_LM)."""
+    publishes one: Table 4 (GT-BB proposals), Table 5 (Sim+Trip coarse proposals, 2N_LM); none
+    for an external method."""
+    if run.external:
+        return None
     model = METHOD_LABELS[run.method]
     if run.proposal == "gtbb" and (model, run.map_type) in paper.TABLE4:
         return paper.TABLE4[(model, run.map_type)][4:6]
@@ -173,9 +215,9 @@ def _style_legend(fig, runs: list[Run], paper_marks: bool) -> None:
     """One legend for the figure: a colour per method, a line style per local-map type."""
     from matplotlib.lines import Line2D
 
-    methods = [m for m in METHOD_COLOURS if any(r.method == m for r in runs)]
+    methods = method_order(r.method for r in runs)
     types = [t for t in MAP_TYPE_STYLES if any(r.map_type == t for r in runs)]
-    handles = [Line2D([], [], c=METHOD_COLOURS[m], lw=2, label=METHOD_LABELS[m]) for m in methods]
+    handles = [Line2D([], [], c=method_colour(m), lw=2, label=method_label(m)) for m in methods]
     handles += [Line2D([], [], c="0.3", ls=MAP_TYPE_STYLES[t], lw=1.5, label=MAP_TYPE_LABELS[t]) for t in types]
     if paper_marks:
         handles.append(Line2D([], [], c="0.3", marker="*", ms=10, ls="", label="paper's median (Tables 4, 5)"))

@@ -75,8 +75,15 @@ SCHEMAS: dict[str, list[Column]] = {
     ],
     "fine_localization": [
         Column("run", "str", "", "{method}_{map_type}_{proposal}: results/fine/{run}/"),
-        Column("method", "str", "", "geo (geometric solver) | mlp | mlp_att | gat | gat_att"),
-        Column("method_label", "str", "", "geometric solver | MLP | MLP+ATT | GAT | GAT+ATT"),
+        Column(
+            "method",
+            "str",
+            "",
+            "solver (geometric solver) | mlp | mlp_att | gat | gat_att | an external method's name (config external)",
+        ),
+        Column(
+            "method_label", "str", "", "geometric solver | MLP | MLP+ATT | GAT | GAT+ATT | an external method's name"
+        ),
         Column("map_type", "str", "", "gt or depth local maps"),
         Column(
             "proposal",

@@ -15,7 +15,7 @@ takes 42 ms and, at 10,000 objects, 1.3 s).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -107,11 +107,13 @@ def region_training_priors(ix: ViewIndex, cams: np.ndarray, seen: np.ndarray, le
 
 @dataclass
 class Located:
-    """A query's pose (None when the solver found none) and what the index proposed."""
+    """A query's pose (None when the solver found none), the next-best distinct poses and what the
+    index proposed."""
 
     solution: solver.Solution | None
     rows: np.ndarray  # map rows the solver searched
     centres: np.ndarray  # (K, 2) region centres, best first
+    alternatives: list[solver.Solution] = field(default_factory=list)
 
 
 def localize(
@@ -121,22 +123,30 @@ def localize(
     cfg: SearchConfig,
     settings: solver.SolverConfig,
     learned: solver.LearnedPriors | None = None,
+    metric: bool = False,
+    alternatives: int = 0,
+    centres: np.ndarray | None = None,
 ) -> Located:
-    """Pose of a depth query in the city: regions from the index, then the solver on them with the
-    training views near them as its priors (and the ``learned`` scale prior and verifier)."""
+    """Pose of a query in the city (a depth map; ``metric``: a GT map in metres): regions from the
+    index (or the given ``centres``, (K, 2) metres, e.g. a user's prior position, with ``cfg``'s
+    ``region_radius_m``), then the solver (:func:`flatlandia.solver.localize`, with up to
+    ``alternatives`` next-best poses) on them with the training views near them as its priors
+    (and for depth maps the ``learned`` scale prior and verifier)."""
     q_xy, q_cls = np.asarray(q_xy, float).reshape(-1, 2), np.asarray(q_cls, np.int64)
-    views, _ = view_scores(ix, q_xy, q_cls, cfg)
-    centres = region_centres(ix, views, cfg)
-    rows, cams, seen = region_priors(ix, centres, cfg, settings.prior_radius_m)
-    sol = None
+    if centres is None:
+        views, _ = view_scores(ix, q_xy, q_cls, cfg)
+        centres = region_centres(ix, views, cfg)
+    rows, cams, seen = region_priors(ix, np.asarray(centres, float).reshape(-1, 2), cfg, settings.prior_radius_m)
+    found = solver.Localization(None)
     if len(rows) >= 2:
-        sol = solver.solve(
+        found = solver.localize(
             q_xy,
             q_cls,
             ix.obj_xy[rows],
             ix.obj_cls[rows],
-            metric=False,
+            metric=metric,
             config=settings,
-            priors=region_training_priors(ix, cams, seen, learned),
+            priors=region_training_priors(ix, cams, seen, None if metric else learned),
+            alternatives=alternatives,
         )
-    return Located(sol, rows, centres)
+    return Located(found.best, rows, centres, found.alternatives)

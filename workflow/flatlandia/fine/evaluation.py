@@ -208,7 +208,7 @@ def evaluate_solver(
         q = localmaps.local_map(r, map_type)
         t0, c0 = time.perf_counter(), time.process_time()
         sol = (
-            solver.solve(
+            solver.localize(
                 q,
                 np.asarray(r.classes),
                 ref_xy[idx],
@@ -216,7 +216,7 @@ def evaluate_solver(
                 metric=(map_type == "gt"),
                 config=cfg,
                 priors=priors.rows(idx) if priors is not None else None,
-            )
+            ).best
             if len(idx) >= 2
             else None
         )

@@ -11,7 +11,8 @@ import pandas as pd
 from flatlandia import escape, paper, tables
 from flatlandia.fine import evaluation
 
-#: method slugs (rule wildcards) and their display names
+#: method slugs (rule wildcards) and their display names; an external method (config ``external``,
+#: ``flatlandia score``) is shown by its summary's ``method``, its name
 METHOD_LABELS = {"solver": "geometric solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 
 
@@ -75,7 +76,9 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
             model_mb=float(s.get("model_mb") or 0.0),
             ref_map_kb=f("ref_map_kb"),
             median_pu=f("median_pu"),
-            trained_on=str(s.get("trained_on") or ("GT-BB" if method != "solver" else "")),
+            # a summary without the key is a learned model's of an older run (GT-BB); the solver's and an
+            # external method's are '' (not trained here)
+            trained_on=str(s.get("trained_on") or ("GT-BB" if method in METHOD_LABELS and method != "solver" else "")),
         )
         row.update({c: f(c) for c in evaluation.PAPER_UNIT_THRESHOLD_COLUMNS})
         row["paper_row"] = name

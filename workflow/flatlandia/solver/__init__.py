@@ -9,22 +9,25 @@ Modules, in the order a query meets them: ``problem`` (the query's derived array
 (what the training split tells about a pose), ``hypotheses`` (generation, gating, chunked
 scoring, the distinct best), ``scoring`` (MSAC cost, refinement), ``verify`` (the verifier's
 features and score) and ``verify_fit`` (learning it), ``kernels`` (the compiled loops),
-``pipeline`` (the steps in order: :func:`solve`), ``learned`` (the fitted priors as one value,
+``pipeline`` (the steps in order: :func:`localize`, the best pose and its alternatives, and
+:func:`solve`, the best alone), ``learned`` (the fitted priors as one value,
 read and written as JSON), ``bound`` (the pose given the true matches).
 """
 
 from flatlandia.solver.learned import LearnedPriors
-from flatlandia.solver.pipeline import Solution, SolverConfig, candidates, solve, warm_up
+from flatlandia.solver.pipeline import Localization, Solution, SolverConfig, candidates, localize, solve, warm_up
 from flatlandia.solver.priors import TrainingPriors, depth_scale_prior, fit_scale, scene_priors
 
 __all__ = [
     "LearnedPriors",
+    "Localization",
     "Solution",
     "SolverConfig",
     "TrainingPriors",
     "candidates",
     "depth_scale_prior",
     "fit_scale",
+    "localize",
     "scene_priors",
     "solve",
     "warm_up",

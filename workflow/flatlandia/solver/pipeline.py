@@ -27,7 +27,9 @@ log-scale for depth maps, co-visibility) when priors are given; (3) the ``top_k`
 hypotheses are refined (robust Gauss-Newton on their matches, with re-association), re-scored,
 and the cheapest wins; (4) or, given a verifier (depth maps with priors), the ``verify_top_k``
 best are refined and the verifier's highest score wins (``solver_verify``: near-tie hypotheses
-that the cost ranks wrongly, told apart by what the training cameras near each pose saw). The inner loops (hypotheses, scoring, refinement) are compiled with numba in
+that the cost ranks wrongly, told apart by what the training cameras near each pose saw). The
+next-best distinct poses of the same pool come along as alternatives (:func:`localize`, which
+:func:`solve` and every caller go through). The inner loops (hypotheses, scoring, refinement) are compiled with numba in
 ``solver_kernels``; ``scoring.padded_costs`` keeps the padded numpy form as the reference
 they are tested against. For depth maps hypotheses come from 3-bearing resections (range-free)
 and then 2-point similarities. The result holds the pose, the inlier matches (query index,
@@ -64,6 +66,22 @@ class Solution:
     confidence: float = 0.0
     cost: float = float("inf")  # MSAC cost of the returned pose
     n_hypotheses: int = 0
+    behind: float = 0.0  # how far the ranking puts it behind the best (0 for the best), a log-likelihood ratio
+
+
+#: alternatives are poses at least this far (metres) or this many degrees from the best and from
+#: each other (a refined pool may hold the same pose twice: two hypotheses that converged)
+DISTINCT_M = 2.0
+DISTINCT_DEG = 5.0
+
+
+@dataclass
+class Localization:
+    """One query's answer from one pool of refined hypotheses: the best pose (None: none) and the
+    next-best distinct poses, best first."""
+
+    best: Solution | None
+    alternatives: list[Solution] = field(default_factory=list)
 
 
 def solve(
@@ -86,11 +104,31 @@ def solve(
     co-visibility cost ``covis_weight`` and gate ``covis_gate_above``), the depth maps' log-scale
     prior, and a verifier that picks among the ``verify_top_k`` best hypotheses of a depth map
     (``verify``; needs cameras and what they saw), else the cheapest of the ``top_k`` best wins.
-    Inlier indices refer to rows of ``ref_xy``.
+    Inlier indices refer to rows of ``ref_xy``. The best pose of :func:`localize`.
     """
+    return localize(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors).best
+
+
+def localize(
+    query_xy,
+    query_cls,
+    ref_xy,
+    ref_cls,
+    metric: bool = False,
+    config: SolverConfig | dict | None = None,
+    priors: TrainingPriors | None = None,
+    alternatives: int = 0,
+) -> Localization:
+    """The best pose (:func:`solve`'s, arguments as there) and up to ``alternatives`` next-best
+    distinct poses from the same pool of refined hypotheses (the ``top_k``, or with a verifier the
+    ``verify_top_k``, best), in the order that chose the best: the cost, or the verifier's score.
+    Alternatives are at least :data:`DISTINCT_M` metres or :data:`DISTINCT_DEG` degrees from the
+    best and from each other; each carries its inliers, its cost, the share of the query's objects
+    it explains as its confidence, and ``behind``: how far the ranking puts it behind the best. The
+    one entry point of the fine stage's runs, the city search and ``flatlandia localize``."""
     verifier = priors.verifier if priors is not None else None
     pool = candidates(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors, verifier is not None)
-    return None if pool is None else _best_refined(pool, verifier)
+    return Localization(None) if pool is None else _ranked(pool, verifier, alternatives)
 
 
 @dataclass
@@ -135,37 +173,60 @@ def candidates(
     return Pool(problem, query_priors, t, theta, s, scored.n_hypotheses, verified)
 
 
-def _best_refined(pool: Pool, verifier: Verifier | None) -> Solution | None:
+def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Localization:
     """The best refined pose that stayed finite and near the prior cameras (the cheapest, or the
     verifier's highest score), with its inliers and a confidence: the share of explained objects,
-    lowered when a distinct pose is nearly as good (cost / 2 or score gap, a log-likelihood ratio)."""
+    lowered when a distinct pose is nearly as good (cost / 2 or score gap, a log-likelihood ratio);
+    and up to ``alternatives`` next-best distinct poses (:func:`localize`)."""
     problem, priors, t, theta, s = pool.problem, pool.priors, pool.t, pool.theta, pool.s
     data, cost, inl, match = scoring.score_terms(problem, priors, t, theta, s)
     ok = [k for k in range(len(t)) if np.all(np.isfinite(t[k])) and not priors.too_far(t[k])]
     if not ok:
-        return None
+        return Localization(None)
     if pool.verified:
         key = -verifier.score(verify.features(problem, priors, t, theta, s, data, inl, match))
     else:
         key = cost / 2.0
     ok.sort(key=lambda k: float(key[k]))
     best = ok[0]
-    inliers = [(int(k), int(match[best, k])) for k in range(problem.m) if inl[best, k]]
-    conf = len(inliers) / problem.m
+
+    def inliers(k: int) -> list[tuple[int, int]]:
+        return [(int(j), int(match[k, j])) for j in range(problem.m) if inl[k, j]]
+
+    def solution(k: int, confidence: float) -> Solution:
+        return Solution(
+            float(t[k, 0]),
+            float(t[k, 1]),
+            float(theta[k]),
+            float(s[k]),
+            inliers(k),
+            float(confidence),
+            float(cost[k]),
+            pool.n_hypotheses,
+            float(key[k]) - float(key[best]),
+        )
+
+    conf = len(inliers(best)) / problem.m
     for other in ok[1:]:
         if np.hypot(*(t[other] - t[best])) > 2.0:
             conf *= float(1 - np.exp(-(float(key[other]) - float(key[best]))))
             break
-    return Solution(
-        float(t[best, 0]),
-        float(t[best, 1]),
-        float(theta[best]),
-        float(s[best]),
-        inliers,
-        float(conf),
-        float(cost[best]),
-        pool.n_hypotheses,
+    chosen = [best]
+    for other in ok[1:]:
+        if len(chosen) > alternatives:
+            break
+        if all(_distinct(t[other], theta[other], t[c], theta[c]) for c in chosen):
+            chosen.append(other)
+    return Localization(
+        solution(best, conf),
+        [solution(k, len(inliers(k)) / problem.m) for k in chosen[1:]],
     )
+
+
+def _distinct(t_a, theta_a, t_b, theta_b) -> bool:
+    """Two poses at least :data:`DISTINCT_M` metres or :data:`DISTINCT_DEG` degrees apart."""
+    turn = abs((float(theta_a) - float(theta_b) + np.pi) % (2 * np.pi) - np.pi)
+    return bool(np.hypot(*(t_a - t_b)) >= DISTINCT_M or turn >= np.radians(DISTINCT_DEG))
 
 
 @functools.cache

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from flatlandia import figures, names
-from flatlandia.figures import MAP_TYPE_STYLES, METHOD_LABELS, TRUTH_COLOUR, Run
+from flatlandia.figures import MAP_TYPE_STYLES, TRUTH_COLOUR, Run, method_label
 from flatlandia.viewer.scene import Estimate, QueryView, SceneView, worst_queries
 
 #: a link to a reference object that is not the true one
@@ -76,7 +76,7 @@ def draw_query(ax, view: SceneView, q: QueryView, runs: tuple[str, ...], legend:
         ax.set_title(f"scene {view.scene}, query {q.token} ({len(truth)} objects)", fontsize=9)
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), frameon=False)
         return
-    errors = [f"{METHOD_LABELS[e.run.method]}: {e.summary()}" for e in map(q.estimate, runs) if e is not None]
+    errors = [f"{method_label(e.run.method)}: {e.summary()}" for e in map(q.estimate, runs) if e is not None]
     ax.set_title(f"query {q.token} ({len(truth)} objects)\n" + "\n".join(errors), fontsize=8)
 
 

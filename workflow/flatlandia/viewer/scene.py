@@ -101,17 +101,26 @@ class SceneView:
 def featured_runs(errors: dict[str, pd.DataFrame]) -> tuple[str, ...]:
     """The solver's run and the best learned run (lowest median position error over all its test
     queries) of one setting: the first of FEATURED_SETTINGS, then of the others, that has a solver
-    run (any run, where no setting has one)."""
+    run (any built-in run, where no setting has one); then one run of each external method (config
+    ``external``: the runs of one's own poses are what its author looks for), of that setting where
+    it has one, else its first in the same order of settings."""
     runs = [Run.parse(name) for name in errors]
-    has_solver = any(r.method == "solver" for r in runs)
+    builtin = [r for r in runs if not r.external]
+    has_solver = any(r.method == "solver" for r in builtin)
     settings = FEATURED_SETTINGS + sorted({(r.map_type, r.proposal) for r in runs} - set(FEATURED_SETTINGS))
+    featured, chosen = [], None
     for map_type, proposal in settings:
-        same = [r for r in runs if (r.map_type, r.proposal) == (map_type, proposal)]
+        same = [r for r in builtin if (r.map_type, r.proposal) == (map_type, proposal)]
         solver = [r.name for r in same if r.method == "solver"]
         learned = sorted((float(np.median(errors[r.name]["error_m"])), r.name) for r in same if r.method != "solver")
         if solver or (learned and not has_solver):
-            return tuple(solver[:1] + [name for _, name in learned[:1]])
-    return ()
+            featured, chosen = solver[:1] + [name for _, name in learned[:1]], (map_type, proposal)
+            break
+    order = ([chosen] if chosen else []) + settings
+    for method in sorted({r.method for r in runs if r.external}):
+        mine = {(r.map_type, r.proposal): r.name for r in runs if r.method == method}
+        featured.append(next(mine[s] for s in order if s in mine))
+    return tuple(featured)
 
 
 def _estimate(run: Run, row) -> Estimate:

@@ -6,11 +6,35 @@ FINE_MODELS = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT
 FINE_COARSE = {"coarse-sim": "Sim", "coarse-trip": "Trip", "coarse-simtrip": "Sim+Trip", "coarse-solver": "Solver"}
 
 
+def _external_methods():
+    from flatlandia import score
+    from flatlandia.config import ConfigError
+
+    try:
+        return score.external_entries(config["external"])
+    except ConfigError as err:
+        sys.exit(f"ERROR: config: {err}")
+
+
+EXTERNAL_METHODS = _external_methods()
+
+
+def external_methods():
+    """Config external, each entry with its defaults (map_types, proposals) filled in."""
+    return EXTERNAL_METHODS
+
+
+def external_runs():
+    """The external methods' runs {name}_{map_type}_{proposal} (rule external_eval scores them)."""
+    return [f"{e['name']}_{t}_{p}" for e in external_methods() for t in e["map_types"] for p in e["proposals"]]
+
+
 def fine_runs():
-    """Run names {method}_{map_type}_{proposal} from config fine.runs (methods x map types x proposals)."""
+    """Run names {method}_{map_type}_{proposal} from config fine.runs (methods x map types x proposals),
+    then the external methods' runs (config external)."""
     runs = config["fine"]["runs"]
     grid = [f"{m}_{t}_{p}" for m in runs["methods"] for t in runs["map_types"] for p in runs["proposals"]]
-    return grid + [r for r in runs["extra"] if r not in grid]
+    return grid + [r for r in runs["extra"] if r not in grid] + external_runs()
 
 
 def fine_eval_inputs(wildcards):

@@ -8,7 +8,7 @@ def fine_trained_models():
     for run in fine_runs():
         method, map_type, proposal = run.rsplit("_", 2)
         key = (method, map_type, fine_train_regime(proposal))
-        if method != "solver" and key not in out:
+        if method in FINE_MODELS and key not in out:  # not the solver, nor an external method
             out.append(key)
     return out
 

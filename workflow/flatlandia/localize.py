@@ -1,0 +1,695 @@
+"""Localize your own query: the camera pose of one image's objects on a reference map.
+
+The Python side of ``flatlandia localize`` (workflow/flatlandia/cli.py), on the benchmark's code
+path: the pose is :func:`flatlandia.solver.localize`'s, the function rule fine_eval and the city
+search call, so a published test query written as a query file comes back with the pose the
+benchmark's whole-map run gives it.
+
+A **map** is loaded once (:func:`load_map`) and answers many queries (:func:`localize`):
+
+- a scene's reference map: the workflow's ``results/{scene}/maps/reference_map.parquet`` (or its
+  ``.geojson``), or any GeoParquet / GeoJSON of classed points (a ``class_label``, ``class`` or
+  ``label`` property holding a Mapillary Vistas label of ``classes.tsv``, or a ``class_id``; lon/lat
+  as columns, Point geometries or, for GeoJSON, coordinates). The workflow's maps come with what
+  the benchmark gives the solver when the files exist: the scene's training cameras (the train
+  split of ``results/{scene}/queries/queries.parquet``: the camera prior and co-visibility) and,
+  for depth queries, the learned scale prior and verifier (``results/solver/priors/whole.json``);
+  any other map is searched without priors unless ``learned`` names a priors file;
+- a city index (``results/city/{n}/index``, or one of its ``.npz``): the city search
+  (:mod:`flatlandia.city.search`: the index proposes regions, the solver searches them with the
+  training views there as priors); lon/lat come from the city's ``map.parquet`` beside the index
+  (a tiled city: each tile is a published scene moved by a translation, and keeps its lon/lat).
+
+A **query** is JSON, ``{"objects": [{"class": "<Vistas label>", "x": <forward>, "y": <left>}, ...]}``
+(camera at the origin looking along +x, +y to its left; at least 3 objects), or a file of many,
+``{"queries": [{"id": ..., "objects": [...]}, ...]}``. Map type ``gt``: x/y in metres; ``depth``: x/y
+in any unit (the scale is unknown and solved for; bearings must be true).
+
+Each answer is a dict (:func:`localize`): the pose (lon, lat, x_m, y_m in the map's metric frame,
+heading_deg clockwise from north, theta_deg counter-clockwise from east as the benchmark's tables),
+the depth map's scale, a confidence, which map object each query object matched, the next-best
+distinct poses and the priors used. Bad input raises :class:`flatlandia.errors.InputError`, one
+line naming the file and the problem.
+"""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from flatlandia.classes import CLASSES
+from flatlandia.errors import InputError
+
+if TYPE_CHECKING:  # the solver loads numba (2 s): only a loaded map needs it
+    import pandas as pd
+
+    from flatlandia import solver
+    from flatlandia.city.index import ViewIndex
+    from flatlandia.city.search import SearchConfig
+
+MAP_TYPES = ("gt", "depth")
+#: fewest objects a query needs (a 2-point fit and one object to check it)
+MIN_OBJECTS = 3
+#: next-best distinct poses returned by default
+ALTERNATIVES = 3
+#: a depth query whose median object range is within this of 1 is used as given: the benchmark's
+#: depth maps are normalised so (the scale prior is in metres per such unit); any other is scaled
+NORMALISED_TOL = 1e-4
+#: class properties of a map, in the order they are looked for (labels before ids)
+LABEL_KEYS = ("class_label", "class", "label")
+ID_KEY = "class_id"
+#: lon/lat column names of a map table
+LON_KEYS, LAT_KEYS = ("lon", "longitude", "lng"), ("lat", "latitude")
+
+
+# ----------------------------------------------------------------------------- classes
+
+
+def class_id(label: Any, source: str | Path, where: str) -> int:
+    """The class id of a Vistas label (``classes.tsv``); unknown: InputError naming the closest."""
+    if isinstance(label, str) and label in _CLASS_IDS:
+        return _CLASS_IDS[label]
+    closest = difflib.get_close_matches(str(label), CLASSES, n=1, cutoff=0.0)
+    hint = f"; closest known label: {closest[0]!r}" if closest else ""
+    raise InputError(source, f"{where}: unknown class {label!r}{hint} (the Mapillary Vistas labels of classes.tsv)")
+
+
+_CLASS_IDS = {c: k for k, c in enumerate(CLASSES)}
+
+
+def _class_ids(values, source, what: str, ids: bool) -> np.ndarray:
+    """Class ids of a map's objects from labels (or, ``ids``, integer ids in range)."""
+    out = np.empty(len(values), np.int64)
+    for k, v in enumerate(values):
+        if ids:
+            try:
+                c = int(v)
+            except (TypeError, ValueError):
+                raise InputError(source, f"{what} {k}: class_id {v!r} is not an integer") from None
+            if not 0 <= c < len(CLASSES) or c != v:
+                raise InputError(source, f"{what} {k}: class_id {v!r} is not one of 0..{len(CLASSES) - 1}")
+            out[k] = c
+        else:
+            out[k] = class_id(v, source, f"{what} {k}")
+    return out
+
+
+# ----------------------------------------------------------------------------- queries
+
+
+@dataclass
+class Query:
+    """One query: its local map (M, 2), x forward, y left, and the class ids of its objects."""
+
+    id: str | None
+    xy: np.ndarray
+    cls: np.ndarray
+    source: str = "<query>"
+
+    @property
+    def labels(self) -> list[str]:
+        return [CLASSES[c] for c in self.cls]
+
+
+def parse_query(obj: Any, source: str | Path = "<query>", qid: str | None = None) -> Query:
+    """A query from its JSON value ``{"objects": [{"class", "x", "y"}, ...]}``; InputError naming
+    the ``source`` and what is wrong (an unknown class with the closest label, fewer than 3
+    objects, a coordinate that is not a finite number)."""
+    name = f"query {qid!r}" if qid is not None else "query"
+    if not isinstance(obj, dict) or not isinstance(obj.get("objects"), list):
+        raise InputError(source, f'{name}: expected {{"objects": [{{"class": ..., "x": ..., "y": ...}}, ...]}}')
+    qid = str(obj["id"]) if obj.get("id") is not None else qid
+    name = f"query {qid!r}" if qid is not None else "query"
+    objects = obj["objects"]
+    if len(objects) < MIN_OBJECTS:
+        raise InputError(source, f"{name} has {len(objects)} objects; at least {MIN_OBJECTS} are needed")
+    xy, cls = np.empty((len(objects), 2)), np.empty(len(objects), np.int64)
+    for k, o in enumerate(objects):
+        where = f"{name} object {k}"
+        if not isinstance(o, dict) or "class" not in o:
+            raise InputError(source, f'{where}: expected {{"class": "<Vistas label>", "x": ..., "y": ...}}')
+        cls[k] = class_id(o["class"], source, where)
+        for j, axis in enumerate("xy"):
+            v = o.get(axis)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise InputError(source, f"{where}: {axis} must be a finite number of the local map, got {v!r}")
+            xy[k, j] = float(v)
+    if np.any(np.hypot(xy[:, 0], xy[:, 1]) == 0):
+        raise InputError(source, f"{name}: an object at the camera (0, 0) has no bearing")
+    return Query(qid, xy, cls, str(source))
+
+
+def read_queries(path: str | Path) -> tuple[list[Query], bool]:
+    """The queries of a JSON file and whether it held many (``{"queries": [...]}``) or one."""
+    from flatlandia import io
+
+    doc = io.read_json(path)
+    if isinstance(doc, dict) and "queries" in doc:
+        if not isinstance(doc["queries"], list) or not doc["queries"]:
+            raise InputError(path, '"queries" must be a non-empty list of {"id": ..., "objects": [...]}')
+        return [parse_query(q, path, str(k)) for k, q in enumerate(doc["queries"])], True
+    return [parse_query(doc, path)], False
+
+
+def query_json(xy, classes, qid: str | None = None) -> dict:
+    """The JSON value of a query (a local map and its class ids or labels): what
+    :func:`parse_query` reads; floats written as Python's repr, so the file holds them exactly."""
+    labels = [CLASSES[int(c)] if not isinstance(c, str) else c for c in classes]
+    out = {"objects": [{"class": c, "x": float(p[0]), "y": float(p[1])} for c, p in zip(labels, np.asarray(xy, float))]}
+    return {"id": qid, **out} if qid is not None else out
+
+
+# ----------------------------------------------------------------------------- maps
+
+
+@dataclass
+class Tile:
+    """Where a scene's tile of a tiled city lies: its metric frame and the translation into the city."""
+
+    scene: str
+    to_lonlat: Any  # Transformer, tile metres -> lon/lat
+    to_xy: Any  # Transformer, lon/lat -> tile metres
+    offset: np.ndarray  # (2,) city = tile + offset
+
+
+@dataclass
+class ObjectMap:
+    """A loaded map: the objects (map rows), its frame, the solver's priors and, for a city, the index."""
+
+    path: Path
+    kind: str  # "scene" or "city"
+    obj_idx: np.ndarray  # (N,) the map's object ids
+    cls: np.ndarray  # (N,) class ids
+    xy: np.ndarray  # (N, 2) metres of the map's frame
+    lonlat: np.ndarray | None  # (N, 2) degrees, None without a geographic frame
+    settings: solver.SolverConfig
+    frame: str  # what the metric frame is, in words
+    to_lonlat: Any = None  # Transformer metres -> lon/lat of a scene map (None: no geographic frame)
+    to_xy: Any = None  # and back
+    scene: str | None = None
+    queries_path: Path | None = None  # where the training cameras came from
+    cameras: int = 0  # training cameras among the priors
+    learned: solver.LearnedPriors | None = None
+    learned_path: Path | None = None
+    priors: dict = field(default_factory=dict)  # map type -> solver.TrainingPriors over the rows
+    index: ViewIndex | None = None
+    search: SearchConfig | None = None
+    tiles: dict = field(default_factory=dict)  # city: scene -> Tile (lazily)
+    obj_scene: np.ndarray | None = None  # city: scene of each row
+    obj_scene_idx: np.ndarray | None = None  # city: each row's obj_idx in its scene
+
+    def priors_used(self, map_type: str) -> dict:
+        """What the solver knew beyond the query and the map, for one map type."""
+        depth = map_type == "depth"
+        lp = self.learned if depth else None
+        return {
+            "training_cameras": int(self.cameras),
+            "cameras_from": str(self.queries_path) if self.queries_path and self.cameras else None,
+            "learned_from": str(self.learned_path) if lp is not None and self.learned_path else None,
+            "scale_prior": bool(lp is not None and lp.scale is not None),
+            "verifier": bool(lp is not None and lp.verifier is not None and self.cameras > 0),
+        }
+
+
+def _workflow_paths(path: Path) -> tuple[str | None, Path | None, Path | None]:
+    """(scene, queries, learned priors) of a workflow map ``results/{scene}/maps/reference_map.*``
+    (None each where the path is not one or the file is missing)."""
+    if not (path.stem == "reference_map" and path.parent.name == "maps"):
+        return None, None, None
+    scene, results = path.parent.parent.name, path.parent.parent.parent
+    queries = results / scene / "queries" / "queries.parquet"
+    learned = results / "solver" / "priors" / "whole.json"
+    return scene, queries if queries.is_file() else None, learned if learned.is_file() else None
+
+
+def _transformers(lon0: float, lat0: float):
+    """(metres -> lon/lat, lon/lat -> metres) of a scene frame (:class:`flatlandia.geo.MetricFrame`),
+    built once: a transformer costs about 18 ms, a query's few points microseconds."""
+    from pyproj import CRS, Transformer
+
+    from flatlandia import geo
+
+    frame = geo.MetricFrame(lon0, lat0)
+    crs = CRS.from_proj4(frame.proj4)
+    wgs = CRS.from_epsg(4326)
+    return Transformer.from_crs(crs, wgs, always_xy=True), Transformer.from_crs(wgs, crs, always_xy=True)
+
+
+def _pick(columns, keys) -> str | None:
+    low = {str(c).lower(): c for c in columns}
+    return next((low[k] for k in keys if k in low), None)
+
+
+def _table_classes(df: pd.DataFrame, path: Path) -> np.ndarray:
+    key = _pick(df.columns, LABEL_KEYS)
+    if key is not None:
+        return _class_ids(df[key].tolist(), path, "object", ids=False)
+    if ID_KEY in df.columns:
+        return _class_ids(df[ID_KEY].tolist(), path, "object", ids=True)
+    raise InputError(path, f"no class property: expected one of {', '.join(LABEL_KEYS + (ID_KEY,))}")
+
+
+def _read_table(path: Path) -> tuple[pd.DataFrame, dict]:
+    """A map table from Parquet (its ``flatlandia`` metadata: the workflow's frame) or GeoJSON."""
+    import pandas as pd
+
+    from flatlandia import io
+
+    if path.suffix.lower() == ".parquet":
+        try:
+            df = pd.read_parquet(path)
+            meta = io.read_parquet_metadata(path)
+        except Exception as e:  # pyarrow raises several types for files that are not Parquet
+            raise InputError(path, f"not a readable Parquet file ({type(e).__name__}: {e})") from None
+        if "geometry" in df.columns and not (_pick(df.columns, LON_KEYS) and _pick(df.columns, LAT_KEYS)):
+            df = _geometry_lonlat(path, df)
+        return df, meta
+    doc = io.read_json(path)
+    feats = doc.get("features") if isinstance(doc, dict) else None
+    if not isinstance(feats, list):
+        raise InputError(path, "not GeoJSON: expected a FeatureCollection with a list of features")
+    meta = doc.get("flatlandia") if isinstance(doc.get("flatlandia"), dict) else {}
+    rows = []
+    for k, f in enumerate(feats):
+        geom = f.get("geometry") if isinstance(f, dict) else None
+        coords = geom.get("coordinates") if isinstance(geom, dict) else None
+        if not isinstance(geom, dict) or geom.get("type") != "Point" or not isinstance(coords, list) or len(coords) < 2:
+            raise InputError(path, f"feature {k}: expected a Point geometry with [lon, lat] coordinates")
+        props = f.get("properties") or {}
+        rows.append({**props, "lon": coords[0], "lat": coords[1]})
+    df = pd.DataFrame(rows)
+    if meta.get("frame") == "local":  # a map without GPS: its coordinates are x/y, not lon/lat
+        df = df.drop(columns=["lon", "lat"])
+    return df, meta
+
+
+def _geometry_lonlat(path: Path, df: pd.DataFrame) -> pd.DataFrame:
+    """lon/lat columns of a GeoParquet without them, from its point geometries (in EPSG:4326)."""
+    try:
+        import geopandas as gpd
+
+        g = gpd.read_parquet(path)
+        if g.crs is not None and not g.crs.equals("EPSG:4326") and not g.crs.equals("OGC:CRS84"):
+            g = g.to_crs("EPSG:4326")
+        if not (g.geometry.geom_type == "Point").all():
+            raise InputError(path, "the geometries must be points (one per object)")
+        return df.assign(lon=g.geometry.x.to_numpy(), lat=g.geometry.y.to_numpy())
+    except InputError:
+        raise
+    except Exception as e:
+        raise InputError(path, f"could not read its point geometries ({type(e).__name__}: {e})") from None
+
+
+def _numbers(df: pd.DataFrame, columns: list[str], path: Path, dtype=float) -> np.ndarray:
+    """(N, len(columns)) numbers of a map's columns; InputError naming the column otherwise."""
+    out = np.empty((len(df), len(columns)), dtype)
+    for j, c in enumerate(columns):
+        try:
+            v = df[c].to_numpy(float)
+        except (TypeError, ValueError) as e:
+            raise InputError(path, f"{c}: not numbers ({e})") from None
+        if dtype is not float and not (np.isfinite(v).all() and (v == np.round(v)).all()):
+            raise InputError(path, f"{c}: not integers")
+        out[:, j] = v
+    return out
+
+
+def _scene_map(path: Path, settings, learned) -> ObjectMap:
+    """A scene's reference map (the workflow's, or any table of classed points)."""
+    from flatlandia import solver
+
+    df, meta = _read_table(path)
+    if len(df) == 0:
+        raise InputError(path, "the map holds no objects")
+    cls = _table_classes(df, path)
+    obj = _numbers(df, ["obj_idx"], path, np.int64)[:, 0] if "obj_idx" in df.columns else np.arange(len(df))
+    lon, lat = _pick(df.columns, LON_KEYS), _pick(df.columns, LAT_KEYS)
+    lonlat = _numbers(df, [lon, lat], path) if lon and lat else None
+    ours = meta.get("lon0") is not None and meta.get("lat0") is not None and {"x_m", "y_m"} <= set(df.columns)
+    to_lonlat = to_xy = None
+    if meta.get("frame") == "local" and {"x_m", "y_m"} <= set(df.columns):  # an images scene without GPS
+        xy, lonlat, frame = (
+            _numbers(df, ["x_m", "y_m"], path),
+            None,
+            f"local ({meta.get('unit', 'SfM unit')}), no lon/lat",
+        )
+    elif lonlat is None:
+        raise InputError(path, "no lon/lat: expected lon and lat columns or properties, or point geometries")
+    else:
+        if not np.isfinite(lonlat).all() or (np.abs(lonlat[:, 0]) > 180).any() or (np.abs(lonlat[:, 1]) > 90).any():
+            raise InputError(path, "lon/lat must be finite degrees (lon in [-180, 180], lat in [-90, 90])")
+        if ours:  # the workflow's map: its own frame and metres, as the benchmark reads them
+            lon0, lat0 = float(meta["lon0"]), float(meta["lat0"])
+            xy = _numbers(df, ["x_m", "y_m"], path)
+        else:
+            from flatlandia import geo
+
+            f = geo.frame_for(lonlat)
+            lon0, lat0 = f.lon0, f.lat0
+        to_lonlat, to_xy = _transformers(lon0, lat0)
+        if not ours:
+            xy = np.column_stack(to_xy.transform(lonlat[:, 0], lonlat[:, 1]))
+        frame = f"transverse Mercator at lon {lon0:.7f}, lat {lat0:.7f} (x east, y north, metres)"
+    if not np.isfinite(xy).all():
+        raise InputError(path, "some objects have no finite position")
+    scene, queries_path, learned_auto = _workflow_paths(path)
+    settings = solver.SolverConfig.of(settings)
+    m = ObjectMap(path, "scene", obj, cls, xy, lonlat, settings, frame, to_lonlat, to_xy, scene=scene)
+    m.learned_path = learned_auto if learned == "auto" else (Path(learned) if learned else None)
+    m.learned = solver.LearnedPriors.read(m.learned_path) if m.learned_path else None
+    training = None
+    if queries_path is not None:
+        import pandas as pd
+
+        try:
+            training = pd.read_parquet(queries_path)
+        except Exception as e:
+            raise InputError(queries_path, f"not a readable Parquet file ({type(e).__name__}: {e})") from None
+        m.queries_path = queries_path
+    ref = pd_frame(obj)
+    for map_type in MAP_TYPES:  # as rule fine_eval: cameras and co-visibility; depth maps the learned priors
+        lp = m.learned if map_type == "depth" else None
+        if training is not None:
+            m.priors[map_type] = solver.scene_priors(ref, training, settings, lp)
+        else:
+            m.priors[map_type] = solver.TrainingPriors(scale=lp.scale) if lp is not None else None
+    cams = m.priors["gt"].cameras if m.priors["gt"] is not None else None
+    m.cameras = 0 if cams is None else len(cams)
+    return m
+
+
+def pd_frame(obj_idx) -> pd.DataFrame:
+    import pandas as pd
+
+    return pd.DataFrame({"obj_idx": np.asarray(obj_idx, np.int64)})
+
+
+def _city_map(path: Path, settings, learned, search) -> ObjectMap:
+    """A city index (one ``.npz`` of ``results/city/{n}/index``) and, beside it, its map's lon/lat."""
+    from flatlandia import solver
+    from flatlandia.city import search as city_search
+    from flatlandia.city.index import ViewIndex
+
+    try:
+        ix = ViewIndex.load(path)
+    except Exception as e:
+        raise InputError(path, f"not a city index ({type(e).__name__}: {e})") from None
+    if ix.n_objects == 0:
+        raise InputError(path, "the map holds no objects")
+    settings = solver.SolverConfig.of(settings)
+    frame = "the city's tiled frame (metres; each tile a scene's frame moved by a translation)"
+    m = ObjectMap(path, "city", ix.obj_id, ix.obj_cls, ix.obj_xy, None, settings, frame, index=ix)
+    m.search = search if isinstance(search, city_search.SearchConfig) else city_search.SearchConfig.from_dict(search)
+    m.cameras = len(ix.cam)
+    m.queries_path = path
+    city_dir = path.parent.parent
+    auto = city_dir.parent.parent / "solver" / "priors" / "whole.json"
+    m.learned_path = (auto if auto.is_file() else None) if learned == "auto" else (Path(learned) if learned else None)
+    m.learned = solver.LearnedPriors.read(m.learned_path) if m.learned_path else None
+    table = city_dir / "map.parquet"
+    if path.parent.name == "index" and table.is_file():
+        import pandas as pd
+
+        try:
+            t = pd.read_parquet(table, columns=["city", "scene", "obj_idx", "scene_obj_idx", "lon", "lat"])
+        except Exception as e:
+            raise InputError(table, f"not the city's map ({type(e).__name__}: {e})") from None
+        t = t[t["city"].astype(str) == path.stem].set_index("obj_idx")
+        if set(t.index) >= set(ix.obj_id.tolist()):
+            t = t.loc[ix.obj_id]
+            m.lonlat = t[["lon", "lat"]].to_numpy(float)
+            m.obj_scene = t["scene"].astype(str).to_numpy()
+            m.obj_scene_idx = t["scene_obj_idx"].to_numpy(np.int64)
+    return m
+
+
+def load_map(
+    path: str | Path,
+    settings: solver.SolverConfig | dict | None = None,
+    learned: str | Path | None = "auto",
+    search: SearchConfig | dict | None = None,
+) -> ObjectMap:
+    """A map, loaded once for many queries: a scene's reference map (``.parquet``, ``.geojson``) or
+    a city index (``.npz``, or an index folder holding one). ``settings``: the solver's (config
+    section ``solver``; None: the schema's defaults, the workflow's default run); ``learned``: the
+    depth maps' learned priors, ``"auto"`` the workflow's ``results/solver/priors/whole.json`` for a
+    workflow map, a path, or None for none; ``search``: a city's search settings (``city.search``).
+    Also loads the solver's compiled kernels, so that query times exclude that."""
+    from flatlandia import solver
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "file is missing")
+    if path.is_dir():
+        found = sorted(path.glob("*.npz"))
+        if len(found) != 1:
+            listed = ", ".join(p.name for p in found[:8]) or "none"
+            raise InputError(path, f"a city index folder holds one .npz per city ({listed}): name one")
+        path = found[0]
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        m = _city_map(path, settings, learned, search)
+    elif suffix in (".parquet", ".geojson", ".json"):
+        if path.stat().st_size == 0:
+            raise InputError(path, "file is empty")
+        m = _scene_map(path, settings, learned)
+    else:
+        raise InputError(
+            path, "not a map: expected a reference map (.parquet, .geojson) or a city index (.npz, folder)"
+        )
+    solver.warm_up()
+    return m
+
+
+# ----------------------------------------------------------------------------- answers
+
+
+def _lonlat_of(m: ObjectMap, xy: np.ndarray) -> tuple[float | None, float | None]:
+    if m.kind == "city":
+        tile = _tile_at(m, xy)
+        if tile is None:
+            return None, None
+        lon, lat = tile.to_lonlat.transform(float(xy[0] - tile.offset[0]), float(xy[1] - tile.offset[1]))
+    elif m.to_lonlat is not None:
+        lon, lat = m.to_lonlat.transform(float(xy[0]), float(xy[1]))
+    else:
+        return None, None
+    return float(lon), float(lat)
+
+
+def _tile_at(m: ObjectMap, xy) -> Tile | None:
+    """The tile of the city object nearest ``xy`` (None without the city's lon/lat)."""
+    if m.obj_scene is None:
+        return None
+    _, row = m.index.obj_tree.query(np.asarray(xy, float))
+    return _tile(m, str(m.obj_scene[int(row)]))
+
+
+def _tile(m: ObjectMap, scene: str) -> Tile | None:
+    """A city tile's frame (its scene's, :func:`flatlandia.geo.frame_for` of its objects, as the
+    published scenes') and translation, from its objects' lon/lat and city metres; None when no
+    translation fits them (to 1 cm)."""
+    if scene not in m.tiles:
+        from flatlandia import geo
+
+        rows = m.obj_scene == scene
+        f = geo.frame_for(m.lonlat[rows])
+        to_lonlat, to_xy = _transformers(f.lon0, f.lat0)
+        local = np.column_stack(to_xy.transform(m.lonlat[rows, 0], m.lonlat[rows, 1]))
+        offset = np.mean(m.xy[rows] - local, axis=0)
+        fits = np.abs(m.xy[rows] - local - offset).max() < 0.01
+        m.tiles[scene] = Tile(scene, to_lonlat, to_xy, offset) if fits else None
+    return m.tiles[scene]
+
+
+def _near_rows(m: ObjectMap, near: tuple[float, float], radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(map rows within ``radius_m`` of lon/lat ``near``, (K, 2) the prior's position in the map's
+    metres: one per city tile that has such objects)."""
+    lon, lat = float(near[0]), float(near[1])
+    if m.kind == "scene":
+        if m.to_xy is None:
+            raise InputError(m.path, "--near needs a map with lon/lat; this one has a local frame")
+        c = np.array(m.to_xy.transform(lon, lat), float)
+        return np.flatnonzero(np.hypot(*(m.xy - c).T) <= radius_m), c[None]
+    if m.obj_scene is None:
+        raise InputError(m.path, "--near needs the city's lon/lat (its map.parquet beside the index folder)")
+    # each tile keeps its scene's lon/lat: a prior position falls in the tiles whose objects are near it
+    k = 6371008.8 * math.pi / 180
+    d = np.hypot((m.lonlat[:, 0] - lon) * k * math.cos(math.radians(lat)), (m.lonlat[:, 1] - lat) * k)
+    centres = []
+    for scene in sorted(set(m.obj_scene[d <= radius_m + 1.0].tolist())):
+        tile = _tile(m, scene)
+        if tile is not None:
+            centres.append(np.array(tile.to_xy.transform(lon, lat), float) + tile.offset)
+    centres = np.array(centres).reshape(-1, 2)
+    rows = np.unique(np.concatenate([m.index.obj_tree.query_ball_point(c, radius_m) for c in centres] + [[]]))
+    return rows.astype(np.int64), centres
+
+
+def _pose(m: ObjectMap, sol, unit: float, rows: np.ndarray, q: Query) -> dict:
+    """A solution's pose and matches as JSON values (``rows``: the map rows it searched)."""
+    theta = math.degrees(math.atan2(math.sin(sol.theta), math.cos(sol.theta)))
+    lon, lat = _lonlat_of(m, np.array([sol.x, sol.y]))
+    matches = []
+    for k, c in sol.inliers:
+        row = int(rows[c])
+        match = {
+            "query_object": int(k),
+            "obj_idx": int(m.obj_idx[row]),
+            "class": CLASSES[int(m.cls[row])],
+            "lon": float(m.lonlat[row, 0]) if m.lonlat is not None else None,
+            "lat": float(m.lonlat[row, 1]) if m.lonlat is not None else None,
+        }
+        if m.obj_scene is not None:
+            match.update(scene=str(m.obj_scene[row]), scene_obj_idx=int(m.obj_scene_idx[row]))
+        matches.append(match)
+    return {
+        "lon": lon,
+        "lat": lat,
+        "x_m": float(sol.x),
+        "y_m": float(sol.y),
+        "heading_deg": float((90.0 - theta) % 360.0) if lon is not None else None,  # north: the frame's +y
+        "theta_deg": float(theta),
+        "scale": float(sol.scale) / unit,
+        "matches": matches,
+    }
+
+
+def localize(
+    m: ObjectMap,
+    query: Query | dict,
+    map_type: str = "gt",
+    near: tuple[float, float] | None = None,
+    radius_m: float | None = None,
+    alternatives: int = ALTERNATIVES,
+) -> dict:
+    """One query's pose on a loaded map (:func:`load_map`), as a dict of JSON values.
+
+    ``map_type``: ``gt`` (x/y in metres) or ``depth`` (any unit: the scale is solved for);
+    ``near`` (lon, lat) and ``radius_m``: search only the map objects within ``radius_m`` of it (a
+    prior position; on a city, in place of the index's regions). Keys: ``found``; the pose ``lon``,
+    ``lat`` (None without a geographic frame), ``x_m``, ``y_m`` (the map's metric frame, ``frame``),
+    ``heading_deg`` (compass: clockwise from north), ``theta_deg`` (the benchmark's: counter-clockwise
+    from east), ``scale`` (metres per query unit; 1 for GT), ``confidence`` (share of the query's
+    objects explained, lowered when a distinct pose is nearly as good), ``cost``, ``matches`` (query
+    object -> ``obj_idx``, class, lon/lat), ``alternatives`` (the next-best distinct poses with their
+    ``cost`` and ``behind``: how far the ranking puts them behind the best), ``priors`` (what the
+    solver knew beyond the query and the map), ``searched`` (map objects searched) and ``seconds``
+    (the solver's time); ``reason`` when nothing was found."""
+    from flatlandia import solver
+    from flatlandia.city import search as city_search
+
+    if map_type not in MAP_TYPES:
+        raise InputError("--map-type", f"{map_type!r} is not one of {', '.join(MAP_TYPES)}")
+    q = query if isinstance(query, Query) else parse_query(query)
+    if (near is None) != (radius_m is None):
+        raise InputError("--near", "a prior position needs both near (lon, lat) and radius_m")
+    if near is not None and not (
+        math.isfinite(near[0]) and math.isfinite(near[1]) and abs(near[0]) <= 180 and abs(near[1]) <= 90
+    ):
+        raise InputError("--near", f"{near} is not lon, lat in degrees")
+    if radius_m is not None and not (math.isfinite(radius_m) and radius_m > 0):
+        raise InputError("--radius-m", f"{radius_m} is not a positive number of metres")
+    xy, unit = q.xy, 1.0
+    if map_type == "depth":  # the solver's depth units: median object range 1 (the scale prior's unit)
+        med = float(np.median(np.hypot(xy[:, 0], xy[:, 1])))
+        if abs(med - 1.0) > NORMALISED_TOL:
+            xy, unit = xy / med, med
+    metric = map_type == "gt"
+    priors_used = m.priors_used(map_type)
+    t0 = time.perf_counter()
+    if m.kind == "city":
+        centres = None
+        if near is not None:
+            rows, centres = _near_rows(m, near, radius_m)
+        search = m.search if near is None else _replace(m.search, region_radius_m=float(radius_m))
+        found = city_search.localize(
+            m.index, xy, q.cls, search, m.settings, m.learned, metric, alternatives, centres=centres
+        )
+        best, alts, rows = found.solution, found.alternatives, found.rows
+    else:
+        rows = np.arange(len(m.xy)) if near is None else _near_rows(m, near, radius_m)[0]
+        priors = m.priors[map_type]
+        found = (
+            solver.localize(
+                xy,
+                q.cls,
+                m.xy[rows],
+                m.cls[rows],
+                metric=metric,
+                config=m.settings,
+                priors=priors.rows(rows) if priors is not None else None,
+                alternatives=alternatives,
+            )
+            if len(rows) >= 2
+            else solver.Localization(None)
+        )
+        best, alts = found.best, found.alternatives
+    seconds = time.perf_counter() - t0
+    if near is not None:
+        priors_used["near"] = {"lon": float(near[0]), "lat": float(near[1]), "radius_m": float(radius_m)}
+    out: dict[str, Any] = {"id": q.id, "map": str(m.path), "map_type": map_type, "found": best is not None}
+    if best is None:
+        usable = int(np.isin(q.cls, m.cls[rows]).sum()) if len(rows) else 0
+        out["reason"] = (
+            f"only {usable} of the query's {len(q.cls)} objects have a class among the {len(rows)} map objects searched"
+            if usable < MIN_OBJECTS
+            else "no pose explains the query's objects on the map objects searched"
+        )
+        pose = dict.fromkeys(("lon", "lat", "x_m", "y_m", "heading_deg", "theta_deg", "scale"))
+        out.update(pose, confidence=0.0, cost=None, matches=[], alternatives=[])
+    else:
+        out.update(_pose(m, best, unit, rows, q), confidence=float(best.confidence), cost=float(best.cost))
+        out["alternatives"] = [
+            {**_pose(m, a, unit, rows, q), "cost": float(a.cost), "behind": float(a.behind)} for a in alts
+        ]
+    out.update(frame=m.frame, priors=priors_used, searched=int(len(rows)), seconds=seconds)
+    return out
+
+
+def _replace(cfg, **changes):
+    import dataclasses
+
+    return dataclasses.replace(cfg, **changes)
+
+
+def localize_file(
+    map_path: str | Path,
+    query_path: str | Path,
+    map_type: str = "gt",
+    near: tuple[float, float] | None = None,
+    radius_m: float | None = None,
+    alternatives: int = ALTERNATIVES,
+    **load_args,
+) -> dict:
+    """``flatlandia localize``: the queries of a JSON file on a map file. One query in: its answer
+    (:func:`localize`); a file of many: ``{"results": [answers]}``. The queries are read and checked
+    before the map loads (a bad query fails in a second)."""
+    if map_type not in MAP_TYPES:
+        raise InputError("--map-type", f"{map_type!r} is not one of {', '.join(MAP_TYPES)}")
+    queries, many = read_queries(query_path)
+    m = load_map(map_path, **load_args)
+    results = [localize(m, q, map_type, near, radius_m, alternatives) for q in queries]
+    return {"results": results} if many else results[0]
+
+
+def dumps(result: Any) -> str:
+    """JSON text of an answer (non-finite numbers as null)."""
+
+    def clean(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list):
+            return [clean(x) for x in v]
+        return v
+
+    return json.dumps(clean(result), indent=1)

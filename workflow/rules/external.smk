@@ -1,0 +1,31 @@
+# External methods (config `external`): a method's own poses of the test queries, scored with the
+# functions of rule fine_eval (flatlandia.score), so that its runs {name}_{map_type}_{proposal} sit in
+# the fine table, the error figures, the query figures and the viewers beside the built-in methods
+# (fine_runs() lists them). The poses file is an input: editing it rescores the runs.
+
+
+include: "inputs/external.smk"
+
+
+rule external_eval:
+    input:
+        unpack(external_eval_inputs),
+    output:
+        errors="results/fine/{method}_{map_type}_{proposal}/errors.parquet",
+        summary="results/fine/{method}_{map_type}_{proposal}/summary.json",
+    log:
+        "logs/external_eval/{method}_{map_type}_{proposal}.log",
+    wildcard_constraints:
+        method=external_method_pattern(),
+        map_type="gt|depth",
+        proposal="gtbb|whole|" + "|".join(FINE_COARSE),
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        p=fine_eval_params,
+    script:
+        "../scripts/external_eval.py"
