@@ -340,9 +340,10 @@ def test_gps_alignment_without_headings_has_no_compass_comparison(tmp_path, capl
 
 
 @pytest.mark.slow
-def test_lund_placed_by_a_metadata_csv_without_headings_aligns(repo, flat_root, tmp_path):
-    """Lund's photos stripped of EXIF, placed by a metadata.csv of name, lat, lon: the workflow reaches
-    the GPS alignment and writes it, the compass comparison null."""
+def test_lund_placed_by_a_metadata_csv_without_headings_builds_its_map(repo, flat_root, tmp_path):
+    """Lund's photos stripped of EXIF, placed by a metadata.csv of the documented columns name, lat,
+    lon only: the workflow builds the scene's map (`maps`), its GPS alignment with the compass
+    comparison null and said so."""
     photos = tmp_path / "photos"
     photos.mkdir()
     rows = ["name,lat,lon"]
@@ -355,8 +356,10 @@ def test_lund_placed_by_a_metadata_csv_without_headings_aligns(repo, flat_root, 
     sheet = tmp_path / "scenes.tsv"
     sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
     target = "results/mine/sfm/gps_alignment.json"
-    res = smk(repo, tmp_path, "--cores", "2", target, "--config", f"flatlandia_root={flat_root}", f"scenes={sheet}")
+    res = smk(repo, tmp_path, "--cores", "2", "maps", "--config", f"flatlandia_root={flat_root}", f"scenes={sheet}")
     assert res.returncode == 0, res.stderr[-3000:]
+    for built in ("maps/reference_map.parquet", "maps/reference_map.geojson", "queries/queries.parquet"):
+        assert (tmp_path / "results/mine" / built).exists(), built
     al = io.read_json(tmp_path / target)
     assert al["compass_cameras"] == 0 and al["compass_median_diff_deg"] is None
     assert al["inliers"] >= 9 and al["inlier_median_residual_m"] < 10

@@ -126,7 +126,11 @@ def test_manifest_and_audit_trace_every_artifact(run_two_scenes):
     assert man.loc[q, "sha256"] == io.sha256(wd / q)
     inputs = json.loads(man.loc[q, "inputs"])
     assert inputs["results/12/queries/recovered.parquet"] == io.sha256(wd / "results/12/queries/recovered.parquet")
-    assert man["git_commit"].str.len().min() >= 7 and man["config_hash"].nunique() == 1
+    assert man["git_commit"].str.len().min() >= 7 and man["config_id"].nunique() == 1  # one resolved config
+    # the settings hash covers what each rule reads: the queries of both scenes share theirs, rules differ
+    assert man.loc["results/9/queries/queries.parquet", "config_hash"] == man.loc[q, "config_hash"]
+    assert man.loc[q, "config_hash"] != man.loc["results/12/maps/reference_map.png", "config_hash"]
+    assert json.loads(man.loc[q, "settings"])["seed"] == 0
     assert {"ingest", "recover", "reference_map", "plot_reference_map", "dataset_stats"} <= set(man["rule"])
     res = subprocess.run(
         [str(Path(sys.executable).parent / "flatlandia"), "audit", "--scene", "12"],

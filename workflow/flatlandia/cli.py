@@ -1,4 +1,4 @@
-"""Command line: ``flatlandia audit`` prints the audit trail of a run (one scene or all);
+"""Command line: ``flatlandia audit [PATH]`` prints the audit trail of a run (one artifact, one scene or all);
 ``flatlandia config`` checks or rewrites the files generated from the config schema;
 ``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.debug);
 ``flatlandia localize --map MAP --query QUERY.json`` localizes your own query (flatlandia.localize);
@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import pandas as pd
@@ -14,18 +15,92 @@ import pandas as pd
 from flatlandia import config, io, provenance
 
 
-def audit(args) -> int:
-    path = Path(args.manifest)
-    # the live provenance records describe the latest run, whatever its target; the manifest is
-    # the fallback for a results folder copied without its logs
+def _records(args) -> pd.DataFrame:
+    """The live provenance records (they describe the latest run, whatever its target), without
+    those of outputs since deleted; the manifest is the fallback for a results folder copied
+    without its logs."""
     df = provenance.manifest(args.provenance)
     if not df.empty:
-        df = df[[Path(a).exists() for a in df["artifact"]]]  # records of outputs since deleted
+        df = df[[Path(a).exists() for a in df["artifact"]]]
+    path = Path(args.manifest)
     if df.empty and path.exists():
         df = pd.read_parquet(path)
+    return df
+
+
+def _short(digest: str) -> str:
+    return (digest or "")[:12]
+
+
+def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -> str:
+    """What produced one artifact, as text: rule, settings by value, inputs and their rules."""
+    rows = provenance.producers(df)
+    rec = rows.get(artifact)
+    if rec is None:
+        return ""
+    now, _ = provenance.path_digest(artifact)
+    lines = [
+        f"artifact: {artifact}",
+        f"  sha256 {_short(rec['sha256'])}, {int(rec['bytes']):,} bytes, "
+        + ("the file matches its record" if now == rec["sha256"] else "CHANGED since the run wrote it"),
+        f"rule: {rec['rule']}" + (f"  (wildcards {rec['wildcards']})" if rec["wildcards"] not in ("{}", "") else ""),
+        f"settings the rule reads (hash {rec['config_hash']}):",
+    ]
+    settings = json.loads(rec.get("settings") or "{}")
+    lines += [f"  {k}: {json.dumps(v, default=str)}" for k, v in settings.items()] or ["  (none)"]
+    if rec.get("config_id"):
+        lines.append(f"whole resolved config: {configs / (rec['config_id'] + '.json')}")
+    dirty = rec.get("dirty")
+    lines.append(
+        f"code: commit {rec['git_commit'].removesuffix('+dirty')}"
+        + (" with uncommitted changes" if dirty else " (clean)" if dirty is False else "")
+        + f", flatlandia {rec['package_version']}"
+    )
+    sheet = json.loads(rec.get("scene_sheet") or "{}")
+    if sheet.get("path"):
+        lines.append(f"scene sheet: {sheet['path']} (sha256 {_short(sheet.get('sha256', ''))})")
+    software = json.loads(rec.get("software") or "{}")
+    if software:
+        lines.append("software: " + ", ".join(f"{k} {v}" for k, v in software.items()))
+    if rec.get("started_at"):
+        lines.append(
+            f"time: {rec['started_at']} to {rec['finished_at']}, "
+            f"{rec.get('wall_seconds', float('nan')):.1f} s wall, {rec.get('cpu_seconds', float('nan')):.1f} s CPU"
+        )
+    lines.append("inputs" + (" (back to the files no rule produced: the sources)" if tree else "") + ":")
+    for inp in provenance.lineage(artifact, df, tree):
+        pad = "  " * inp["depth"]
+        made = f"<- {inp['rule']}" if inp["rule"] else "(source)"
+        flag = "  CHANGED since used" if inp["changed"] else ""
+        lines.append(f"{pad}{inp['input']}  {_short(inp['sha256'])}  {made}{flag}")
+    return "\n".join(lines)
+
+
+def audit(args) -> int:
+    df = _records(args)
     if df.empty:
-        print(f"ERROR: no audit records: run the workflow first ({path} and {args.provenance} are empty)")
+        print(f"ERROR: no audit records: run the workflow first ({args.manifest} and {args.provenance} are empty)")
         return 1
+    if args.check:  # every recorded artifact re-hashed
+        bad = provenance.check(df)
+        if bad.empty:
+            print(f"all {len(df)} recorded artifacts match their records")
+            return 0
+        print(f"{len(bad)} of {len(df)} recorded artifacts changed since their rule wrote them:")
+        for r in bad.itertuples(index=False):
+            print(f"  {r.artifact} (rule {r.rule}): recorded {_short(r.recorded)}, now {_short(r.now)}")
+        return 1
+    if args.artifact:
+        text = audit_artifact(df, str(Path(args.artifact)), args.tree, Path(args.provenance) / "configs")
+        if not text:
+            near = [a for a in df["artifact"] if Path(a).name == Path(args.artifact).name][:5]
+            print(
+                f"ERROR: {args.artifact}: no audit record (not an output of this run's rules, or built before "
+                "records existed)" + (f"; recorded artifacts of that name: {', '.join(near)}" if near else "")
+            )
+            return 1
+        print(text)
+        return 0
     if args.scene:
         known = sorted(set(df["scene"].dropna().astype(str)) - {""})
         df = df[df["scene"] == args.scene]
@@ -40,6 +115,7 @@ def audit(args) -> int:
     with pd.option_context("display.max_rows", None, "display.max_colwidth", 64, "display.width", 250):
         out = df[cols].assign(sha256=df["sha256"].str[:12])
         print(out.to_string(index=False))
+    print("\nflatlandia audit PATH shows one artifact's settings and inputs (--tree: back to the sources)")
     return 0
 
 
@@ -178,7 +254,10 @@ def score_poses(args) -> int:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="flatlandia", description=__doc__)
     sub = ap.add_subparsers(dest="command", required=True)
-    a = sub.add_parser("audit", help="print which rule, inputs, config and commit produced each artifact")
+    a = sub.add_parser("audit", help="print which rule, inputs, settings and commit produced each artifact")
+    a.add_argument("artifact", nargs="?", help="one artifact: its rule, settings by value, inputs and their rules")
+    a.add_argument("--tree", action="store_true", help="with PATH: follow the inputs back to the source files")
+    a.add_argument("--check", action="store_true", help="re-hash every recorded artifact and name those changed")
     a.add_argument("--scene", help="only this scene's artifacts")
     a.add_argument("--manifest", default="results/manifest.parquet")
     a.add_argument("--provenance", default=str(provenance.PROVENANCE_DIR))

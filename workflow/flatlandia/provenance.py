@@ -1,16 +1,27 @@
-"""Audit trail: which rule, inputs, config, code version and commit produced each artifact.
+"""Audit trail: which rule, inputs, settings, code version and commit produced each artifact.
 
 Every rule script run through :func:`flatlandia.runlog.run` leaves a provenance record in
-``logs/provenance/{rule}/{wildcards}.json``; the ``manifest`` rule gathers them into
-``results/manifest.parquet`` and ``flatlandia audit`` prints them.
+``logs/provenance/{rule}/{wildcards}.json``: the rule and its wildcards; its inputs with their
+sha256 (their own producing rules are found from the other records); the settings the rule reads
+(its resolved ``params``: the config values that reach it) with their hash, so the same artifact
+built by ``all`` or by ``maps --config select=[...]`` carries the same hash; the id of the whole
+resolved config, stored once per id in ``logs/provenance/configs/{id}.json``; the commit of the
+workflow folder that ran, whether it had uncommitted changes and which files; the scene sheet's
+sha256; the software versions; start, end, wall and CPU time. The ``manifest`` rule gathers the
+records into ``results/manifest.parquet``; ``flatlandia audit`` prints them, follows an artifact's
+inputs back to the published files (``--tree``) and re-hashes every artifact (``--check``).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import resource
 import subprocess
+import sys
+import time
 from datetime import UTC, datetime
+from functools import cache
 from pathlib import Path
 
 import pandas as pd
@@ -19,6 +30,30 @@ from flatlandia import __version__
 from flatlandia.io import sha256, write_json
 
 PROVENANCE_DIR = Path("logs/provenance")
+CONFIGS_DIR = PROVENANCE_DIR / "configs"
+
+#: packages whose versions a record lists when the rule's process imported them
+SOFTWARE = [
+    "snakemake",
+    "numpy",
+    "pandas",
+    "pyarrow",
+    "scipy",
+    "sklearn",
+    "numba",
+    "pyproj",
+    "torch",
+    "torch_geometric",
+    "pycolmap",
+    "open3d",
+    "cv2",
+    "kornia",
+    "transformers",
+    "matplotlib",
+]
+
+#: when the rule's script started (set by :func:`flatlandia.runlog.run`)
+_STARTED: dict[str, float] = {}
 
 
 def path_digest(path: str | Path) -> tuple[str, int]:
@@ -36,41 +71,121 @@ def path_digest(path: str | Path) -> tuple[str, int]:
     return "", 0
 
 
+def _plain(value):
+    """A params value as JSON data (Snakemake's named lists, paths and numpy scalars included)."""
+    if isinstance(value, dict) or hasattr(value, "items"):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    if hasattr(value, "item"):  # numpy scalars
+        return value.item()
+    return str(value)
+
+
 def config_hash(config: dict) -> str:
     return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def git_commit() -> str:
-    """The commit of the workflow's code, with '+dirty' when it has uncommitted changes."""
-    repo = Path(__file__).resolve().parents[2]
+def rule_settings(smk) -> dict:
+    """The settings a rule reads: its resolved params by name (what reaches the script from the config)."""
+    params = smk.params
+    names = list(params.keys()) if hasattr(params, "keys") else []
+    return {name: _plain(params[name]) for name in names}
+
+
+def store_config(config: dict, folder: Path = CONFIGS_DIR) -> str:
+    """Write the whole resolved config once under its id; returns the id."""
+    cid = config_hash(config)
+    path = folder / f"{cid}.json"
+    if not path.exists():
+        write_json(_plain(config), path)
+    return cid
+
+
+@cache
+def workflow_state(folder: str) -> dict:
+    """The git commit of the workflow folder that ran, whether it had uncommitted changes to
+    tracked files, and which (cached per process)."""
+
+    def git(*args) -> str:
+        return subprocess.run(["git", "-C", folder, *args], capture_output=True, text=True, timeout=10).stdout
+
     try:
-        head = subprocess.run(
-            ["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "-C", str(repo), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-        ).stdout.strip()
+        head = git("rev-parse", "HEAD").strip()
+        changed = [ln[3:] for ln in git("status", "--porcelain", "--untracked-files=no").splitlines() if ln.strip()]
     except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return (head or "unknown") + ("+dirty" if dirty else "")
+        return {"commit": "unknown", "dirty": None, "modified": []}
+    return {"commit": head or "unknown", "dirty": bool(changed), "modified": changed[:50]}
+
+
+def git_commit(folder: str | Path | None = None) -> str:
+    """The commit of ``folder`` (default: this package's checkout), with '+dirty' when it has
+    uncommitted changes."""
+    state = workflow_state(str(folder or Path(__file__).resolve().parents[2]))
+    return state["commit"] + ("+dirty" if state["dirty"] else "")
+
+
+def software_versions() -> dict:
+    """Python and the versions of the listed packages this process imported."""
+    out = {"python": sys.version.split()[0], "flatlandia": __version__}
+    for name in SOFTWARE:
+        mod = sys.modules.get(name)
+        if mod is not None:
+            out[name] = str(getattr(mod, "__version__", "unknown"))
+    return out
+
+
+def started() -> None:
+    """Mark the start of a rule's script (wall time of the record)."""
+    _STARTED["t"] = time.time()
+
+
+def _workflow_folder(smk) -> str:
+    """The workflow folder that ran (``workflow/``, the parent of its scripts' folder), not the
+    checkout the package was installed from."""
+    scriptdir = getattr(smk, "scriptdir", None)
+    return str(Path(scriptdir).resolve().parent if scriptdir else Path(__file__).resolve().parents[1])
+
+
+def _scene_sheet(config: dict, workflow_folder: str) -> Path:
+    """The scene sheet the run read: as the workflow resolves it (the working folder, else the repository)."""
+    p = Path(str(config.get("scenes", ""))).expanduser()
+    if p.is_absolute() or p.exists():
+        return p
+    return Path(workflow_folder).parent / p
 
 
 def record(smk) -> dict:
     """The provenance record of a finished rule script (Snakemake's ``snakemake`` object)."""
     wildcards = dict(smk.wildcards.items()) if hasattr(smk.wildcards, "items") else {}
-    return {
+    settings = rule_settings(smk)
+    config = dict(smk.config)
+    folder = _workflow_folder(smk)
+    state = workflow_state(folder)
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    now = time.time()
+    sheet = _scene_sheet(config, folder)
+    rec = {
         "rule": smk.rule,
         "wildcards": wildcards,
-        "finished_at": datetime.now(UTC).isoformat(timespec="seconds"),
-        "config_hash": config_hash(dict(smk.config)),
+        "started_at": datetime.fromtimestamp(_STARTED.get("t", now), UTC).isoformat(timespec="seconds"),
+        "finished_at": datetime.fromtimestamp(now, UTC).isoformat(timespec="seconds"),
+        "wall_seconds": round(now - _STARTED.get("t", now), 3),
+        "cpu_seconds": round(usage.ru_utime + usage.ru_stime, 3),
+        "settings": settings,
+        "config_hash": config_hash(settings),
+        "config_id": store_config(config) if config else "",
         "package_version": __version__,
-        "git_commit": git_commit(),
+        "git_commit": state["commit"] + ("+dirty" if state["dirty"] else ""),
+        "workflow": state,
+        "scene_sheet": {"path": str(sheet), "sha256": sha256(sheet) if sheet.is_file() else ""},
+        "software": software_versions(),
         "inputs": {str(p): path_digest(p)[0] for p in smk.input},
         "outputs": {str(p): dict(zip(("sha256", "bytes"), path_digest(p))) for p in smk.output},
     }
+    return rec
 
 
 def record_path(rule: str, wildcards: dict) -> Path:
@@ -85,11 +200,47 @@ def write_record(smk) -> Path:
     return path
 
 
+def records(folder: str | Path = PROVENANCE_DIR) -> list[dict]:
+    """Every rule record under ``folder`` (the stored configs excluded)."""
+    folder = Path(folder)
+    out = []
+    for f in sorted(folder.rglob("*.json")):
+        if f.parent.name == CONFIGS_DIR.name and f.parent.parent == folder:
+            continue
+        rec = json.loads(f.read_text())
+        if isinstance(rec, dict) and "outputs" in rec:
+            out.append(rec)
+    return out
+
+
+MANIFEST_COLUMNS = [
+    "artifact",
+    "rule",
+    "scene",
+    "wildcards",
+    "sha256",
+    "bytes",
+    "inputs",
+    "settings",
+    "config_hash",
+    "config_id",
+    "package_version",
+    "git_commit",
+    "dirty",
+    "scene_sheet",
+    "software",
+    "started_at",
+    "finished_at",
+    "wall_seconds",
+    "cpu_seconds",
+]
+
+
 def manifest(folder: str | Path = PROVENANCE_DIR) -> pd.DataFrame:
     """One row per artifact, from every provenance record under ``folder``."""
     rows = []
-    for f in sorted(Path(folder).rglob("*.json")):
-        rec = json.loads(f.read_text())
+    for rec in records(folder):
+        state = rec.get("workflow", {})
         for path, out in rec["outputs"].items():
             rows.append(
                 {
@@ -100,23 +251,73 @@ def manifest(folder: str | Path = PROVENANCE_DIR) -> pd.DataFrame:
                     "sha256": out["sha256"],
                     "bytes": int(out["bytes"]),
                     "inputs": json.dumps(rec["inputs"], sort_keys=True),
+                    "settings": json.dumps(rec.get("settings", {}), sort_keys=True, default=str),
                     "config_hash": rec["config_hash"],
+                    "config_id": rec.get("config_id", ""),
                     "package_version": rec["package_version"],
                     "git_commit": rec["git_commit"],
+                    "dirty": bool(state.get("dirty")) if state.get("dirty") is not None else None,
+                    "scene_sheet": json.dumps(rec.get("scene_sheet", {}), sort_keys=True),
+                    "software": json.dumps(rec.get("software", {}), sort_keys=True),
+                    "started_at": rec.get("started_at", ""),
                     "finished_at": rec["finished_at"],
+                    "wall_seconds": float(rec.get("wall_seconds", float("nan"))),
+                    "cpu_seconds": float(rec.get("cpu_seconds", float("nan"))),
                 }
             )
-    cols = [
-        "artifact",
-        "rule",
-        "scene",
-        "wildcards",
-        "sha256",
-        "bytes",
-        "inputs",
-        "config_hash",
-        "package_version",
-        "git_commit",
-        "finished_at",
-    ]
-    return pd.DataFrame(rows, columns=cols).sort_values(["scene", "rule", "artifact"], ignore_index=True)
+    return pd.DataFrame(rows, columns=MANIFEST_COLUMNS).sort_values(["scene", "rule", "artifact"], ignore_index=True)
+
+
+# ----------------------------------------------------------------------------- audit
+
+
+def producers(df: pd.DataFrame) -> dict[str, dict]:
+    """artifact path -> its manifest row (as a dict)."""
+    return {r["artifact"]: r for r in df.to_dict("records")}
+
+
+def lineage(artifact: str, df: pd.DataFrame, tree: bool = False) -> list[dict]:
+    """The inputs of ``artifact`` (one level, or with ``tree`` every level back to files no rule
+    produced: the published data, the user's photos): per input its path, sha256 recorded by the
+    consumer, the rule that produced it (empty for a source) and its depth."""
+    rows = producers(df)
+    out, seen = [], set()
+
+    def walk(path: str, depth: int) -> None:
+        rec = rows.get(path)
+        if rec is None:
+            return
+        for inp, digest in sorted(json.loads(rec["inputs"]).items()):
+            prod = rows.get(inp)
+            out.append(
+                {
+                    "depth": depth,
+                    "input": inp,
+                    "sha256": digest,
+                    "rule": prod["rule"] if prod else "",
+                    "of": path,
+                    "changed": bool(prod and digest and prod["sha256"] != digest),
+                }
+            )
+            if tree and prod is not None and inp not in seen:
+                seen.add(inp)
+                walk(inp, depth + 1)
+
+    walk(artifact, 1)
+    return out
+
+
+def check(df: pd.DataFrame) -> pd.DataFrame:
+    """Every recorded artifact re-hashed: rows whose file is missing or whose sha256 differs from
+    its record (edited, replaced or truncated since the rule wrote it)."""
+    bad = []
+    for r in df.itertuples(index=False):
+        digest, _ = path_digest(r.artifact)
+        if digest != r.sha256:
+            bad.append({"artifact": r.artifact, "rule": r.rule, "recorded": r.sha256, "now": digest or "(missing)"})
+    return pd.DataFrame(bad, columns=["artifact", "rule", "recorded", "now"])
+
+
+def stored_config(config_id: str, folder: str | Path = CONFIGS_DIR) -> dict | None:
+    path = Path(folder) / f"{config_id}.json"
+    return json.loads(path.read_text()) if config_id and path.exists() else None

@@ -55,6 +55,7 @@ def run(main, smk) -> None:
     from flatlandia.errors import InputError
 
     logger = setup(smk.log[0] if len(smk.log) else None)
+    provenance.started()
     try:
         main(smk, logger)
         logger.info("provenance: %s", provenance.write_record(smk))

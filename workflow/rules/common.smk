@@ -1,5 +1,6 @@
 # Shared helpers: config validation, the scene sheet, the data root, the targets of `all`.
 # Input functions of one stage sit in rules/inputs/{stage}.smk, included by its rule file. No lambdas in rules.
+import difflib
 import hashlib
 import os
 import sys
@@ -30,28 +31,50 @@ def config_path(path):
     return beside_repo if beside_repo.exists() else p
 
 
-SCENES_SHEET = pd.read_csv(config_path(config["scenes"]), sep="\t", dtype=str, keep_default_na=False)
-validate(SCENES_SHEET, schema="../schemas/scenes.schema.yaml")
-if SCENES_SHEET["scene"].duplicated().any():
-    raise WorkflowError(
-        f"{config['scenes']}: duplicate scene ids "
-        f"{sorted(SCENES_SHEET.loc[SCENES_SHEET['scene'].duplicated(), 'scene'])}"
-    )
-SCENES_SHEET = SCENES_SHEET.set_index("scene", drop=False)
+def read_scene_sheet(path):
+    """The scene sheet, checked against its schema: a problem stops the run with one ERROR line."""
+    try:
+        sheet = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False)
+    except (OSError, ValueError) as err:
+        sys.exit(f"ERROR: {path}: unreadable scene sheet ({err})")
+    try:
+        validate(sheet, schema="../schemas/scenes.schema.yaml")
+    except WorkflowError as err:
+        sys.exit(f"ERROR: {path}: {' '.join(str(err).split())}")
+    dup = sorted(set(sheet.loc[sheet["scene"].duplicated(), "scene"]))
+    if dup:
+        sys.exit(f"ERROR: {path}: duplicate scene ids {dup}")
+    return sheet.set_index("scene", drop=False)
+
+
+SCENES_SHEET = read_scene_sheet(config_path(config["scenes"]))
+
+
+def check_scene_names(key):
+    """Stop before any job when config[key] names a scene id or city the sheet lacks (with the
+    closest known names)."""
+    known = list(SCENES_SHEET["scene"]) + sorted(set(SCENES_SHEET["city"]))
+    unknown = [str(w) for w in config[key] if str(w) not in known]
+    if unknown:
+        near = {w: difflib.get_close_matches(w, known, n=1, cutoff=0.6) for w in unknown}
+        hint = "; ".join(f"did you mean '{n[0]}' for '{w}'?" for w, n in near.items() if n)
+        sys.exit(
+            f"ERROR: config: '{key}': unknown scene id(s) or city(ies) {unknown}"
+            + (f" ({hint})" if hint else "")
+            + f"; known scenes {list(SCENES_SHEET['scene'])}, cities {sorted(set(SCENES_SHEET['city']))}"
+        )
+
+
+check_scene_names("select")
+check_scene_names("benchmark_scenes")
 
 
 def scenes_named(key):
-    """Scene ids of the sheet whose id or city is listed in config[key]; all of the sheet if empty."""
+    """Scene ids of the sheet whose id or city is listed in config[key]; all of the sheet if empty
+    (names checked by check_scene_names before any rule)."""
     wanted = [str(s) for s in config[key]]
     if not wanted:
         return list(SCENES_SHEET["scene"])
-    known = set(SCENES_SHEET["scene"]) | set(SCENES_SHEET["city"])
-    unknown = [w for w in wanted if w not in known]
-    if unknown:
-        raise WorkflowError(
-            f"config '{key}': unknown scene id(s) or city(ies) {unknown}; "
-            f"known scenes {list(SCENES_SHEET['scene'])}, cities {sorted(set(SCENES_SHEET['city']))}"
-        )
     mask = SCENES_SHEET["scene"].isin(wanted) | SCENES_SHEET["city"].isin(wanted)
     return list(SCENES_SHEET.loc[mask, "scene"])
 
