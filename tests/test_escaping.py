@@ -206,7 +206,7 @@ def test_fine_markdown_escapes_run_values():
     assert_markdown_safe(md)
     assert "the **note** stays bold" in md and "## Table 4 (GT-BB proposals)" in md
     cells = rendered_cells(md)
-    assert HOSTILE in cells and any(f"ep, {HOSTILE})" in c for c in cells)
+    assert cells.count(HOSTILE) >= 2  # the strategy and, in the cost table, the training proposals
     assert_markdown_safe(tables.to_markdown(df))
     assert r"\input" not in tables.to_latex(df)
 

@@ -98,12 +98,12 @@ def test_paper_layout_keeps_tables_4_5_and_adds_recall_beside_orienternet():
     assert "## Table 4 (GT-BB proposals)" in table4 and "## Table 5 (coarse proposals and whole map)" in table4
     assert "recall" not in table4.split("## Table 4")[1]  # the paper's layout stays as it was
     lines = recall.splitlines()
-    assert "| method | proposal | map type | 1 m | 3 m | 5 m | 1° | 3° | 5° |" in lines
-    assert "| geometric solver | GT-BB | gt | 30.0 | 50.0 | 70.0 | 20.0 | 40.0 | 60.0 |" in lines
-    assert "| geometric solver | whole map | depth | 25.0 | 50.0 | 50.0 | 25.0 | 50.0 | 50.0 |" in lines
+    assert "| method | proposal | map type | 1 m | 3 m | 5 m | 1° | 3° | 5° | (5 m, 5°) |" in lines
+    assert "| geometric solver | GT-BB | gt | 30.0 | 50.0 | 70.0 | 20.0 | 40.0 | 60.0 | 50.0 |" in lines
+    assert "| geometric solver | whole map | depth | 25.0 | 50.0 | 50.0 | 25.0 | 50.0 | 50.0 | 50.0 |" in lines
     theirs = [ln for ln in lines if ln.startswith("| OrienterNet")]
     assert theirs == [
-        "| OrienterNet, MGL (another task) | OSM raster, 100-200 m prior | image | 14.4 | 48.7 | 61.7 | 21.0 | 55.0 | 70.2 |"
+        "| OrienterNet, MGL (another task) | OSM raster, 100-200 m prior | image | 14.4 | 48.7 | 61.7 | 21.0 | 55.0 | 70.2 | – |"
     ]
     assert "not as a baseline" in recall and "100-200 m location prior" in recall
 

@@ -511,7 +511,7 @@ def _errors_of_runs(tiny_results, tiny_scenes, tmp_path):
 
 
 def test_figures_style_external_methods_after_the_builtins(tiny_results, tiny_scenes, tmp_path):
-    assert list(figures.METHOD_COLOURS) == ["solver", "mlp", "mlp_att", "gat", "gat_att"]
+    assert list(figures.METHOD_COLOURS) == ["solver", "solver-noprior", "mlp", "mlp_att", "gat", "gat_att"]
     taken = set(figures.METHOD_COLOURS.values()) | {figures.TRUTH_COLOUR, query_figures.WRONG_COLOUR}
     assert not set(figures.EXTERNAL_COLOURS) & taken and not set(figures.EXTERNAL_COLOURS) & set(
         page.SPLIT_COLOURS.values()

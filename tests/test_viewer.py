@@ -147,8 +147,13 @@ def test_the_page_is_self_contained_small_and_deterministic(view):
     html = page.render(view)
     assert html == page.render(view)
     assert len(html.encode()) < 60_000, len(html.encode())
-    assert not re.search(r"""(src|href)\s*=|@import|url\(|fetch\(|XMLHttpRequest|import\(""", html)
+    # nothing is loaded: the only link is the one a reader clicks to a published query's photo
+    link = '<a class="photo" href='
+    assert html.count(link) == 1
+    assert not re.search(r"""(src|href)\s*=|@import|url\(|fetch\(|XMLHttpRequest|import\(""", html.replace(link, ""))
     assert set(re.findall(r"https?://[^\s\"']+", html)) == {"http://www.w3.org/2000/svg"}  # a namespace name only
+    photo = page.render(view, page.MAPILLARY_PHOTO)
+    assert '"photoUrl":"https://www.mapillary.com/app/?pKey="' in photo and '"photoUrl":null' in html
     d = _data_of(html)
     assert [q["token"] for q in d["queries"]] == ["q_train", "q_val", "t1", "t2"]
     assert {q["token"]: sorted(q["est"]) for q in d["queries"] if q["est"]} == {

@@ -82,9 +82,26 @@ def plot_training_curves(curves: dict[str, pd.DataFrame], path: str | Path) -> N
 # ----------------------------------------------------------------------------- fine runs, styled alike
 
 #: one colour per method, the same in every figure and in the map viewer
-METHOD_COLOURS = {"solver": "#000000", "mlp": "#1f77b4", "mlp_att": "#9467bd", "gat": "#ff7f0e", "gat_att": "#8c564b"}
-#: the methods' names as the paper writes them (its tables' keys); ``geo`` is our solver
-METHOD_LABELS = {"solver": "solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+METHOD_COLOURS = {
+    "solver": "#000000",
+    "solver-noprior": "#7f7f7f",
+    "mlp": "#1f77b4",
+    "mlp_att": "#9467bd",
+    "gat": "#ff7f0e",
+    "gat_att": "#8c564b",
+}
+#: the methods' names as the paper writes them (its tables' keys); ``solver-noprior`` is the solver
+#: without the training split's cameras (config solver.camera_prior off for that run)
+METHOD_LABELS = {
+    "solver": "solver",
+    "solver-noprior": "solver, no camera prior",
+    "mlp": "MLP",
+    "mlp_att": "MLP+ATT",
+    "gat": "GAT",
+    "gat_att": "GAT+ATT",
+}
+#: the geometric solver's methods: no training, matches per object
+SOLVER_METHODS = ("solver", "solver-noprior")
 #: colours of external methods (config ``external``, ``flatlandia score``), none of the built-ins', the
 #: truth's, the wrong match's or the splits': picked by a hash of the name, so a method keeps its colour
 #: in every figure and viewer whatever else is shown (two of many externals may share one)
@@ -272,7 +289,7 @@ def error_cdf_figure(errors: dict[str, pd.DataFrame], max_m: float = 100.0, max_
             ax.axis("off")
     _style_legend(fig, [r for g in groups.values() for r in g], marked)
     fig.suptitle("Fine localization on the test split: error CDFs (higher and further left is better)", fontsize=11)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / fig.get_figheight()))
     return fig
 
 
@@ -316,7 +333,7 @@ def error_vs_objects_figure(errors: dict[str, pd.DataFrame], min_queries: int = 
         for ax, (_, xl, _, yl) in zip(row, CONTENT_PANELS):
             ax.set_xlabel(xl)
             ax.set_ylabel(yl, fontsize=8)
-            ax.set_yscale("symlog", linthresh=1.0)
+            _error_axis(ax)
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
             ax.set_title(_panel_title(runs[0], yl.split(" (")[0]), fontsize=9)
             ax.grid(alpha=0.3)
@@ -324,8 +341,19 @@ def error_vs_objects_figure(errors: dict[str, pd.DataFrame], min_queries: int = 
     fig.suptitle(
         f"Median error vs local-map content, test split (values shared by >= {min_queries} queries)", fontsize=11
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / fig.get_figheight()))  # the title above the first row's titles
     return fig
+
+
+def _error_axis(ax) -> None:
+    """A log-like error axis (symlog: zero errors stay visible) where the values span a decade or
+    more; a linear one where they do not, so that every panel keeps labelled ticks."""
+    ys = np.concatenate([np.asarray(line.get_ydata(), float) for line in ax.get_lines()] + [np.zeros(0)])
+    ys = ys[np.isfinite(ys)]
+    if len(ys) and ys.min() > 0 and ys.max() / ys.min() < 10:
+        ax.set_ylim(0, ys.max() * 1.1)
+        return
+    ax.set_yscale("symlog", linthresh=1.0)
 
 
 def plot_error_vs_objects(errors: dict[str, pd.DataFrame], path: str | Path) -> None:

@@ -47,7 +47,7 @@ PROPOSALS = ("gtbb", "whole", "coarse-sim", "coarse-trip", "coarse-simtrip", "co
 #: the coarse proposals' names in the tables (as rules/inputs/fine.smk's FINE_COARSE)
 COARSE_LABELS = {"coarse-sim": "Sim", "coarse-trip": "Trip", "coarse-simtrip": "Sim+Trip", "coarse-solver": "Solver"}
 #: the built-in methods' slugs (rule fine_eval): an external method's name is none of them
-BUILTIN_METHODS = ("solver", "mlp", "mlp_att", "gat", "gat_att")
+BUILTIN_METHODS = ("solver", "solver-noprior", "mlp", "mlp_att", "gat", "gat_att")
 #: an external method's name: a plain lowercase id (it becomes results/fine/{name}_{map_type}_{proposal}/)
 NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,39}$")
 #: offending values a message lists

@@ -48,7 +48,7 @@ rule fine_eval:
     benchmark:
         "logs/benchmarks/fine_eval/{method}_{map_type}_{proposal}.tsv"
     wildcard_constraints:
-        method="solver|" + "|".join(FINE_MODELS),
+        method="solver|solver-noprior|" + "|".join(FINE_MODELS),
         map_type="gt|depth",
         proposal="gtbb|whole|" + "|".join(FINE_COARSE),
     conda:
@@ -67,8 +67,11 @@ rule fine_eval:
 rule fine_table:
     input:
         summaries=expand("results/fine/{run}/summary.json", run=fine_runs()),
+        errors=expand("results/fine/{run}/errors.parquet", run=fine_runs()),
     output:
         parquet="results/tables/fine_localization.parquet",
+        per_scene="results/tables/fine_per_scene.parquet",
+        per_scene_markdown="results/tables/fine_per_scene.md",
         markdown="results/tables/fine_localization.md",
         rows_markdown="results/tables/fine_localization_rows.md",
         latex="results/tables/fine_localization.tex",

@@ -117,5 +117,6 @@ rule viewer:
         "../../envs/flatlandia.yaml"
     params:
         runs=viewer_runs,
+        source=scene_source,
     script:
         "../scripts/viewer.py"

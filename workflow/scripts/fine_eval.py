@@ -20,7 +20,9 @@ def main(smk, log):
     coarse = pd.read_parquet(smk.input.coarse) if smk.input.get("coarse") else None
     settings = dict(smk.params.solver)
     model = cfg = None
-    if method == "solver":
+    if method in ("solver", "solver-noprior"):
+        if method == "solver-noprior":  # the solver without the training split's cameras
+            settings["camera_prior"] = False
         learned = solver.LearnedPriors.read(smk.input.solver_priors) if smk.input.get("solver_priors") else None
         log.info("learned priors: %s", learned)
         progress = lambda what: runlog.progress(log, what)  # noqa: E731
@@ -42,7 +44,7 @@ def main(smk, log):
         "method": method,
         "map_type": mt,
         "proposal": p["proposal"],
-        "solver": settings if method == "solver" else None,
+        "solver": settings if method.startswith("solver") else None,
         "model_config": cfg.to_dict() if cfg else None,
     }
     io.write_parquet(errors, smk.output.errors, meta)

@@ -8,6 +8,8 @@ recalls beside OrienterNet's published MGL figures, another task) as ``fine_loca
 
 import json
 
+import pandas as pd
+
 from flatlandia import io, runlog, tables
 from flatlandia.fine import table as fine_table
 
@@ -33,6 +35,12 @@ def main(smk, log):
     )
     text = fine_table.render_markdown(df, note=note)
     io.write_text(text, smk.output.markdown)
+    errors = {
+        json.loads(open(s).read())["run"]: pd.read_parquet(e) for s, e in zip(smk.input.summaries, smk.input.errors)
+    }
+    scenes = fine_table.per_scene_rows(df, errors)
+    tables.write_table(scenes, "fine_per_scene", smk.output.per_scene)
+    io.write_text(fine_table.per_scene_markdown(scenes), smk.output.per_scene_markdown)
     log.info("\n%s", text)
 
 

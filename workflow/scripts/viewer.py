@@ -7,7 +7,8 @@ from flatlandia.viewer import page, scene
 def main(smk, log):
     errors = dict(zip(smk.params.runs, smk.input.errors))
     view = scene.read_view(smk.wildcards.scene, smk.input.reference_map, smk.input.queries, errors)
-    size = page.write_page(view, smk.output.html)
+    photo = page.MAPILLARY_PHOTO if smk.params.source == "flatlandia" else None  # published: Mapillary keys
+    size = page.write_page(view, smk.output.html, photo)
     log.info(
         "scene %s: %d objects, %d queries, %d runs; %s: %.1f kB",
         view.scene,

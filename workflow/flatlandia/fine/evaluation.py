@@ -40,6 +40,10 @@ RECALL_M = (1.0, 3.0, 5.0)
 RECALL_DEG = (1.0, 3.0, 5.0)
 #: summary keys of the % of queries under each recall threshold: positions, then headings
 RECALL_COLUMNS = [f"recall_{m:g}m" for m in RECALL_M] + [f"recall_{d:g}deg" for d in RECALL_DEG]
+#: position and heading at once: the share of queries a user would call localized (the README's
+#: headline figure)
+WITHIN = (5.0, 5.0)
+WITHIN_COLUMN = "within_5m_5deg"
 
 
 def solvable(query_classes, proposal_classes, min_objects: int = 3) -> bool:
@@ -89,6 +93,7 @@ def summarise(errors: pd.DataFrame) -> dict:
         out[column] = float(100 * np.mean((em < m) & (ed < d))) if len(e) else float("nan")
     for column, (err, t) in zip(RECALL_COLUMNS, [(em, m) for m in RECALL_M] + [(ed, d) for d in RECALL_DEG]):
         out[column] = float(100 * np.mean(err < t)) if len(e) else float("nan")
+    out[WITHIN_COLUMN] = float(100 * np.mean((em < WITHIN[0]) & (ed < WITHIN[1]))) if len(e) else float("nan")
     out["failure_pct"] = float(100 * np.mean(~e["solvable"].to_numpy(bool))) if len(e) else float("nan")
     out["no_pose_pct"] = float(100 * np.mean(~np.isfinite(em))) if len(e) else float("nan")
     out["gross_pct"] = float(100 * np.mean(em > GROSS_M)) if len(e) else float("nan")

@@ -13,25 +13,34 @@ from flatlandia.fine import evaluation
 
 #: method slugs (rule wildcards) and their display names; an external method (config ``external``,
 #: ``flatlandia score``) is shown by its summary's ``method``, its name
-METHOD_LABELS = {"solver": "geometric solver", "mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
+METHOD_LABELS = {
+    "solver": "geometric solver",
+    "solver-noprior": "geometric solver, no camera prior",
+    "mlp": "MLP",
+    "mlp_att": "MLP+ATT",
+    "gat": "GAT",
+    "gat_att": "GAT+ATT",
+}
 
 
 def paper_row(label: str, map_type: str, strategy: str):
-    """(name, values) of the paper's row beside ours: Table 4 by model (its best, MLP, for the
-    solver) for GT-BB; Table 5's best (MLP, Sim+Trip 2N_LM) for coarse proposals and the whole map.
-    values = (4 threshold %, median "m", median deg, query ms); NaN where the paper gives none."""
+    """(name, values) of the paper's row of the same method, map type and proposal: Table 4 by model
+    on GT-BB, Table 5 (its MLP on Sim+Trip 2N_LM) on those proposals; ("", NaN...) where the paper has
+    no such row (the solver, the whole map, the solver's boxes, another coarse proposal, an external
+    method). values = (4 threshold %, median "m", median deg, query ms)."""
     nan = float("nan")
+    none = ("", (nan,) * 7)
     if strategy == "GT-BB":
         p = paper.TABLE4.get((label, map_type))
-        name = label
         if p is None:
-            p, name = paper.TABLE4[("MLP", map_type)], "MLP (best)"
-        qt = 1000 * paper.MLP_QUERY_S if name.startswith("MLP") and not name.startswith("MLP+") else nan
-        return f"Table 4 {name}", (*p, qt)
-    p5 = paper.TABLE5.get(("MLP", "Sim+Trip", map_type))
-    if p5 is None:
-        return "", (nan,) * 7
-    return "Table 5 MLP Sim+Trip 2N_LM (best)", (nan, nan, nan, nan, p5[0], p5[1], 1000 * paper.MLP_QUERY_S)
+            return none
+        qt = 1000 * paper.MLP_QUERY_S if label == "MLP" else nan
+        return f"Table 4 {label}", (*p, qt)
+    if label == "MLP" and strategy == "Sim+Trip 2N_LM":
+        p5 = paper.TABLE5.get(("MLP", "Sim+Trip", map_type))
+        if p5 is not None:
+            return "Table 5 MLP Sim+Trip 2N_LM", (nan, nan, nan, nan, p5[0], p5[1], 1000 * paper.MLP_QUERY_S)
+    return none
 
 
 def table_rows(summaries: list[dict]) -> pd.DataFrame:
@@ -63,6 +72,7 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
         }
         row.update({c: f(c) for c in evaluation.THRESHOLD_COLUMNS})
         row.update({c: f(c) for c in evaluation.RECALL_COLUMNS})
+        row[evaluation.WITHIN_COLUMN] = f(evaluation.WITHIN_COLUMN)
         row.update(
             failure_pct=f("failure_pct"),
             no_pose_pct=f("no_pose_pct"),
@@ -78,7 +88,9 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
             median_pu=f("median_pu"),
             # a summary without the key is a learned model's of an older run (GT-BB); the solver's and an
             # external method's are '' (not trained here)
-            trained_on=str(s.get("trained_on") or ("GT-BB" if method in METHOD_LABELS and method != "solver" else "")),
+            trained_on=str(
+                s.get("trained_on") or ("GT-BB" if method in METHOD_LABELS and not method.startswith("solver") else "")
+            ),
         )
         row.update({c: f(c) for c in evaluation.PAPER_UNIT_THRESHOLD_COLUMNS})
         row["paper_row"] = name
@@ -89,51 +101,75 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=cols)
 
 
+#: Tables 4-5: one number per cell, ours then the paper's row of the same method (its metres are
+#: local-map units x 215: compare them with our `pu` column)
+ACCURACY_COLUMNS = [
+    ("median m", "median_m", ".2f"),
+    ("median pu", "median_pu", ".2f"),
+    ("median °", "median_deg", ".1f"),
+    *[(f"% ({m:g} m, {d:g}°)", c, ".1f") for (m, d), c in zip(paper.THRESHOLDS, evaluation.THRESHOLD_COLUMNS)],
+    ("% (5 m, 5°)", evaluation.WITHIN_COLUMN, ".1f"),
+    ('paper median "m"', "paper_median_pu", "g"),
+    ("paper median °", "paper_median_deg", "g"),
+    *[
+        (f"paper % ({m:g} m, {d:g}°)", f"paper_{c}", "g")
+        for (m, d), c in zip(paper.THRESHOLDS, evaluation.THRESHOLD_COLUMNS)
+    ],
+]
+COST_COLUMNS = [
+    ("query ms", "median_query_ms", ".1f"),
+    ("query CPU ms", "median_query_cpu_ms", ".1f"),
+    ("F %", "failure_pct", ".1f"),
+    ("no pose %", "no_pose_pct", ".1f"),
+    ("gross %", "gross_pct", ".1f"),
+    ("train min", "train_min", ".1f"),
+    ("epochs", "epochs", "d"),
+    ("params", "n_parameters", ","),
+    ("model MB", "model_mb", ".2f"),
+    ("map kB", "ref_map_kb", ".2f"),
+]
+
+
+def _fmt(v, spec: str) -> str:
+    if isinstance(v, str):
+        return escape.markdown(v)
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return "–"
+    return format(int(v) if spec in ("d", ",") else v, spec)
+
+
+def _table(rows: pd.DataFrame, columns: list[tuple[str, str, str]], lead: list[tuple[str, str]]) -> list[str]:
+    """A markdown table: one row per run, one number per cell."""
+    heads = [h for h, _ in lead] + [h for h, _, _ in columns]
+    out = ["| " + " | ".join(escape.markdown(h) for h in heads) + " |", "|" + "---|" * len(heads)]
+    for r in rows.to_dict("records"):
+        cells = [escape.markdown(r[k]) for _, k in lead] + [_fmt(r[k], spec) for _, k, spec in columns]
+        out.append("| " + " | ".join(cells) + " |")
+    return out
+
+
+def _ordered(df: pd.DataFrame) -> pd.DataFrame:
+    """Runs by table (GT-BB first), then as the config lists them, GT maps before depth maps."""
+    return df.assign(_t5=df["strategy"] != "GT-BB", _depth=df["map_type"] == "depth").sort_values(
+        ["_t5", "_depth"], kind="stable"
+    )
+
+
 def render_markdown(df: pd.DataFrame, note: str = "") -> str:
-    """Tables 4 (GT-BB) and 5 (coarse proposals, whole map) laid out like the paper, its values beside
-    ours; then every run's recall at the field's thresholds (:func:`recall_markdown`). Values from the
-    runs are escaped (:func:`flatlandia.escape.markdown`); ``note`` is the caller's Markdown."""
-
-    def fmt(v, spec):
-        return "–" if v is None or not np.isfinite(v) else format(v, spec)
-
-    def cell(r):
-        pct = " / ".join(fmt(r[c], ".1f") for c in evaluation.THRESHOLD_COLUMNS)
-        out = (
-            f"{pct}; {fmt(r['median_m'], '.2f')} m ({fmt(r['median_pu'], '.2f')} pu); {fmt(r['median_deg'], '.1f')}°; "
-            f"QT {fmt(r['median_query_ms'], '.1f')} ms (CPU {fmt(r['median_query_cpu_ms'], '.1f')} ms); F {fmt(r['failure_pct'], '.1f')}%; "
-            f"gross {fmt(r['gross_pct'], '.1f')}%"
-        )
-        if r["epochs"]:
-            trained_on = escape.markdown(r["trained_on"] or "GT-BB")
-            out += f"; train {fmt(r['train_s'] / 60, '.1f')} min ({r['epochs']} ep, {trained_on})"
-        return out
-
-    def paper_cell(r):
-        if not r["paper_row"]:
-            return "—"
-        pre = (
-            ""
-            if r["paper_row"].endswith(r["method_label"])
-            else escape.markdown(r["paper_row"].split(" ", 2)[-1]) + ": "
-        )
-        pct = (
-            " / ".join(fmt(r[f"paper_{c}"], "g") for c in evaluation.THRESHOLD_COLUMNS) + "; "
-            if np.isfinite(r[f"paper_{evaluation.THRESHOLD_COLUMNS[0]}"])
-            else ""
-        )
-        qt = f"; {fmt(r['paper_query_ms'], 'g')} ms" if np.isfinite(r["paper_query_ms"]) else ""
-        return f'{pre}{pct}{fmt(r["paper_median_pu"], "g")} "m"; {fmt(r["paper_median_deg"], "g")}°{qt}'
-
+    """Tables 4 (GT-BB) and 5 (coarse proposals, whole map) with one number per cell: ours, then the
+    paper's row of the same method beside it (empty where the paper has none); every run's recall
+    at the field's thresholds (:func:`recall_markdown`); then cost and failures. Values from the runs
+    are escaped (:func:`flatlandia.escape.markdown`); ``note`` is the caller's Markdown."""
+    df = _ordered(df).assign(train_min=df["train_s"] / 60)
+    lead = [("method", "method_label"), ("proposal", "strategy"), ("map", "map_type")]
     out = [
         "# Fine 3DoF localization (test split)",
         "",
-        "Cells: % within (0.5 m, 2°) / (1 m, 5°) / (5 m, 10°) / (10 m, 20°) in true metres; median error in true "
-        "metres (in brackets, `pu`: the paper's convention, local-map units x 215); median degrees; median query "
-        "time (one CPU thread); F% (proposal holds fewer than 3 objects of the query's classes); gross errors "
-        "(> 30 m); training time (one CPU thread) for learned models.",
-        'The paper\'s columns are its own figures, whose metres are units x 215 ("m"). GT local maps are exact '
-        "rigid copies of the reference map: on them the task is pure registration.",
+        "Errors in true metres; `pu`: the paper's convention (local-map units x 215), the unit of the paper's "
+        '"m" columns; % of queries under each (metres, degrees) threshold at once, (5 m, 5°) the share a user '
+        "would call localized. The paper's columns hold its row of the same method, map type and proposal, "
+        "empty where it has none (the solver, the whole map, the solver's boxes). GT local maps are exact rigid "
+        "copies of the reference map: on them the task is pure registration.",
         "",
     ]
     if note:
@@ -143,31 +179,20 @@ def render_markdown(df: pd.DataFrame, note: str = "") -> str:
         ("Table 5 (coarse proposals and whole map)", df["strategy"] != "GT-BB"),
     ):
         part = df[mask]
-        if part.empty:
-            continue
-        out += [
-            f"## {title}",
-            "",
-            "| method | proposal | GT maps (ours) | GT maps (paper) | depth maps (ours) | "
-            "depth maps (paper) | params / model / map |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for (label, strategy), g in part.groupby(["method_label", "strategy"], sort=False):
-            cells = []
-            for mt in ("gt", "depth"):
-                r = g[g["map_type"] == mt]
-                cells += [cell(r.iloc[0]), paper_cell(r.iloc[0])] if len(r) else ["—", "—"]
-            r0 = g.iloc[0]
-            size = (
-                f"{r0['n_parameters']:,} / {r0['model_mb']:.2f} MB / {r0['ref_map_kb']:.2f} kB"
-                if r0["n_parameters"]
-                else f"– / – / {r0['ref_map_kb']:.2f} kB"
-            )
-            out.append(
-                f"| {escape.markdown(label)} | {escape.markdown(strategy)} | " + " | ".join(cells) + f" | {size} |"
-            )
-        out.append("")
-    return "\n".join(out + recall_markdown(df)) + "\n"
+        if not part.empty:
+            out += [f"## {title}", ""] + _table(part, ACCURACY_COLUMNS, lead) + [""]
+    out += recall_markdown(df)
+    out += [
+        "## Cost and failures",
+        "",
+        "Median time per query (one CPU thread; wall and CPU), F % (the proposal holds fewer than 3 objects of "
+        "the query's classes), queries without a pose, gross errors (> 30 m), training (one CPU thread) and "
+        "model size for the learned models, the reference map's size as the methods read it.",
+        "",
+        *_table(df, COST_COLUMNS, lead + [("trained on", "trained_on")]),
+        "",
+    ]
+    return "\n".join(out) + "\n"
 
 
 def recall_markdown(df: pd.DataFrame) -> list[str]:
@@ -185,12 +210,12 @@ def recall_markdown(df: pd.DataFrame) -> list[str]:
         "a GPU), quoted for scale, not as a baseline of this task (an object map registered against an object "
         "map).",
         "",
-        "| method | proposal | map type | " + " | ".join(heads) + " |",
-        "|---|---|---|" + "---|" * len(heads),
+        "| method | proposal | map type | " + " | ".join(heads) + " | (5 m, 5°) |",
+        "|---|---|---|" + "---|" * (len(heads) + 1),
     ]
-    order = df.assign(_gtbb=df["strategy"] != "GT-BB").sort_values("_gtbb", kind="stable")
-    for r in order.to_dict("records"):
-        cells = ["–" if not np.isfinite(r[c]) else f"{r[c]:.1f}" for c in evaluation.RECALL_COLUMNS]
+    for r in _ordered(df).to_dict("records"):
+        cols = [*evaluation.RECALL_COLUMNS, evaluation.WITHIN_COLUMN]
+        cells = ["–" if not np.isfinite(r.get(c, float("nan"))) else f"{r[c]:.1f}" for c in cols]
         labels = [escape.markdown(r[c]) for c in ("method_label", "strategy", "map_type")]
         out.append("| " + " | ".join(labels + cells) + " |")
     theirs = [paper.ORIENTERNET_MGL_RECALL_M[m] for m in evaluation.RECALL_M] + [
@@ -199,6 +224,90 @@ def recall_markdown(df: pd.DataFrame) -> list[str]:
     out.append(
         "| OrienterNet, MGL (another task) | OSM raster, 100-200 m prior | image | "
         + " | ".join(f"{v:.1f}" for v in theirs)
-        + " |"
+        + " | – |"
     )
     return out + [""]
+
+
+# ----------------------------------------------------------------------------- per scene
+
+
+def per_scene_runs(df: pd.DataFrame) -> list[str]:
+    """The runs of the per-scene table: per map type the solver on GT-BB and on the whole map, and the
+    learned run on GT-BB with the lowest median position error over every scene."""
+    runs = []
+    for mt in ("gt", "depth"):
+        mine = df[df["map_type"] == mt]
+        runs += [r for r in (f"solver_{mt}_gtbb", f"solver_{mt}_whole") if r in set(mine["run"])]
+        learned = mine[
+            (mine["proposal"] == "gtbb") & mine["method"].isin(set(METHOD_LABELS) - {"solver", "solver-noprior"})
+        ]
+        if len(learned):
+            runs.append(str(learned.sort_values("median_m", kind="stable")["run"].iloc[0]))
+    return runs
+
+
+def per_scene_rows(df: pd.DataFrame, errors: dict[str, pd.DataFrame]) -> pd.DataFrame:
+    """The ``fine_per_scene`` table: each scene's test queries under the runs of :func:`per_scene_runs`
+    (``errors``: run -> its errors.parquet), one row per scene and run."""
+    rows = []
+    for run in per_scene_runs(df):
+        meta = df.set_index("run").loc[run]
+        for scene, e in errors[run].groupby(errors[run]["scene"].astype(str), sort=False):
+            s = evaluation.summarise(e)
+            rows.append(
+                {
+                    "scene": scene,
+                    "map_type": meta["map_type"],
+                    "run": run,
+                    "method_label": meta["method_label"],
+                    "strategy": meta["strategy"],
+                    "queries": int(s["queries"]),
+                    "median_m": s["median_m"],
+                    "median_deg": s["median_deg"],
+                    "within_5m_5deg": s[evaluation.WITHIN_COLUMN],
+                }
+            )
+    cols = [c.name for c in tables.SCHEMAS["fine_per_scene"]]
+    out = pd.DataFrame(rows, columns=cols)
+    return out.sort_values(["map_type", "scene"], key=_scene_key, kind="stable", ignore_index=True)
+
+
+def _scene_key(col: pd.Series) -> pd.Series:
+    if col.name == "scene":  # numeric ids in numeric order, then the others
+        return col.map(lambda s: (0, int(s), "") if str(s).isdigit() else (1, 0, str(s)))
+    return col.map(lambda m: {"gt": 0, "depth": 1}.get(m, 2))
+
+
+def per_scene_markdown(rows: pd.DataFrame) -> str:
+    """Per map type, one row per scene and, per run, its median position error and % within (5 m, 5°):
+    one number per cell."""
+    out = [
+        "# Fine localization per scene (test split)",
+        "",
+        "Per scene: the geometric solver on GT-BB and on the whole map, and the learned model that is best on "
+        "GT-BB over all scenes; median position error in true metres and % of the scene's test queries within "
+        "5 m and 5° at once. Few test queries per scene (10 % of its queries): read the figures with their count.",
+        "",
+    ]
+    for mt, part in rows.groupby("map_type", sort=False):
+        runs = list(dict.fromkeys(part["run"]))
+        label = {
+            r: f"{part.loc[part['run'] == r, 'method_label'].iloc[0]}, {part.loc[part['run'] == r, 'strategy'].iloc[0]}"
+            for r in runs
+        }
+        heads = ["scene", "queries"] + [h for r in runs for h in (f"{label[r]}: median m", f"{label[r]}: % (5 m, 5°)")]
+        out += [f"## {'GT' if mt == 'gt' else 'depth'} local maps", ""]
+        out += ["| " + " | ".join(escape.markdown(h) for h in heads) + " |", "|" + "---|" * len(heads)]
+        for scene, g in part.groupby("scene", sort=False):
+            by = g.set_index("run")
+            cells = [escape.markdown(scene), str(int(g["queries"].iloc[0]))]
+            for r in runs:
+                cells += (
+                    [_fmt(by.loc[r, "median_m"], ".2f"), _fmt(by.loc[r, "within_5m_5deg"], ".1f")]
+                    if r in by.index
+                    else ["–", "–"]
+                )
+            out.append("| " + " | ".join(cells) + " |")
+        out.append("")
+    return "\n".join(out)

@@ -57,8 +57,13 @@ def _class_colours(labels: list[str]) -> list[str]:
     return [to_hex(cmap(k % 20)) for k in range(len(labels))]
 
 
-def page_data(view: SceneView) -> dict:
-    """Everything the page draws, as JSON-ready values."""
+#: a published query's photo on Mapillary: the token is the Mapillary image key
+MAPILLARY_PHOTO = "https://www.mapillary.com/app/?pKey="
+
+
+def page_data(view: SceneView, photo_url: str | None = None) -> dict:
+    """Everything the page draws, as JSON-ready values; ``photo_url``: the address a query's token
+    is appended to for its photo (published scenes: :data:`MAPILLARY_PHOTO`), or None."""
     labels = sorted(view.ref["class_label"].astype(str).unique())
     k = {c: i for i, c in enumerate(labels)}
     counts = view.ref["class_label"].astype(str).value_counts()
@@ -78,6 +83,7 @@ def page_data(view: SceneView) -> dict:
         ],
         "objects": objects,
         "queries": [_query(q) for q in view.queries],
+        "photoUrl": photo_url,
         "runs": [
             {
                 "name": r.name,
@@ -95,11 +101,11 @@ def page_data(view: SceneView) -> dict:
     }
 
 
-def render(view: SceneView) -> str:
+def render(view: SceneView, photo_url: str | None = None) -> str:
     """The page: the template with the style, the script and the scene's data written in. The title
     is HTML-escaped (:func:`flatlandia.escape.html`), the data is JSON that cannot close its script
     block; the placeholders are filled in one pass, so a value that holds one is never filled again."""
-    text = json.dumps(page_data(view), sort_keys=True, separators=(",", ":"), allow_nan=False)
+    text = json.dumps(page_data(view, photo_url), sort_keys=True, separators=(",", ":"), allow_nan=False)
     text = text.replace("<", "\\u003c")  # the data can never close its <script> block
     parts = {
         "__TITLE__": escape.html(f"Flatlandia scene {view.scene}"),
@@ -111,8 +117,8 @@ def render(view: SceneView) -> str:
     return re.sub("|".join(parts), lambda m: parts[m.group(0)], template)
 
 
-def write_page(view: SceneView, path: str | Path) -> int:
+def write_page(view: SceneView, path: str | Path, photo_url: str | None = None) -> int:
     """Write the page atomically; its size in bytes."""
-    html = render(view)
+    html = render(view, photo_url)
     io.write_text(html, path)
     return len(html.encode())

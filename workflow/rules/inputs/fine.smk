@@ -2,6 +2,9 @@
 # wants rules and functions in separate files). No lambdas in rules.
 
 
+#: the geometric solver's methods: with the training split's cameras, and without them (the camera
+#: prior off for that run: what the whole-map figures owe to the cameras)
+SOLVER_METHODS = ["solver", "solver-noprior"]
 FINE_MODELS = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 FINE_COARSE = {"coarse-sim": "Sim", "coarse-trip": "Trip", "coarse-simtrip": "Sim+Trip", "coarse-solver": "Solver"}
 
@@ -42,11 +45,11 @@ def fine_eval_inputs(wildcards):
         "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
         "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
     }
-    if wildcards.method != "solver":
+    if wildcards.method not in SOLVER_METHODS:
         regime = fine_train_regime(wildcards.proposal)
         inp["checkpoint"] = f"results/fine/models/{wildcards.method}_{wildcards.map_type}_{regime}/checkpoint.pt"
-    elif wildcards.map_type == "depth":
-        inp["solver_priors"] = solver_priors_file(wildcards.proposal)
+    elif wildcards.map_type == "depth":  # without cameras no verifier: the scale prior alone
+        inp["solver_priors"] = solver_priors_file(wildcards.proposal if wildcards.method == "solver" else "scale")
     if wildcards.proposal in FINE_COARSE:
         loss = wildcards.proposal.split("-", 1)[1]
         inp["coarse"] = f"results/coarse/{loss}/proposals.parquet"
@@ -75,7 +78,7 @@ def fine_eval_params(wildcards):
     p = wildcards.proposal
     strategy = fine_coarse_strategy(p)
     label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
-    regime = fine_train_regime(p) if wildcards.method != "solver" else ""  # "": the solver, not trained
+    regime = fine_train_regime(p) if wildcards.method not in SOLVER_METHODS else ""  # "": the solver, not trained
     crop = float(config["fine"]["coarse_training"]["crop_m"]) if regime == "coarse" else 0.0
     return {
         "method": wildcards.method,
@@ -134,7 +137,7 @@ def scene_localization_inputs(wildcards):
         "checkpoints": [
             f"results/fine/models/{m}_{t}_gtbb/checkpoint.pt"
             for m in runs["methods"]
-            if m != "solver"
+            if m not in SOLVER_METHODS
             for t in runs["map_types"]
         ],
     }

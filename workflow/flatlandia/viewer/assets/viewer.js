@@ -193,6 +193,9 @@
       return;
     }
     let html = `<h2>Query ${esc(q.token)}</h2><p>${esc(q.split)} split, ${q.ref.length} objects; true pose (${q.x.toFixed(1)}, ${q.y.toFixed(1)}) ${data.unit}, heading ${q.theta.toFixed(1)}\u00b0. `;
+    if (data.photoUrl) {
+      html += `<a class="photo" href="${esc(data.photoUrl + encodeURIComponent(q.token))}" target="_blank" rel="noopener noreferrer">the photo on Mapillary</a>. `;
+    }
     html += `<span class="line" style="border-color:${data.truthColour}"></span>true pose and local map</p>`;
     const names = Object.keys(q.est);
     if (!names.length) {
