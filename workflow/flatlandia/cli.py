@@ -32,6 +32,15 @@ def _short(digest: str) -> str:
     return (digest or "")[:12]
 
 
+def _flat(d: dict, prefix: str = "") -> dict:
+    """Nested settings as dotted keys, one value each."""
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}.{k}" if prefix else str(k)
+        out.update(_flat(v, key) if isinstance(v, dict) and v else {key: v})
+    return out
+
+
 def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -> str:
     """What produced one artifact, as text: rule, settings by value, inputs and their rules."""
     rows = provenance.producers(df)
@@ -47,7 +56,7 @@ def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -
         f"settings the rule reads (hash {rec['config_hash']}):",
     ]
     settings = json.loads(rec.get("settings") or "{}")
-    lines += [f"  {k}: {json.dumps(v, default=str)}" for k, v in settings.items()] or ["  (none)"]
+    lines += [f"  {k}: {json.dumps(v, default=str)}" for k, v in _flat(settings).items()] or ["  (none)"]
     if rec.get("config_id"):
         lines.append(f"whole resolved config: {configs / (rec['config_id'] + '.json')}")
     dirty = rec.get("dirty")

@@ -50,7 +50,7 @@ rule coarse_train:
     threads: 1
     resources:
         mem_mb=4000,
-        runtime=60,
+        runtime=coarse_train_runtime,
     params:
         train=COARSE_TRAIN,
     script:

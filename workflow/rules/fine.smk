@@ -28,7 +28,7 @@ rule fine_train:
     threads: 1
     resources:
         mem_mb=4000,
-        runtime=120,
+        runtime=fine_train_runtime,
     params:
         model=fine_model_name,
         train=fine_train_params,

@@ -1,3 +1,5 @@
+import math
+
 # Input functions and settings of the rules in rules/fine.smk (kept apart: Snakemake's linter
 # wants rules and functions in separate files). No lambdas in rules.
 
@@ -94,6 +96,20 @@ def fine_eval_params(wildcards):
 #: MLP+ATT 56 s, MLP 31-37 s), ahead of the evaluations and figures, so the run does not end on one
 #: long training with the other core idle (it did: 35 s idle before the last evaluations)
 FINE_TRAIN_PRIORITY = {"gat_att": 4, "gat": 3, "mlp_att": 2, "mlp": 1}
+
+
+#: CPU seconds per training epoch on one core at the paper's sizes (config/paper.yaml; the default
+#: sizes are smaller and faster), measured by benchmarks/bench_paper_config.py on the benchmark
+#: scenes' GT-BB training samples; training on simulated coarse proposals takes about twice as long
+FINE_EPOCH_S = {"mlp": 0.26, "mlp_att": 1.3, "gat": 12.2, "gat_att": 13.6}
+
+
+def fine_train_runtime(wildcards):
+    """A fine_train job's runtime bound in minutes (the cluster's time limit): its epochs at the
+    paper sizes' speed, x2 on coarse proposals, x1.5 for a slower node, plus 10 minutes."""
+    epochs = fine_train_params(wildcards)["epochs"]
+    slow = 2.0 if wildcards.train == "coarse" else 1.0
+    return int(math.ceil(epochs * FINE_EPOCH_S[wildcards.model] * slow * 1.5 / 60)) + 10
 
 
 def fine_train_priority(wildcards):
