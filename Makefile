@@ -24,13 +24,13 @@ test-fast: install
 check: install
 	$(BIN)/ruff check workflow tests benchmarks
 	$(BIN)/ruff format --check workflow tests benchmarks
-	$(BIN)/snakefmt --check workflow/Snakefile workflow/rules
+	$(BIN)/snakefmt --check Snakefile workflow/Snakefile workflow/rules
 	$(BIN)/snakemake --lint
 
 format: install
 	$(BIN)/ruff check --fix workflow tests benchmarks
 	$(BIN)/ruff format workflow tests benchmarks
-	$(BIN)/snakefmt workflow/Snakefile workflow/rules
+	$(BIN)/snakefmt Snakefile workflow/Snakefile workflow/rules
 
 install: system-deps $(STAMP)
 

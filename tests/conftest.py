@@ -22,7 +22,60 @@ TINY_SCENE = "0"
 
 
 def data_root() -> Path:
-    return Path(os.environ.get("FLATLANDIA_ROOT", REPO.parent / "shared" / "flatlandia")).resolve()
+    """The published data: FLATLANDIA_ROOT, else ../shared/flatlandia, else where `make all` fetches
+    it (the config's fetch.dest in the repository: resources/flatlandia)."""
+    given = os.environ.get("FLATLANDIA_ROOT")
+    if given:
+        return Path(given).resolve()
+    shared = (REPO.parent / "shared" / "flatlandia").resolve()
+    return shared if shared.exists() else fetched_root()
+
+
+def fetched_root() -> Path:
+    from flatlandia import config
+
+    return (REPO / config.section_defaults("fetch")["dest"]).resolve()
+
+
+#: why the published data could not be fetched for this session ('' when it was not needed or worked)
+FETCH_PROBLEM: dict[str, str] = {}
+
+
+def ensure_published_data(dest: Path, url: str | None = None) -> str:
+    """Fetch the published data into ``dest`` the way `make all` does (flatlandia.data.fetch with the
+    config's fetch settings; ``url`` or the environment variable FLATLANDIA_FETCH_URL instead of
+    fetch.url, e.g. a file:// archive); '' on success, else the problem in one line."""
+    import pandas as pd
+
+    from flatlandia import config
+    from flatlandia.data import fetch
+
+    cfg = config.section_defaults("fetch")
+    url = url or os.environ.get("FLATLANDIA_FETCH_URL") or cfg["url"]
+    sheet = pd.read_csv(REPO / "config" / "scenes.tsv", sep="\t", dtype=str, keep_default_na=False)
+    try:
+        fetch.fetch_flatlandia(
+            dest,
+            sheet[sheet["source"] == "flatlandia"],
+            url,
+            float(cfg["timeout_s"]),
+            sha256=cfg["sha256"] if url == cfg["url"] else "",
+            limits=fetch.Limits.from_dict(cfg),
+        )
+    except fetch.FetchError as e:
+        return str(e)
+    return ""
+
+
+def pytest_collection_finish(session):
+    """A session with tests of the slow lane on a machine without the published data (no
+    FLATLANDIA_ROOT, no ../shared) fetches it first, as `make all` does, into resources/flatlandia."""
+    root = data_root()
+    if os.environ.get("FLATLANDIA_ROOT") or (root / "local_maps.json").exists():
+        return
+    if any(item.get_closest_marker("slow") for item in session.items):
+        print(f"\nthe published data is not at {root}: fetching it as `make all` does ...", flush=True)
+        FETCH_PROBLEM["problem"] = ensure_published_data(root)
 
 
 @pytest.fixture(scope="session")
@@ -34,7 +87,8 @@ def repo() -> Path:
 def flat_root() -> Path:
     root = data_root()
     if not (root / "local_maps.json").exists():
-        pytest.fail(f"the published Flatlandia data is needed at {root} (set FLATLANDIA_ROOT)")
+        why = FETCH_PROBLEM.get("problem") or "set FLATLANDIA_ROOT, or let the tests fetch it (network)"
+        pytest.fail(f"the published Flatlandia data is needed at {root}: {why}")
     return root
 
 

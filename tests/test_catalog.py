@@ -228,3 +228,24 @@ def test_default_workflow_profile_is_found_beside_the_snakefile(tmp_path):
     settings = yaml.safe_load((profile / "config.yaml").read_text())
     parsed = json.loads(res.stdout.strip().splitlines()[-1])
     assert int(parsed["cores"]) == settings["cores"] and parsed["printshellcmds"] is settings["printshellcmds"]
+
+
+def test_the_top_level_snakefile_runs_the_workflow_with_its_default_profile(tmp_path):
+    """The design's layout: `snakemake` from the repository root finds ./Snakefile, which includes
+    workflow/Snakefile (the catalog's layout) and gets the default profile through ./profiles."""
+    import subprocess
+    import sys
+
+    exe = str(Path(sys.executable).parent / "snakemake")
+    res = subprocess.run(
+        [exe, "-n", "maps", "-d", str(tmp_path), "--configfile", "config/test/tiny.yaml"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    out = res.stdout + res.stderr
+    assert "profiles/default" in out and "reference_map" in out
+    assert (REPO / "Snakefile").read_text().count('include: "workflow/Snakefile"') == 1
+    assert (REPO / "profiles").resolve() == (REPO / "workflow" / "profiles").resolve()

@@ -27,7 +27,7 @@ def config_path(path):
     p = Path(path).expanduser()
     if p.is_absolute() or p.exists():
         return p
-    beside_repo = Path(workflow.basedir).parent / p
+    beside_repo = Path(REPO_DIR) / p
     return beside_repo if beside_repo.exists() else p
 
 

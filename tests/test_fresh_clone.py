@@ -1,0 +1,68 @@
+"""`make test` on a clone without ../shared: the tests get the published data the way `make all`
+does (the workflow's fetch into resources/flatlandia), here from a file:// archive of it."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+from conftest import REPO, data_root, ensure_published_data
+
+#: the published files one scene's tests read, in the upstream repository's layout (data/...)
+SCENE12 = [
+    "local_maps.json",
+    "MANIFEST.tsv",
+    "individual_reference_maps/map_12.json",
+    "maps/12/transformations.json",
+    "maps/12/tokens.txt",
+]
+
+
+def upstream_archive(root: Path, path: Path) -> Path:
+    """A zip laid out as GitHub's archive of IIT-PAVIS/Flatlandia: Flatlandia-main/data/..."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for rel in SCENE12:
+            z.write(root / rel, f"Flatlandia-main/data/{rel}")
+    return path
+
+
+def test_the_published_data_is_fetched_as_make_all_fetches_it(tmp_path):
+    archive = upstream_archive(data_root(), tmp_path / "flatlandia.zip")
+    dest = tmp_path / "resources" / "flatlandia"
+    assert ensure_published_data(dest, archive.as_uri()) == ""
+    assert (dest / "local_maps.json").read_bytes() == (data_root() / "local_maps.json").read_bytes()
+    assert (dest / ".flatlandia-fetch").exists() and (dest / "scenes.tsv").exists()
+    problem = ensure_published_data(tmp_path / "elsewhere", (tmp_path / "missing.zip").as_uri())
+    assert "missing.zip" in problem and "FLATLANDIA_ROOT" in problem  # says how to point at a local copy
+
+
+def test_a_fresh_clone_without_shared_passes_a_data_test(tmp_path):
+    """A clone of the repository with no ../shared beside it: a test of the slow lane that reads the
+    published data fetches it first (FLATLANDIA_FETCH_URL: a file:// archive instead of GitHub)."""
+    if not (REPO / ".git").exists() or shutil.which("git") is None:
+        pytest.skip("the repository is not a git checkout (nothing to clone)")
+    clone = tmp_path / "work" / "main"
+    res = subprocess.run(["git", "clone", "-q", str(REPO), str(clone)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert not (clone.parent / "shared").exists()
+    archive = upstream_archive(data_root(), tmp_path / "flatlandia.zip")
+    env = {k: v for k, v in os.environ.items() if k != "FLATLANDIA_ROOT"}
+    env |= {"FLATLANDIA_FETCH_URL": archive.as_uri(), "PYTHONPATH": str(clone / "workflow")}
+    test = "tests/test_bad_input.py::test_ingest_detects_truncation_and_missing_required"
+    res = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", test],
+        cwd=clone,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-2000:]
+    assert "fetching it as `make all` does" in res.stdout and "1 passed" in res.stdout
+    fetched = clone / "resources" / "flatlandia"
+    assert (fetched / "local_maps.json").exists() and (fetched / ".flatlandia-fetch").exists()
