@@ -24,6 +24,7 @@ EXPECTED = {
     ("flatlandia.fine.learned", "FineTrainConfig"): ("fine.train", False),
     ("flatlandia.data.fetch", "Limits"): ("fetch", True),
     ("flatlandia.images.sfm", "SfmOptions"): ("sfm", False),
+    ("flatlandia.solver.sequence", "SequenceConfig"): ("beyond.sequence", False),
 }
 
 #: the settings that the checkpoints written before the settings classes stored (``to_dict`` at

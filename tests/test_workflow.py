@@ -335,30 +335,6 @@ def test_missing_data_is_fetched_or_fails_fast_offline(repo, tmp_path):
     assert not (tmp_path / "fetched").exists()
 
 
-def test_slurm_profile_dry_runs_with_the_expected_resources(repo, flat_root, tmp_path):
-    res = smk(
-        repo,
-        tmp_path,
-        "--profile",
-        str(repo / "workflow/profiles/slurm"),
-        "-n",
-        "all",
-        "--config",
-        f"flatlandia_root={flat_root}",
-    )
-    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
-    out = res.stdout + res.stderr
-    resources = {}
-    for rule, block in re.findall(r"^\s*rule (\w+):\n(.*?)Shell command", out, flags=re.S | re.M):
-        resources.setdefault(rule, re.search(r"resources: (.*)", block).group(1))
-    assert "mem_mb=16000" in resources["sfm"] and "cpus_per_task=8" in resources["sfm"]
-    assert "runtime=240" in resources["sfm"]
-    assert "mem_mb=2000" in resources["recover"] and "slurm_partition=cpu" in resources["recover"]
-    assert "Group job scene_prep" in out  # light per-scene steps travel as one cluster job
-    assert "mem_mb=4000" in resources["coarse_train"] and "runtime=60" in resources["coarse_train"]
-    assert "runtime=120" in resources["fine_train"]
-
-
 @pytest.mark.slow
 def test_rerun_from_scratch_gives_identical_tables(run_two_scenes, repo, flat_root, tmp_path):
     res = smk(

@@ -2,12 +2,14 @@
 
 Every reader validates what it returns and raises :class:`InputError` naming the file.
 Every writer goes through a temporary file in the same folder and an atomic rename, so a
-crash never leaves a half-written output behind.
+crash never leaves a half-written output behind; nor does a full disk, even under a writer that
+does not report it (see :func:`disk_full`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import json
 import math
@@ -79,22 +81,78 @@ def _alive(pid: int) -> bool:
     return True
 
 
+#: what a write that ran out of room raises (the disk, or the user's quota)
+FULL_ERRNOS = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded"}
+
+
+def disk_full(path: str | Path) -> bool:
+    """Whether the filesystem holding ``path`` has no block left to give.
+
+    Some writers do not say when a write ran out of room: COLMAP's ``write_binary`` returns as if
+    it had written a whole model, torch's ``save`` raises a bare ``RuntimeError``. Right after such a
+    write, before its temporary is removed, a full filesystem is the sign. One that reports no
+    size (some network and virtual filesystems) is never judged full."""
+    try:
+        st = os.statvfs(path)
+    except OSError:
+        return False
+    return st.f_blocks > 0 and st.f_bavail == 0
+
+
+def full_disk_error(exc: BaseException | None) -> OSError | None:
+    """The out-of-room :class:`OSError` (see :data:`FULL_ERRNOS`) in ``exc`` or the errors it came
+    from, else None."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in FULL_ERRNOS:
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+@contextlib.contextmanager
+def _name_full_disk(path: Path, tmp: Path) -> Iterator[None]:
+    """A write to ``tmp`` (beside ``path``, for it) that fails for want of room raises an :class:`OSError`
+    ENOSPC/EDQUOT naming ``path`` (the error's own ``filename`` is often missing or a temporary),
+    also when the writer's error does not say so but the disk is full at that moment."""
+    try:
+        yield
+    except Exception as e:
+        full = full_disk_error(e)
+        if full is not None and full.filename and not any(_PARTIAL_NAME.match(n) for n in Path(full.filename).parts):
+            raise  # already names its file (an inner writer's)
+        if full is not None or disk_full(tmp.parent):
+            code = full.errno if full is not None else errno.ENOSPC
+            raise OSError(code, os.strerror(code), str(path)) from e
+        raise
+
+
+def _refuse_if_full(path: Path, tmp: Path) -> None:
+    """Before a temporary becomes ``path``: a full disk means its writer may have been cut short
+    without saying so (COLMAP), so it never gets the final name."""
+    if disk_full(tmp.parent):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+
 @contextlib.contextmanager
 def partial_dir(path: str | Path) -> Iterator[Path]:
     """Yield a new, empty-but-for-its-marker temporary folder beside ``path``; removed on exit,
     whatever happens. Killed before that, it is a stale partial for :func:`clean_stale_partials`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=_partial_prefix(path), dir=path.parent))
+    with _name_full_disk(path, path):
+        tmp = Path(tempfile.mkdtemp(prefix=_partial_prefix(path), dir=path.parent))
     try:
-        marker = {
-            "pid": os.getpid(),
-            "host": socket.gethostname(),
-            "created": datetime.now(UTC).isoformat(timespec="seconds"),
-            "for": str(path),
-        }
-        (tmp / PARTIAL_MARKER).write_text(json.dumps(marker) + "\n")
-        yield tmp
+        with _name_full_disk(path, tmp):
+            marker = {
+                "pid": os.getpid(),
+                "host": socket.gethostname(),
+                "created": datetime.now(UTC).isoformat(timespec="seconds"),
+                "for": str(path),
+            }
+            (tmp / PARTIAL_MARKER).write_text(json.dumps(marker) + "\n")
+            yield tmp
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -106,11 +164,14 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     the mode the umask gives new files)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=_partial_prefix(path), suffix=suffix or path.suffix, dir=path.parent)
+    with _name_full_disk(path, path):
+        fd, tmp = tempfile.mkstemp(prefix=_partial_prefix(path), suffix=suffix or path.suffix, dir=path.parent)
     os.close(fd)
     tmp = Path(tmp)
     try:
-        yield tmp
+        with _name_full_disk(path, tmp):
+            yield tmp
+            _refuse_if_full(path, tmp)
         if tmp.exists():
             tmp.chmod(_file_mode())
         os.replace(tmp, path)
@@ -131,7 +192,9 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
     with partial_dir(path) as work:
         tmp = work / "output"
         tmp.mkdir()
-        yield tmp
+        with _name_full_disk(path, tmp):
+            yield tmp
+            _refuse_if_full(path, tmp)
         if os.path.lexists(path):  # the older output goes into our temporary folder, removed with it
             os.rename(path, work / "replaced")
         tmp.rename(path)

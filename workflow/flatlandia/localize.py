@@ -25,6 +25,15 @@ A **query** is JSON, ``{"objects": [{"class": "<Vistas label>", "x": <forward>, 
 ``{"queries": [{"id": ..., "objects": [...]}, ...]}``. Map type ``gt``: x/y in metres; ``depth``: x/y
 in any unit (the scale is unknown and solved for; bearings must be true).
 
+A **prior** (optional): a phone's GPS fix ``gps=(lon, lat, sigma_m)`` and a compass heading
+``compass=(heading_deg clockwise from north, sigma_deg)``, weighed as Gaussian likelihoods by the
+solver (poses within 4 sigma of the fix are kept; on a city the fix's region replaces the index's).
+A **sequence** (optional, depth maps): several frames localized together (:func:`read_sequence`,
+:func:`localize_sequence`), ``{"frames": [{"objects": [...]}, {"objects": [...], "pose": {"x":
+<forward m>, "y": <left m>, "theta_deg": <turn, counter-clockwise>}, "sigma_m": ..., "sigma_deg":
+...}, ...]}``: the first frame is the anchor, whose pose is returned; each other frame gives where its
+camera stood in the anchor's camera frame (odometry) and, optionally, that pose's noise.
+
 Each answer is a dict (:func:`localize`): the pose (lon, lat, x_m, y_m in the map's metric frame,
 heading_deg clockwise from north, theta_deg counter-clockwise from east as the benchmark's tables),
 the depth map's scale, a confidence, which map object each query object matched, the next-best
@@ -164,6 +173,74 @@ def query_json(xy, classes, qid: str | None = None) -> dict:
     labels = [CLASSES[int(c)] if not isinstance(c, str) else c for c in classes]
     out = {"objects": [{"class": c, "x": float(p[0]), "y": float(p[1])} for c, p in zip(labels, np.asarray(xy, float))]}
     return {"id": qid, **out} if qid is not None else out
+
+
+@dataclass
+class Sequence:
+    """Frames localized together: the anchor first; each frame's pose in the anchor's camera frame
+    (dx forward, dy left in metres, dtheta in radians; row 0 zeros) and its noise (metres, radians)."""
+
+    frames: list[Query]
+    rel: np.ndarray  # (F, 3)
+    sigma: np.ndarray  # (F, 2)
+    source: str = "<sequence>"
+
+
+def _number(v, source, where: str, positive: bool = False) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
+        kind = "a positive number" if positive else "a finite number"
+        raise InputError(source, f"{where} must be {kind}, got {v!r}")
+    return float(v)
+
+
+def parse_sequence(obj: Any, source: str | Path = "<sequence>") -> Sequence:
+    """A sequence from its JSON value (module docstring): ``{"frames": [{"objects": [...]}, {"objects":
+    [...], "pose": {"x", "y", "theta_deg"}, "sigma_m", "sigma_deg"}, ...]}``. A companion's pose is
+    required; its noise defaults to the benchmark's odometry model (``beyond.odometry_distance_pct``
+    of its distance, ``beyond.odometry_heading_deg`` per frame along the sequence)."""
+    from flatlandia import config
+
+    if not isinstance(obj, dict) or not isinstance(obj.get("frames"), list) or not obj["frames"]:
+        raise InputError(
+            source,
+            'expected {"frames": [{"objects": [...]}, {"objects": [...], "pose": {"x": ..., "y": ..., "theta_deg": ...}}, ...]}',
+        )
+    beyond = config.section_defaults("beyond")
+    frames, rel, sigma = [], [], []
+    for k, f in enumerate(obj["frames"]):
+        where = f"frame {k}"
+        if not isinstance(f, dict):
+            raise InputError(source, f"{where}: expected an object with its objects (and, after the first, its pose)")
+        frames.append(parse_query(f, source, str(f.get("id", k))))
+        if k == 0:
+            rel.append((0.0, 0.0, 0.0))
+            sigma.append((0.0, 0.0))
+            continue
+        pose = f.get("pose")
+        if not isinstance(pose, dict):
+            raise InputError(
+                source,
+                f'{where}: needs "pose": {{"x": forward m, "y": left m, "theta_deg": turn}} in the first frame\'s camera frame',
+            )
+        x, y = (_number(pose.get(a), source, f"{where} pose {a}") for a in ("x", "y"))
+        th = _number(pose.get("theta_deg", 0.0), source, f"{where} pose theta_deg")
+        rel.append((x, y, math.radians(th)))
+        sm = f.get("sigma_m", max(0.05, beyond["odometry_distance_pct"] / 100 * math.hypot(x, y)))
+        sd = f.get("sigma_deg", max(0.1, beyond["odometry_heading_deg"] * math.sqrt(k)))
+        sigma.append(
+            (
+                _number(sm, source, f"{where} sigma_m", True),
+                math.radians(_number(sd, source, f"{where} sigma_deg", True)),
+            )
+        )
+    return Sequence(frames, np.array(rel, float), np.array(sigma, float), str(source))
+
+
+def read_sequence(path: str | Path) -> Sequence:
+    """The sequence of a JSON file (:func:`parse_sequence`)."""
+    from flatlandia import io
+
+    return parse_sequence(io.read_json(path), path)
 
 
 # ----------------------------------------------------------------------------- maps
@@ -562,6 +639,45 @@ def _pose(m: ObjectMap, sol, unit: float, rows: np.ndarray, q: Query) -> dict:
     }
 
 
+def _check_prior(gps, compass) -> None:
+    """InputError unless ``gps`` is (lon, lat, sigma_m > 0) and ``compass`` (heading_deg, sigma_deg > 0)."""
+    if compass is not None and gps is None:
+        raise InputError("--compass", "a compass heading needs a GPS fix too (--gps and --gps-sigma-m)")
+    if gps is not None:
+        if len(gps) != 3 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in gps):
+            raise InputError("--gps", f"{gps} is not lon, lat, sigma_m")
+        if abs(gps[0]) > 180 or abs(gps[1]) > 90:
+            raise InputError("--gps", f"{gps[:2]} is not lon, lat in degrees")
+        if gps[2] <= 0:
+            raise InputError("--gps-sigma-m", f"{gps[2]} is not a positive number of metres")
+    if compass is not None:
+        if len(compass) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in compass):
+            raise InputError("--compass", f"{compass} is not heading_deg, sigma_deg")
+        if compass[1] <= 0:
+            raise InputError("--compass-sigma-deg", f"{compass[1]} is not a positive number of degrees")
+
+
+def fixes(m: ObjectMap, gps, compass=None) -> list:
+    """The prior as the solver's :class:`~flatlandia.solver.Fix` in the map's metres: one on a scene
+    map; on a city, one per tile whose objects lie near the fix (each tile keeps its scene's
+    lon/lat). ``gps``: (lon, lat, sigma_m); ``compass``: (heading_deg clockwise from north, sigma_deg)."""
+    from flatlandia import solver
+
+    _check_prior(gps, compass)
+    lon, lat, sigma = (float(v) for v in gps)
+    theta = hsig = None
+    if compass is not None:  # compass: clockwise from north; the solver's theta: counter-clockwise from east
+        theta, hsig = math.radians(90.0 - float(compass[0])), float(compass[1])
+    probe = solver.Fix(0.0, 0.0, sigma)
+    if m.kind == "scene":
+        if m.to_xy is None:
+            raise InputError(m.path, "--gps needs a map with lon/lat; this one has a local frame")
+        centres = np.array([m.to_xy.transform(lon, lat)], float)
+    else:
+        centres = _near_rows(m, (lon, lat), probe.crop_m)[1]
+    return [solver.Fix(float(c[0]), float(c[1]), sigma, theta, hsig) for c in centres]
+
+
 def localize(
     m: ObjectMap,
     query: Query | dict,
@@ -569,6 +685,8 @@ def localize(
     near: tuple[float, float] | None = None,
     radius_m: float | None = None,
     alternatives: int = ALTERNATIVES,
+    gps: tuple[float, float, float] | None = None,
+    compass: tuple[float, float] | None = None,
 ) -> dict:
     """One query's pose on a loaded map (:func:`load_map`), as a dict of JSON values.
 
@@ -582,7 +700,9 @@ def localize(
     object -> ``obj_idx``, class, lon/lat), ``alternatives`` (the next-best distinct poses with their
     ``cost`` and ``behind``: how far the ranking puts them behind the best), ``priors`` (what the
     solver knew beyond the query and the map), ``searched`` (map objects searched) and ``seconds``
-    (the solver's time); ``reason`` when nothing was found."""
+    (the solver's time); ``reason`` when nothing was found. ``gps`` (lon, lat, sigma_m) and
+    ``compass`` (heading_deg clockwise from north, sigma_deg): a phone's fix, weighed as a likelihood
+    (:func:`fixes`; not with ``near``)."""
     from flatlandia import solver
     from flatlandia.city import search as city_search
 
@@ -597,15 +717,17 @@ def localize(
         raise InputError("--near", f"{near} is not lon, lat in degrees")
     if radius_m is not None and not (math.isfinite(radius_m) and radius_m > 0):
         raise InputError("--radius-m", f"{radius_m} is not a positive number of metres")
-    xy, unit = q.xy, 1.0
-    if map_type == "depth":  # the solver's depth units: median object range 1 (the scale prior's unit)
-        med = float(np.median(np.hypot(xy[:, 0], xy[:, 1])))
-        if abs(med - 1.0) > NORMALISED_TOL:
-            xy, unit = xy / med, med
+    _check_prior(gps, compass)
+    if gps is not None and near is not None:
+        raise InputError("--gps", "give either a GPS fix (--gps) or a search radius (--near), not both")
+    xy, unit = _solver_units(q.xy, map_type)
     metric = map_type == "gt"
     priors_used = m.priors_used(map_type)
     t0 = time.perf_counter()
-    if m.kind == "city":
+    if gps is not None:
+        best, alts, rows = _localize_with_fix(m, xy, q.cls, metric, alternatives, fixes(m, gps, compass), map_type)
+        priors_used["gps"] = _gps_used(gps, compass)
+    elif m.kind == "city":
         centres = None
         if near is not None:
             rows, centres = _near_rows(m, near, radius_m)
@@ -660,23 +782,185 @@ def _replace(cfg, **changes):
     return dataclasses.replace(cfg, **changes)
 
 
+def _solver_units(xy: np.ndarray, map_type: str) -> tuple[np.ndarray, float]:
+    """A local map in the solver's units and the unit: depth maps at a median object range of 1 (the
+    scale prior's unit), GT maps as given."""
+    if map_type == "depth":
+        med = float(np.median(np.hypot(xy[:, 0], xy[:, 1])))
+        if abs(med - 1.0) > NORMALISED_TOL:
+            return xy / med, med
+    return xy, 1.0
+
+
+def _gps_used(gps, compass) -> dict:
+    out = {"lon": float(gps[0]), "lat": float(gps[1]), "sigma_m": float(gps[2])}
+    if compass is not None:
+        out.update(compass_deg=float(compass[0]), compass_sigma_deg=float(compass[1]))
+    return out
+
+
+def _localize_with_fix(m: ObjectMap, xy, cls, metric: bool, alternatives: int, fx: list, map_type: str):
+    """(best, alternatives, rows searched) of one query with a fix: the map objects within the fix's
+    reach, the fix as the solver's likelihood; on a city, each tile the fix falls in, the cheapest
+    answer kept."""
+    from flatlandia import solver
+    from flatlandia.city import search as city_search
+
+    answers = []
+    for fix in fx:
+        if m.kind == "city":
+            found = city_search.localize(
+                m.index, xy, cls, m.search, m.settings, m.learned, metric, alternatives, fix=fix
+            )
+            answers.append((found.solution, found.alternatives, found.rows))
+            continue
+        rows = np.flatnonzero(np.hypot(*(m.xy - fix.xy).T) <= fix.crop_m)
+        priors = m.priors[map_type]
+        found = (
+            solver.localize(
+                xy,
+                cls,
+                m.xy[rows],
+                m.cls[rows],
+                metric=metric,
+                config=m.settings,
+                priors=priors.rows(rows) if priors is not None else None,
+                alternatives=alternatives,
+                fix=fix,
+            )
+            if len(rows) >= 2
+            else solver.Localization(None)
+        )
+        answers.append((found.best, found.alternatives, rows))
+    found = [a for a in answers if a[0] is not None]
+    if not found:
+        return None, [], answers[0][2] if answers else np.zeros(0, np.int64)
+    return min(found, key=lambda a: a[0].cost)
+
+
+def localize_sequence(
+    m: ObjectMap,
+    sequence: Sequence | dict,
+    gps: tuple[float, float, float] | None = None,
+    compass: tuple[float, float] | None = None,
+    alternatives: int = ALTERNATIVES,
+    settings=None,
+) -> dict:
+    """A sequence's anchor pose on a loaded map (depth local maps): :func:`flatlandia.solver.localize_sequence`
+    on a scene map, :func:`flatlandia.city.search.localize_sequence` on a city index, with the
+    map's priors and an optional fix (``gps``, ``compass`` as :func:`localize`) of the anchor. The
+    answer is :func:`localize`'s for the anchor (its ``matches`` are the anchor's objects'), plus
+    ``frames``: every frame's pose (``id``, lon, lat, x_m, y_m, heading_deg, theta_deg, scale),
+    anchor first. ``settings``: the sequence solver's (config section ``beyond.sequence``; None:
+    the schema's defaults)."""
+    from flatlandia import solver
+    from flatlandia.city import search as city_search
+
+    seq = sequence if isinstance(sequence, Sequence) else parse_sequence(sequence)
+    _check_prior(gps, compass)
+    units = [_solver_units(f.xy, "depth") for f in seq.frames]
+    frames = [(xy, f.cls) for (xy, _), f in zip(units, seq.frames)]
+    priors_used = m.priors_used("depth")
+    fx = fixes(m, gps, compass) if gps is not None else [None]
+    t0 = time.perf_counter()
+    answers = []
+    for fix in fx:
+        if m.kind == "city":
+            found, located = city_search.localize_sequence(
+                m.index, frames, seq.rel, m.search, m.settings, settings, m.learned, seq.sigma, fix, None, alternatives
+            )
+            rows = located.rows
+        else:
+            rows = np.arange(len(m.xy)) if fix is None else np.flatnonzero(np.hypot(*(m.xy - fix.xy).T) <= fix.crop_m)
+            priors = m.priors["depth"]
+            found = (
+                solver.localize_sequence(
+                    frames,
+                    seq.rel,
+                    m.xy[rows],
+                    m.cls[rows],
+                    m.settings,
+                    priors.rows(rows) if priors is not None else None,
+                    settings,
+                    seq.sigma,
+                    fix,
+                    alternatives,
+                )
+                if len(rows) >= 2
+                else solver.SequenceLocalization(None)
+            )
+        answers.append((found, rows))
+    good = [a for a in answers if a[0].best is not None]
+    found, rows = min(good, key=lambda a: a[0].best.cost) if good else answers[0]
+    seconds = time.perf_counter() - t0
+    if gps is not None:
+        priors_used["gps"] = _gps_used(gps, compass)
+    priors_used["sequence"] = {"frames": len(seq.frames)}
+    anchor = seq.frames[0]
+    out: dict[str, Any] = {"id": anchor.id, "map": str(m.path), "map_type": "depth", "found": found.best is not None}
+    if found.best is None:
+        out["reason"] = "no pose explains the sequence's objects on the map objects searched"
+        pose = dict.fromkeys(("lon", "lat", "x_m", "y_m", "heading_deg", "theta_deg", "scale"))
+        out.update(pose, confidence=0.0, cost=None, matches=[], alternatives=[], frames=[])
+    else:
+        out.update(_pose(m, found.best, units[0][1], rows, anchor), confidence=float(found.best.confidence))
+        out["cost"] = float(found.best.cost)
+        out["alternatives"] = [
+            {**_pose(m, a, units[0][1], rows, anchor), "cost": float(a.cost), "behind": float(a.behind)}
+            for a in found.alternatives
+        ]
+        out["frames"] = []
+        for f, (p, (_, unit)) in enumerate(zip(found.frames, units)):
+            theta = math.degrees(math.atan2(math.sin(p.theta), math.cos(p.theta)))
+            lon, lat = _lonlat_of(m, np.array([p.x, p.y]))
+            out["frames"].append(
+                {
+                    "id": seq.frames[f].id,
+                    "lon": lon,
+                    "lat": lat,
+                    "x_m": float(p.x),
+                    "y_m": float(p.y),
+                    "heading_deg": float((90.0 - theta) % 360.0) if lon is not None else None,
+                    "theta_deg": float(theta),
+                    "scale": float(p.scale) / unit,
+                }
+            )
+    out.update(frame=m.frame, priors=priors_used, searched=int(len(rows)), seconds=seconds)
+    return out
+
+
 def localize_file(
     map_path: str | Path,
-    query_path: str | Path,
+    query_path: str | Path | None,
     map_type: str = "gt",
     near: tuple[float, float] | None = None,
     radius_m: float | None = None,
     alternatives: int = ALTERNATIVES,
+    gps: tuple[float, float, float] | None = None,
+    compass: tuple[float, float] | None = None,
+    sequence_path: str | Path | None = None,
     **load_args,
 ) -> dict:
     """``flatlandia localize``: the queries of a JSON file on a map file. One query in: its answer
-    (:func:`localize`); a file of many: ``{"results": [answers]}``. The queries are read and checked
-    before the map loads (a bad query fails in a second)."""
+    (:func:`localize`); a file of many: ``{"results": [answers]}``; a sequence file instead
+    (``sequence_path``, depth maps): its anchor's answer with every frame's pose
+    (:func:`localize_sequence`). ``gps``/``compass``: a fix of the query (of the sequence's anchor).
+    The input is read and checked before the map loads (a bad query fails in a second)."""
     if map_type not in MAP_TYPES:
         raise InputError("--map-type", f"{map_type!r} is not one of {', '.join(MAP_TYPES)}")
+    _check_prior(gps, compass)
+    if (query_path is None) == (sequence_path is None):
+        raise InputError("--query", "give a query file (--query) or a sequence file (--sequence), one of them")
+    if sequence_path is not None:
+        if map_type != "depth":
+            raise InputError("--map-type", "a sequence is of depth local maps: --map-type depth")
+        if near is not None:
+            raise InputError("--near", "a sequence takes a GPS fix (--gps), not --near")
+        seq = read_sequence(sequence_path)
+        return localize_sequence(load_map(map_path, **load_args), seq, gps, compass, alternatives)
     queries, many = read_queries(query_path)
     m = load_map(map_path, **load_args)
-    results = [localize(m, q, map_type, near, radius_m, alternatives) for q in queries]
+    results = [localize(m, q, map_type, near, radius_m, alternatives, gps, compass) for q in queries]
     return {"results": results} if many else results[0]
 
 

@@ -196,6 +196,38 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("index_mb", "float", "MB", "index size, mean per city"),
         Column("index_build_s", "float", "s", "index build CPU time, mean per city"),
     ],
+    "beyond_one_frame": [
+        Column(
+            "map",
+            "str",
+            "",
+            "scene (each scene's whole reference map) | city-N (the tiled city of N scenes, the city search) | simulated-N (a scene among synthetic tiles, N objects)",
+        ),
+        Column("objects", "int", "", "mean objects per map"),
+        Column(
+            "frames", "int", "", "frames per sequence: the anchor (a test query) and its nearest queries within 30 m"
+        ),
+        Column("gps_sigma_m", "float", "m", "sigma of the anchor's simulated GPS fix on east and north; empty: no fix"),
+        Column(
+            "camera_prior",
+            "str",
+            "",
+            "on: the training cameras (less the sequence's companions) gate and cost the pose, co-visibility, verifier | off: none of them",
+        ),
+        Column("queries", "int", "", "anchors localized"),
+        Column("mean_frames", "float", "", "frames used, mean (an anchor with fewer companions uses what it has)"),
+        Column("median_m", "float", "m", "median position error of the anchor"),
+        Column("median_deg", "float", "deg", "median orientation error of the anchor"),
+        *RECALL_COLUMNS,
+        Column("within_5m_5deg", "float", "%", "anchors within (5 m, 5 deg)"),
+        Column("within_5m_5deg_every_frame", "float", "%", "every frame of the sequences within (5 m, 5 deg)"),
+        Column("wrong_scene_pct", "float", "%", "anchors more than 500 m off (another tile of a city)"),
+        Column("no_pose_pct", "float", "%", "anchors without a pose"),
+        Column("cpu_median_ms", "float", "ms", "CPU per sequence (all its frames together) on one core, median"),
+        Column("cpu_p90_ms", "float", "ms", "CPU per sequence on one core, 90th percentile"),
+        Column("bound_median_m", "float", "m", "the same sequences with their true matches: median position error"),
+        Column("bound_within_5m_5deg", "float", "%", "the same with true matches: anchors within (5 m, 5 deg)"),
+    ],
     "reference_map_reproduction": [
         Column("scene", "str", "", "class-cloud scene id, or 'all'"),
         Column("published", "int", "", "objects of the published reference map"),

@@ -18,7 +18,9 @@ rule city_maps:
         n="[0-9]+",
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("city_maps")
+    resources:
+        **rule_resources("city_maps"),
     params:
         scenes=benchmark_scenes(),
         spacing_m=config["city"]["spacing_m"],
@@ -38,7 +40,9 @@ rule city_index:
         n="[0-9]+",
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("city_index")
+    resources:
+        **rule_resources("city_index"),
     script:
         "../scripts/city_index.py"
 
@@ -58,7 +62,9 @@ rule city_eval:
         method="|".join(CITY_METHODS),
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("city_eval")
+    resources:
+        **rule_resources("city_eval"),
     params:
         solver=config["solver"],
         split=config["city"]["split"],
@@ -82,9 +88,9 @@ rule city_simulate:
         objects="[0-9]+",
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("city_simulate")
     resources:
-        mem_mb=4000,
+        **rule_resources("city_simulate"),
     params:
         scenes=benchmark_scenes(),
         seed=config["seed"],
@@ -107,6 +113,9 @@ rule city_table:
         "logs/city_table/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("city_table")
+    resources:
+        **rule_resources("city_table"),
     params:
         split=config["city"]["split"],
         spacing_m=config["city"]["spacing_m"],

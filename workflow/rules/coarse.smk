@@ -20,10 +20,9 @@ rule coarse_target:
         "logs/benchmarks/coarse_target/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("coarse_target")
     resources:
-        mem_mb=2000,
-        runtime=10,
+        **rule_resources("coarse_target"),
     params:
         similarity=config["coarse"]["similarity"],
     script:
@@ -47,10 +46,9 @@ rule coarse_train:
     priority: 1
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("coarse_train")
     resources:
-        mem_mb=4000,
-        runtime=coarse_train_runtime,
+        **rule_resources("coarse_train"),
     params:
         train=COARSE_TRAIN,
     script:
@@ -70,10 +68,9 @@ rule coarse_solver:
         "logs/benchmarks/coarse_solver/all.tsv"
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("coarse_solver")
     resources:
-        mem_mb=4000,
-        runtime=20,
+        **rule_resources("coarse_solver"),
     params:
         proposals=config["coarse"]["solver"],
         solver=config["solver"],
@@ -100,10 +97,9 @@ rule coarse_eval:
         "logs/benchmarks/coarse_eval/all.tsv"
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("coarse_eval")
     resources:
-        mem_mb=4000,
-        runtime=20,
+        **rule_resources("coarse_eval"),
     params:
         losses=coarse_losses(),
         seed=COARSE_SEED,

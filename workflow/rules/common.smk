@@ -10,7 +10,17 @@ import pandas as pd
 from snakemake.utils import validate
 
 from flatlandia import config as config_schema
+from flatlandia import runlock
 from flatlandia.data.fetch import FetchError, check_dest
+
+# A lock of this folder left by a killed run is removed before this run locks, when provably stale
+# (flatlandia.runlock); otherwise Snakemake refuses after one line saying whose lock it is.
+runlock.install(workflow)
+
+
+# Every rule's threads, memory and runtime, from one table: rules/resources.yaml.
+include: "resources.smk"
+
 
 # Every key checked against workflow/schemas/config.schema.yaml (the one source of defaults)
 # before any job: a typo or a wrong type stops the run with one line naming the key.
@@ -218,6 +228,7 @@ def benchmark_products():
         ]
         + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
         + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
+        + beyond_products()
         + (["results/tables/reference_map_reproduction.parquet"] if class_cloud_scenes(benchmark_scenes()) else [])
         + per_scene("results/{scene}/localization/localization.parquet", localization_scenes())
     )

@@ -33,6 +33,9 @@ rule ingest:
         "logs/ingest/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("ingest")
+    resources:
+        **rule_resources("ingest"),
     params:
         root=str(FLAT_ROOT),
         verify_sha256=config["ingest"]["verify_sha256"],
@@ -50,6 +53,9 @@ rule reference_map:
         "logs/reference_map/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("reference_map")
+    resources:
+        **rule_resources("reference_map"),
     params:
         root=str(FLAT_ROOT),
         source=scene_source,

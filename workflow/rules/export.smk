@@ -22,7 +22,9 @@ rule export_scene:
         "logs/export_scene/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("export_scene")
+    resources:
+        **rule_resources("export_scene"),
     params:
         sources=export_present_sources,
     script:
@@ -41,7 +43,9 @@ rule export_index:
         "logs/export_index/all.log",
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("export_index")
+    resources:
+        **rule_resources("export_index"),
     params:
         scenes=benchmark_scenes(),
         cities=benchmark_cities(),

@@ -21,10 +21,9 @@ rule external_eval:
         proposal="gtbb|whole|" + "|".join(FINE_COARSE),
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("external_eval")
     resources:
-        mem_mb=2000,
-        runtime=10,
+        **rule_resources("external_eval"),
     params:
         p=fine_eval_params,
     script:

@@ -25,10 +25,9 @@ rule fine_train:
     priority: fine_train_priority
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("fine_train")
     resources:
-        mem_mb=4000,
-        runtime=fine_train_runtime,
+        **rule_resources("fine_train"),
     params:
         model=fine_model_name,
         train=fine_train_params,
@@ -53,10 +52,9 @@ rule fine_eval:
         proposal="gtbb|whole|" + "|".join(FINE_COARSE),
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("fine_eval")
     resources:
-        mem_mb=4000,
-        runtime=60,
+        **rule_resources("fine_eval"),
     params:
         p=fine_eval_params,
         solver=config["solver"],
@@ -81,6 +79,9 @@ rule fine_table:
         "logs/benchmarks/fine_table/all.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("fine_table")
+    resources:
+        **rule_resources("fine_table"),
     script:
         "../scripts/fine_table.py"
 
@@ -97,10 +98,9 @@ rule scene_localization:
         "logs/benchmarks/scene_localization/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("scene_localization")
     resources:
-        mem_mb=4000,
-        runtime=60,
+        **rule_resources("scene_localization"),
     params:
         map_types=config["fine"]["runs"]["map_types"],
         solver=config["solver"],

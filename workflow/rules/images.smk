@@ -13,6 +13,9 @@ rule fetch_images:
         "logs/fetch_images/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("fetch_images")
+    resources:
+        **rule_resources("fetch_images"),
     params:
         source=images_fetch_params,
         timeout_s=config["fetch"]["timeout_s"],
@@ -30,6 +33,9 @@ rule image_audit:
         "logs/image_audit/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("image_audit")
+    resources:
+        **rule_resources("image_audit"),
     params:
         dedup_threshold=config["images"]["dedup_threshold"],
         min_side_px=config["images"]["min_side_px"],
@@ -56,11 +62,9 @@ rule segment:
     priority: 10
     conda:
         "../../envs/flatlandia.yaml"
-    # measured peak (offline backend): 3.4 GB for one 49.9 MP image, 0.7 GB for 8 MP; an image is
-    # at most images.max_megapixels (the audit drops larger ones): 1000 + 80 MB per megapixel of it
+    threads: rule_threads("segment")
     resources:
-        mem_mb=int(1000 + 80 * config["images"]["max_megapixels"]),
-        runtime=30,
+        **rule_resources("segment"),
     params:
         backend=config["segment"]["backend"],
         weights=config["segment"]["weights"],
@@ -87,12 +91,9 @@ rule sfm:
     priority: 10
     conda:
         "../../envs/flatlandia.yaml"
-    threads: sfm_threads()
-    # measured on 3 images of 49.9 MP (images.max_megapixels 50): 1.0 GB with 1 thread, 1.5 GB with 2;
-    # the rest is matching and mapping, which grow with the number of images, not their size
+    threads: rule_threads("sfm")
     resources:
-        mem_mb=8000,
-        runtime=120,
+        **rule_resources("sfm"),
     params:
         options=config["sfm"],
         seed=config["seed"],
@@ -114,6 +115,9 @@ rule classify_points:
         "logs/benchmarks/classify_points/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("classify_points")
+    resources:
+        **rule_resources("classify_points"),
     params:
         instances_dir=config["segment"]["instances_dir"],
     script:
@@ -136,6 +140,9 @@ rule plot_sfm:
         "logs/plot_sfm/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("plot_sfm")
+    resources:
+        **rule_resources("plot_sfm"),
     script:
         "../scripts/plot_sfm.py"
 
@@ -152,6 +159,9 @@ rule gps_alignment:
         "logs/benchmarks/gps_alignment/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("gps_alignment")
+    resources:
+        **rule_resources("gps_alignment"),
     params:
         align=config["images"]["align"],
         seed=config["seed"],

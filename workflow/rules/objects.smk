@@ -18,6 +18,9 @@ rule objects:
         "logs/benchmarks/objects/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("objects")
+    resources:
+        **rule_resources("objects"),
     params:
         source=scene_source,
         cluster=objects_cluster_params,
@@ -36,6 +39,9 @@ rule principal_plane:
         "logs/benchmarks/principal_plane/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("principal_plane")
+    resources:
+        **rule_resources("principal_plane"),
     params:
         max_points=config["objects"]["principal_plane"]["max_points"],
         ground_scale_m=config["objects"]["principal_plane"]["ground_scale_m"],
@@ -67,6 +73,9 @@ rule reproduction_audit:
         "logs/benchmarks/reproduction_audit/all.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("reproduction_audit")
+    resources:
+        **rule_resources("reproduction_audit"),
     params:
         scenes=class_cloud_scenes(benchmark_scenes()),
         radius_m=config["objects"]["audit_radius_m"],

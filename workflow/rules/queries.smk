@@ -16,6 +16,9 @@ rule recover:
         "logs/benchmarks/recover/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("recover")
+    resources:
+        **rule_resources("recover"),
     params:
         root=str(FLAT_ROOT),
         tol_m=config["recover"]["tol_m"],
@@ -34,6 +37,9 @@ rule queries:
         "logs/benchmarks/queries/{scene}.tsv"
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("queries")
+    resources:
+        **rule_resources("queries"),
     params:
         source=scene_source,
         root=str(FLAT_ROOT),
@@ -59,6 +65,9 @@ rule plot_reference_map:
         "logs/plot_reference_map/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("plot_reference_map")
+    resources:
+        **rule_resources("plot_reference_map"),
     params:
         city=scene_city,
     script:

@@ -15,6 +15,9 @@ rule figures_training:
         "logs/figures_training/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("figures_training")
+    resources:
+        **rule_resources("figures_training"),
     params:
         coarse_labels=coarse_losses(),
         fine_labels=[
@@ -41,6 +44,9 @@ rule figures_fine_errors:
         "logs/figures_fine_errors/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("figures_fine_errors")
+    resources:
+        **rule_resources("figures_fine_errors"),
     params:
         runs=fine_runs(),
     script:
@@ -64,6 +70,9 @@ rule figures_coarse_heatmap:
         "logs/figures_coarse_heatmap/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("figures_coarse_heatmap")
+    resources:
+        **rule_resources("figures_coarse_heatmap"),
     params:
         losses=coarse_losses(),
         map_type=config["report"]["heatmap_map_type"],
@@ -95,6 +104,9 @@ rule query_figures:
         "logs/query_figures/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("query_figures")
+    resources:
+        **rule_resources("query_figures"),
     params:
         runs=fine_runs(),
     script:
@@ -115,6 +127,9 @@ rule viewer:
         "logs/viewer/{scene}.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("viewer")
+    resources:
+        **rule_resources("viewer"),
     params:
         runs=viewer_runs,
         source=scene_source,

@@ -20,10 +20,9 @@ rule solver_priors:
         region="|".join(SOLVER_PRIOR_REGIONS),
     conda:
         "../../envs/flatlandia.yaml"
-    threads: 1
+    threads: rule_threads("solver_priors")
     resources:
-        mem_mb=2000,
-        runtime=20,
+        **rule_resources("solver_priors"),
     params:
         solver=config["solver"],
     script:

@@ -18,6 +18,9 @@ rule dataset_stats:
         "logs/dataset_stats/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("dataset_stats")
+    resources:
+        **rule_resources("dataset_stats"),
     params:
         cities=benchmark_cities(),
     script:
@@ -35,6 +38,9 @@ rule recovery_table:
         "logs/recovery_table/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("recovery_table")
+    resources:
+        **rule_resources("recovery_table"),
     script:
         "../scripts/recovery_table.py"
 
@@ -49,6 +55,9 @@ rule availability_table:
         "logs/availability_table/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("availability_table")
+    resources:
+        **rule_resources("availability_table"),
     script:
         "../scripts/availability_table.py"
 
@@ -70,5 +79,8 @@ rule manifest:
         "logs/manifest/all.log",
     conda:
         "../../envs/flatlandia.yaml"
+    threads: rule_threads("manifest")
+    resources:
+        **rule_resources("manifest"),
     script:
         "../scripts/manifest.py"

@@ -30,16 +30,22 @@ class SearchConfig:
     config/README.md, ``city.search.*``)."""
 
 
-def view_scores(ix: ViewIndex, q_xy: np.ndarray, q_cls: np.ndarray, cfg: SearchConfig) -> tuple[np.ndarray, np.ndarray]:
+def view_scores(
+    ix: ViewIndex, q_xy: np.ndarray, q_cls: np.ndarray, cfg: SearchConfig, exclude: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(views, scores) of the ``top_views`` best views, best first: bag-of-classes cosine in [0, 1]
-    times ``bow_weight``, plus the aligned share of the query's class weight in [0, 1]."""
+    times ``bow_weight``, plus the aligned share of the query's class weight in [0, 1]. Views in
+    ``exclude`` (rows of the index's views, e.g. a sequence's companions) are never ranked."""
     q_cls = np.asarray(q_cls, np.int64)
     h = np.bincount(q_cls, minlength=len(ix.idf)).astype(float)
     q_mass = float(h @ ix.idf)
     common = ix.hist.copy()
     common.data = np.minimum(common.data, h[common.indices]) * ix.idf[common.indices]
     bow = np.asarray(common.sum(axis=1)).ravel() / np.sqrt(np.maximum(ix.view_mass * q_mass, 1e-12))
+    if exclude is not None and len(exclude):
+        bow[np.asarray(exclude, np.int64)] = -np.inf
     top = np.argpartition(-bow, cfg.top_views - 1)[: cfg.top_views] if len(bow) > cfg.top_views else np.arange(len(bow))
+    top = top[np.isfinite(bow[top])]
     q = np.asarray(q_xy, float)
     agree = kernels.view_agreement(
         top.astype(np.int64),
@@ -76,16 +82,27 @@ def _union(lists) -> np.ndarray:
     return np.unique(np.concatenate([np.asarray(x, np.int64) for x in lists] + [np.zeros(0, np.int64)]))
 
 
-def region_priors(ix: ViewIndex, centres: np.ndarray, cfg: SearchConfig, prior_radius_m: float):
+def region_priors(
+    ix: ViewIndex,
+    centres: np.ndarray,
+    cfg: SearchConfig,
+    prior_radius_m: float,
+    exclude: np.ndarray | None = None,
+    radius_m: float | None = None,
+):
     """(map rows, view rows, seen (views, rows) booleans) of the regions: the objects within
-    ``region_radius_m`` of a centre, the views within that plus ``prior_radius_m`` (a pose farther
-    from every view is refused by the solver's gate), and which of the objects each view saw."""
-    rows = _union(ix.obj_tree.query_ball_point(centres, cfg.region_radius_m)) if len(centres) else _union([])
+    ``radius_m`` (default ``region_radius_m``) of a centre, the views within that plus
+    ``prior_radius_m`` (a pose farther from every view is refused by the solver's gate) except those
+    in ``exclude``, and which of the objects each view saw."""
+    radius = float(cfg.region_radius_m if radius_m is None else radius_m)
+    rows = _union(ix.obj_tree.query_ball_point(centres, radius)) if len(centres) else _union([])
     views = (
-        _union(ix.cam_tree.query_ball_point(centres, cfg.region_radius_m + prior_radius_m))
+        _union(ix.cam_tree.query_ball_point(centres, radius + prior_radius_m))
         if len(centres) and ix.cam_tree is not None
         else _union([])
     )
+    if exclude is not None and len(exclude):
+        views = views[~np.isin(views, np.asarray(exclude, np.int64))]
     col = np.full(ix.n_objects, -1, np.int64)
     col[rows] = np.arange(len(rows))
     counts = ix.view_ptr[views + 1] - ix.view_ptr[views]
@@ -126,17 +143,26 @@ def localize(
     metric: bool = False,
     alternatives: int = 0,
     centres: np.ndarray | None = None,
+    fix: solver.Fix | None = None,
+    exclude: np.ndarray | None = None,
 ) -> Located:
     """Pose of a query in the city (a depth map; ``metric``: a GT map in metres): regions from the
     index (or the given ``centres``, (K, 2) metres, e.g. a user's prior position, with ``cfg``'s
     ``region_radius_m``), then the solver (:func:`flatlandia.solver.localize`, with up to
     ``alternatives`` next-best poses) on them with the training views near them as its priors
-    (and for depth maps the ``learned`` scale prior and verifier)."""
+    (and for depth maps the ``learned`` scale prior and verifier). With a ``fix`` (GPS) and no
+    ``centres``, the one region is the fix's (objects within ``Fix.crop_m``) and the fix is the
+    solver's likelihood too. ``exclude``: views (rows of the index's) neither ranked nor used as
+    priors (a sequence's companions)."""
     q_xy, q_cls = np.asarray(q_xy, float).reshape(-1, 2), np.asarray(q_cls, np.int64)
-    if centres is None:
-        views, _ = view_scores(ix, q_xy, q_cls, cfg)
+    radius = None
+    if centres is None and fix is not None:
+        centres, radius = fix.xy[None], fix.crop_m
+    elif centres is None:
+        views, _ = view_scores(ix, q_xy, q_cls, cfg, exclude)
         centres = region_centres(ix, views, cfg)
-    rows, cams, seen = region_priors(ix, np.asarray(centres, float).reshape(-1, 2), cfg, settings.prior_radius_m)
+    centres = np.asarray(centres, float).reshape(-1, 2)
+    rows, cams, seen = region_priors(ix, centres, cfg, settings.prior_radius_m, exclude, radius)
     found = solver.Localization(None)
     if len(rows) >= 2:
         found = solver.localize(
@@ -148,5 +174,72 @@ def localize(
             config=settings,
             priors=region_training_priors(ix, cams, seen, None if metric else learned),
             alternatives=alternatives,
+            fix=fix,
         )
     return Located(found.best, rows, centres, found.alternatives)
+
+
+def sequence_centres(ix: ViewIndex, frames, cfg: SearchConfig, exclude: np.ndarray | None = None) -> np.ndarray:
+    """(K, 2) region centres of a sequence: every frame ranks the views (:func:`view_scores`), a
+    view's score is the sum over the frames that ranked it (the frames stand metres apart, so the
+    right place's views gather every frame's vote), and the ``regions`` best distinct places follow
+    (:func:`region_centres`)."""
+    total: dict[int, float] = {}
+    for xy, cls in frames:
+        views, scores = view_scores(ix, np.asarray(xy, float).reshape(-1, 2), np.asarray(cls, np.int64), cfg, exclude)
+        for v, sc in zip(views.tolist(), scores.tolist()):
+            total[v] = total.get(v, 0.0) + sc
+    if not total:
+        return np.zeros((0, 2))
+    views = np.array(list(total), np.int64)
+    score = np.array([total[v] for v in views.tolist()])
+    return region_centres(ix, views[np.argsort(-score, kind="stable")], cfg)
+
+
+def localize_sequence(
+    ix: ViewIndex,
+    frames,
+    rel_poses,
+    cfg: SearchConfig,
+    settings: solver.SolverConfig,
+    sequence_settings=None,
+    learned: solver.LearnedPriors | None = None,
+    odometry_sigma=None,
+    fix: solver.Fix | None = None,
+    exclude: np.ndarray | None = None,
+    alternatives: int = 0,
+) -> tuple[solver.SequenceLocalization, Located]:
+    """A sequence of depth frames (anchor first; :func:`flatlandia.solver.localize_sequence`'s
+    arguments) in the city: the regions of the frames' summed view ranking (:func:`sequence_centres`)
+    or, with a ``fix``, the fix's region; then the sequence solver on their objects with the views
+    there as priors (``exclude``: views neither ranked nor used, e.g. the companions'). One frame is
+    :func:`localize`. Returns (the sequence's answer, the search's regions)."""
+    frames = list(frames)
+    if len(frames) == 1:
+        found = localize(ix, *frames[0], cfg, settings, learned, False, alternatives, fix=fix, exclude=exclude)
+        b = found.solution
+        poses = [solver.sequence.FramePose(b.x, b.y, b.theta, b.scale)] if b is not None else []
+        return solver.SequenceLocalization(b, found.alternatives, poses), found
+    radius = None
+    if fix is not None:
+        centres, radius = fix.xy[None], fix.crop_m
+    else:
+        centres = sequence_centres(ix, frames, cfg, exclude)
+    rows, cams, seen = region_priors(ix, centres, cfg, settings.prior_radius_m, exclude, radius)
+    located = Located(None, rows, centres)
+    if len(rows) < 2:
+        return solver.SequenceLocalization(None), located
+    found = solver.localize_sequence(
+        frames,
+        rel_poses,
+        ix.obj_xy[rows],
+        ix.obj_cls[rows],
+        settings,
+        region_training_priors(ix, cams, seen, learned),
+        sequence_settings,
+        odometry_sigma,
+        fix,
+        alternatives,
+    )
+    located.solution, located.alternatives = found.best, found.alternatives
+    return found, located

@@ -10,24 +10,30 @@ Modules, in the order a query meets them: ``problem`` (the query's derived array
 scoring, the distinct best), ``scoring`` (MSAC cost, refinement), ``verify`` (the verifier's
 features and score) and ``verify_fit`` (learning it), ``kernels`` (the compiled loops),
 ``pipeline`` (the steps in order: :func:`localize`, the best pose and its alternatives, and
-:func:`solve`, the best alone), ``learned`` (the fitted priors as one value,
+:func:`solve`, the best alone), ``sequence`` (several frames tied by relative poses, localized
+together: :func:`localize_sequence`; its compiled loops in ``sequence_kernels``), ``learned`` (the fitted priors as one value,
 read and written as JSON), ``bound`` (the pose given the true matches).
 """
 
 from flatlandia.solver.learned import LearnedPriors
 from flatlandia.solver.pipeline import Localization, Solution, SolverConfig, candidates, localize, solve, warm_up
-from flatlandia.solver.priors import TrainingPriors, depth_scale_prior, fit_scale, scene_priors
+from flatlandia.solver.priors import Fix, TrainingPriors, depth_scale_prior, fit_scale, scene_priors
+from flatlandia.solver.sequence import SequenceConfig, SequenceLocalization, localize_sequence
 
 __all__ = [
+    "Fix",
     "LearnedPriors",
     "Localization",
     "Solution",
+    "SequenceConfig",
+    "SequenceLocalization",
     "SolverConfig",
     "TrainingPriors",
     "candidates",
     "depth_scale_prior",
     "fit_scale",
     "localize",
+    "localize_sequence",
     "scene_priors",
     "solve",
     "warm_up",

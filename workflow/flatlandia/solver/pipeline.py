@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flatlandia.solver import hypotheses, scoring, verify
-from flatlandia.solver.priors import Priors, TrainingPriors
+from flatlandia.solver.priors import Fix, Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
 from flatlandia.solver.settings import SolverConfig
 from flatlandia.solver.verify import Verifier
@@ -92,6 +92,7 @@ def solve(
     metric: bool = False,
     config: SolverConfig | dict | None = None,
     priors: TrainingPriors | None = None,
+    fix: Fix | None = None,
 ) -> Solution | None:
     """Camera pose in the reference frame, or None when no hypothesis can be formed.
 
@@ -104,9 +105,11 @@ def solve(
     co-visibility cost ``covis_weight`` and gate ``covis_gate_above``), the depth maps' log-scale
     prior, and a verifier that picks among the ``verify_top_k`` best hypotheses of a depth map
     (``verify``; needs cameras and what they saw), else the cheapest of the ``top_k`` best wins.
-    Inlier indices refer to rows of ``ref_xy``. The best pose of :func:`localize`.
+    Inlier indices refer to rows of ``ref_xy``. ``fix`` (:class:`~flatlandia.solver.priors.Fix`): a
+    position fix of the camera (GPS) and optionally a compass heading, as a likelihood (a gate at
+    ``Fix.GATE_SIGMAS`` sigmas and a cost; None: none). The best pose of :func:`localize`.
     """
-    return localize(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors).best
+    return localize(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors, fix=fix).best
 
 
 def localize(
@@ -118,6 +121,7 @@ def localize(
     config: SolverConfig | dict | None = None,
     priors: TrainingPriors | None = None,
     alternatives: int = 0,
+    fix: Fix | None = None,
 ) -> Localization:
     """The best pose (:func:`solve`'s, arguments as there) and up to ``alternatives`` next-best
     distinct poses from the same pool of refined hypotheses (the ``top_k``, or with a verifier the
@@ -125,9 +129,10 @@ def localize(
     Alternatives are at least :data:`DISTINCT_M` metres or :data:`DISTINCT_DEG` degrees from the
     best and from each other; each carries its inliers, its cost, the share of the query's objects
     it explains as its confidence, and ``behind``: how far the ranking puts it behind the best. The
-    one entry point of the fine stage's runs, the city search and ``flatlandia localize``."""
+    one entry point of the fine stage's runs, the city search and ``flatlandia localize``. With a
+    ``fix`` the verifier's score is added the fix's log-likelihood (-cost / 2)."""
     verifier = priors.verifier if priors is not None else None
-    pool = candidates(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors, verifier is not None)
+    pool = candidates(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors, verifier is not None, fix)
     return Localization(None) if pool is None else _ranked(pool, verifier, alternatives)
 
 
@@ -153,12 +158,13 @@ def candidates(
     config: SolverConfig | dict | None = None,
     priors: TrainingPriors | None = None,
     use_verifier: bool = False,
+    fix: Fix | None = None,
 ) -> Pool | None:
     """The refined distinct best hypotheses (arguments as :func:`solve`): ``verify_top_k`` of them
     when a verifier will choose (``use_verifier``) and can, else ``top_k``."""
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
     problem = Problem(query_xy, query_cls, ref_xy, ref_cls, metric, cfg)
-    query_priors = Priors(cfg, metric, priors, n_ref=len(problem.r))
+    query_priors = Priors(cfg, metric, priors, n_ref=len(problem.r), fix=fix)
     if not problem.solvable():
         return None
     verified = use_verifier and verify.usable(problem, query_priors)
@@ -185,6 +191,8 @@ def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Loc
         return Localization(None)
     if pool.verified:
         key = -verifier.score(verify.features(problem, priors, t, theta, s, data, inl, match))
+        if priors.fix is not None:  # the fix's log-likelihood beside the verifier's log-odds
+            key = key + priors.fix_cost(t, theta) / 2.0
     else:
         key = cost / 2.0
     ok.sort(key=lambda k: float(key[k]))

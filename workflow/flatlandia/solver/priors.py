@@ -63,6 +63,70 @@ class TrainingPriors:
         return replace(self, scale=learned.scale, verifier=learned.verifier)
 
 
+@dataclass(frozen=True)
+class Fix:
+    """A position fix of the camera (a phone's GPS) and optionally a compass heading, as a Gaussian
+    likelihood: the solver keeps only poses within ``GATE_SIGMAS`` sigmas of the fix and adds
+    (distance / ``sigma_m``)^2 [+ (heading difference / ``heading_sigma_deg``)^2] to a pose's cost
+    (the MSAC cost is a sum of squared normalised residuals, so this is the fix's negative
+    log-likelihood on the same scale). ``x``, ``y``: metres of the map's frame; ``heading``: radians,
+    counter-clockwise from east (the solver's theta)."""
+
+    x: float
+    y: float
+    sigma_m: float
+    heading: float | None = None
+    heading_sigma_deg: float | None = None
+
+    #: poses farther than this many sigmas from the fix are refused (4: 0.03 % of true poses of a
+    #: 2-D Gaussian fix lie beyond)
+    GATE_SIGMAS = 4.0
+    #: a query's objects lie within this of its camera (99th percentile of the training split's
+    #: object ranges: 97 m): a caller crops its map to the gate plus this
+    VIEW_M = 150.0
+
+    def __post_init__(self):
+        if not (np.isfinite(self.x) and np.isfinite(self.y) and np.isfinite(self.sigma_m) and self.sigma_m > 0):
+            raise ValueError(f"a fix needs a finite position and a positive sigma, got {self}")
+        if (self.heading is None) != (self.heading_sigma_deg is None):
+            raise ValueError("a compass heading needs both heading and heading_sigma_deg")
+        if self.heading_sigma_deg is not None and not self.heading_sigma_deg > 0:
+            raise ValueError(f"heading_sigma_deg must be positive, got {self.heading_sigma_deg}")
+
+    @property
+    def xy(self) -> np.ndarray:
+        return np.array([self.x, self.y], float)
+
+    @property
+    def gate_m(self) -> float:
+        """Poses within this of the fix are kept."""
+        return self.GATE_SIGMAS * self.sigma_m
+
+    @property
+    def crop_m(self) -> float:
+        """Map objects within this of the fix can be seen from a kept pose."""
+        return self.gate_m + self.VIEW_M
+
+    def near(self, t) -> np.ndarray:
+        """(C,) True for positions within the gate."""
+        t = np.asarray(t, float).reshape(-1, 2)
+        return np.hypot(t[:, 0] - self.x, t[:, 1] - self.y) <= self.gate_m
+
+    def cost(self, t, theta) -> np.ndarray:
+        """(C,) (distance / sigma)^2, plus (heading difference / heading sigma)^2 with a compass."""
+        t = np.asarray(t, float).reshape(-1, 2)
+        out = ((t[:, 0] - self.x) ** 2 + (t[:, 1] - self.y) ** 2) / self.sigma_m**2
+        if self.heading is not None:
+            dth = geo.wrap_angle(np.asarray(theta, float).ravel() - self.heading)
+            out = out + (dth / math.radians(self.heading_sigma_deg)) ** 2
+        return out
+
+    def widened(self, extra_m: float) -> Fix:
+        """The fix of a camera ``extra_m`` metres from this one in an unknown direction (a sequence's
+        companion frame), as its gate needs it: the gate widened by ``extra_m``, no compass."""
+        return Fix(self.x, self.y, self.sigma_m + float(extra_m) / self.GATE_SIGMAS)
+
+
 def training_priors(queries: pd.DataFrame, settings: SolverConfig | dict | None = None):
     """The solver's priors from one scene's training split: (prior cameras (P, 3) as x, y, heading
     in radians, or None when ``camera_prior`` is off; per prior camera the reference ``obj_idx`` it
@@ -200,8 +264,9 @@ def coseen(seen: np.ndarray) -> CoSeen:
 class Priors:
     """The priors of one query; any of them may be absent (then it costs nothing)."""
 
-    def __init__(self, cfg, metric: bool, given: TrainingPriors | None = None, n_ref: int = 0):
+    def __init__(self, cfg, metric: bool, given: TrainingPriors | None = None, n_ref: int = 0, fix: Fix | None = None):
         given = given or TrainingPriors()
+        self.fix = fix  # a position fix (GPS) of this camera, or None
         prior_xy, prior_seen = given.cameras, given.seen
         self.cfg = cfg
         self.metric = metric
@@ -219,10 +284,14 @@ class Priors:
 
     # ------------------------------------------------------------------ gating
     def near(self, t) -> np.ndarray:
-        """(C,) True for the positions within ``prior_radius_m`` of a prior camera (all without cameras)."""
-        if self.gate is None or not len(t):
+        """(C,) True for the positions within ``prior_radius_m`` of a prior camera (all without cameras)
+        and within the fix's gate (with a fix)."""
+        if not len(t):
             return np.ones(len(t), bool)
-        return self.gate.near(t)
+        out = self.gate.near(t) if self.gate is not None else np.ones(len(t), bool)
+        if self.fix is not None:
+            out &= self.fix.near(t)
+        return out
 
     def too_far(self, t) -> bool:
         """A refined pose that drifted beyond twice the gate radius from every prior camera."""
@@ -259,7 +328,8 @@ class Priors:
         return np.min((d / cfg.prior_sigma_m) ** 2 + (dth / np.radians(cfg.prior_heading_sigma_deg)) ** 2, axis=1)
 
     def cost(self, t, s, theta, nb) -> np.ndarray:
-        """(C,) prior cost: pose vs the nearest prior camera, log-scale; each capped at tau^2."""
+        """(C,) prior cost: pose vs the nearest prior camera, log-scale; each capped at tau^2 (the
+        fix's cost is :meth:`fix_cost`, apart: the verifier's features read this one)."""
         cfg = self.cfg
         tau2 = cfg.tau**2
         out = np.zeros(len(t))
@@ -269,6 +339,11 @@ class Priors:
             mu, sd = self.scale
             out += cfg.scale_prior_weight * np.minimum(((np.log(s) - mu) / sd) ** 2, tau2)
         return out
+
+    def fix_cost(self, t, theta) -> np.ndarray:
+        """(C,) the fix's cost (:meth:`Fix.cost`; uncapped: a likelihood, and the gate bounds it), 0
+        without a fix."""
+        return np.zeros(len(np.asarray(t).reshape(-1, 2))) if self.fix is None else self.fix.cost(t, theta)
 
     def covis_cost(self, t, inl, match, nb) -> np.ndarray:
         """(C,) co-visibility cost: ``covis_weight`` per inlier whose candidate no prior camera within

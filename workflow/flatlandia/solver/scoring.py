@@ -38,7 +38,10 @@ def score_terms(problem: Problem, priors: Priors, t, theta, s):
     """Data cost (C,), MSAC cost with the priors (C,), inlier mask (C, M) and best candidate (C, M)."""
     data, inl, match = data_cost(problem, t, theta, s)
     nb = priors.neighbours(t)
-    return data, data + priors.cost(t, s, theta, nb) + priors.covis_cost(t, inl, match, nb), inl, match
+    cost = data + priors.cost(t, s, theta, nb) + priors.covis_cost(t, inl, match, nb)
+    if priors.fix is not None:
+        cost = cost + priors.fix_cost(t, theta)
+    return data, cost, inl, match
 
 
 def padded_candidates(problem: Problem) -> tuple[np.ndarray, np.ndarray]:

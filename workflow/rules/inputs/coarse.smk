@@ -11,6 +11,8 @@ COARSE_EPOCH_S = 1.0
 def coarse_train_runtime(wildcards):
     """A coarse_train job's runtime bound in minutes: its epochs x1.5 for a slower node, plus 10."""
     return int(COARSE_EPOCH_S * COARSE["train"]["epochs"] * 1.5 / 60) + 10
+
+
 # training / baseline seed: the master seed + coarse.seed_offset
 COARSE_SEED = int(config["seed"]) + int(COARSE["seed_offset"])
 COARSE_TRAIN = {**COARSE["train"], "seed": COARSE_SEED}

@@ -1,0 +1,81 @@
+# Beyond one frame: a GPS fix and sequences of frames (flatlandia.beyond), on each scene's whole
+# map (rule beyond_scene, in `all`) and in the cities (rule beyond_city, in `city`), and the table
+# results/tables/beyond_one_frame.{parquet,md} (its city rows once `city` asks for them or they exist).
+
+
+include: "inputs/beyond.smk"
+
+
+rule beyond_scene:
+    input:
+        unpack(beyond_scene_inputs),
+    output:
+        errors="results/beyond/scene/errors_{prior}.parquet",
+        summary="results/beyond/scene/summary_{prior}.json",
+    log:
+        "logs/beyond_scene/{prior}.log",
+    benchmark:
+        "logs/benchmarks/beyond_scene/{prior}.tsv"
+    wildcard_constraints:
+        prior="on|off",
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: rule_threads("beyond_scene")
+    resources:
+        **rule_resources("beyond_scene"),
+    params:
+        scenes=benchmark_scenes(),
+        seed=config["seed"],
+        solver=config["solver"],
+        beyond=config["beyond"],
+    script:
+        "../scripts/beyond_scene.py"
+
+
+rule beyond_city:
+    input:
+        unpack(beyond_city_inputs),
+    output:
+        errors="results/beyond/{map}/errors.parquet",
+        summary="results/beyond/{map}/summary.json",
+    log:
+        "logs/beyond_city/{map}.log",
+    benchmark:
+        "logs/benchmarks/beyond_city/{map}.tsv"
+    wildcard_constraints:
+        map="city-[0-9]+|simulated-[0-9]+",
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: rule_threads("beyond_city")
+    resources:
+        **rule_resources("beyond_city"),
+    params:
+        scenes=benchmark_scenes(),
+        seed=config["seed"],
+        solver=config["solver"],
+        search=config["city"]["search"],
+        simulate=config["city"]["simulate"],
+        spacing_m=config["city"]["spacing_m"],
+        beyond=config["beyond"],
+    script:
+        "../scripts/beyond_city.py"
+
+
+rule beyond_table:
+    input:
+        summaries=beyond_summaries,
+    output:
+        parquet="results/tables/beyond_one_frame.parquet",
+        markdown="results/tables/beyond_one_frame.md",
+    log:
+        "logs/beyond_table/all.log",
+    conda:
+        "../../envs/flatlandia.yaml"
+    threads: rule_threads("beyond_table")
+    resources:
+        **rule_resources("beyond_table"),
+    params:
+        split=config["beyond"]["split"],
+        beyond=config["beyond"],
+    script:
+        "../scripts/beyond_table.py"

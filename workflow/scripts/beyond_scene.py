@@ -1,0 +1,37 @@
+"""Rule beyond_scene: every test anchor's sequences and GPS fixes on its scene's whole map, with the
+camera prior {prior} (flatlandia.beyond.evaluate.scene_errors); per-anchor errors and the summary
+rows of the table beyond_one_frame."""
+
+import numpy as np
+import pandas as pd
+
+from flatlandia import io, runlog, solver
+from flatlandia.beyond import evaluate
+from flatlandia.fine import evaluation
+
+
+def main(smk, log):
+    beyond = dict(smk.params.beyond)
+    camera = smk.wildcards.prior == "on"
+    refs = [pd.read_parquet(p) for p in smk.input.reference_maps]
+    scenes = list(zip(refs, [pd.read_parquet(p) for p in smk.input.queries]))
+    settings = evaluate.settings_grid(beyond, camera)
+    log.info("settings: %s", settings)
+    errors = evaluate.scene_errors(
+        scenes,
+        settings,
+        dict(smk.params.solver),
+        beyond,
+        solver.LearnedPriors.read(smk.input.priors),
+        int(smk.params.seed),
+        beyond["split"],
+        log=log,
+    )
+    rows = evaluate.summaries(errors, {"scene": int(round(np.mean([len(r) for r in refs])))})
+    io.write_parquet(errors, smk.output.errors, {"split": beyond["split"], "beyond": beyond})
+    io.write_json([evaluation.json_safe(r) for r in rows], smk.output.summary)
+    for r in rows:
+        log.info("%s", r)
+
+
+runlog.run(main, snakemake)  # noqa: F821

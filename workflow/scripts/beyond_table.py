@@ -1,0 +1,21 @@
+"""Rule beyond_table: results/tables/beyond_one_frame.{parquet,md}, the rows of rules beyond_scene
+and beyond_city (flatlandia.beyond.table)."""
+
+import json
+from pathlib import Path
+
+from flatlandia import io, runlog, tables
+from flatlandia.beyond import table as beyond_table
+
+
+def main(smk, log):
+    rows = [r for p in smk.input.summaries for r in json.loads(Path(p).read_text())]
+    df = beyond_table.table(rows)
+    note = beyond_table.note(smk.params.split, dict(smk.params.beyond))
+    tables.write_table(df, "beyond_one_frame", smk.output.parquet, note=note)  # schema-checked
+    text = beyond_table.markdown(df, note)
+    io.write_text(text, smk.output.markdown)
+    log.info("\n%s", text)
+
+
+runlog.run(main, snakemake)  # noqa: F821
