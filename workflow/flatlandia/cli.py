@@ -1,18 +1,21 @@
 """Command line: ``flatlandia audit [PATH]`` prints the audit trail of a run (one artifact, one scene or all);
 ``flatlandia config`` checks or rewrites the files generated from the config schema;
 ``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.debug);
-``flatlandia localize --map MAP --query QUERY.json`` localizes your own query (flatlandia.localize);
+``flatlandia localize --map MAP --query QUERY.json`` localizes your own query (flatlandia.localize; or
+``--sequence FRAMES.json`` several frames together; ``--gps LON,LAT --gps-sigma-m M`` a phone's fix);
 ``flatlandia score POSES --name NAME --out DIR`` scores your own poses as the benchmark's methods (flatlandia.score)."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 import pandas as pd
 
 from flatlandia import config, io, provenance
+from flatlandia.errors import InputError
 
 
 def _records(args) -> pd.DataFrame:
@@ -201,36 +204,75 @@ def debug_rule(args) -> int:
     return 0
 
 
+def _numbers_of(flag: str, value: str, n: int, what: str) -> tuple[float, ...]:
+    """``n`` comma-separated finite numbers of a flag's value; InputError naming the flag otherwise."""
+    try:
+        out = tuple(float(v) for v in str(value).split(","))
+    except ValueError:
+        out = ()
+    if len(out) != n or not all(math.isfinite(v) for v in out):
+        raise InputError(flag, f"{value!r} is not {what}")
+    return out
+
+
+def _prior_args(args) -> tuple[tuple | None, tuple | None]:
+    """(gps (lon, lat, sigma_m) or None, compass (heading_deg, sigma_deg) or None) of the command's
+    --gps/--gps-sigma-m and --compass/--compass-sigma-deg (each pair given together); their ranges
+    are checked by flatlandia.localize."""
+    gps = compass = None
+    if (args.gps is None) != (args.gps_sigma_m is None):
+        raise InputError("--gps", "a GPS fix needs both --gps LON,LAT and --gps-sigma-m M")
+    if args.gps is not None:
+        lon, lat = _numbers_of("--gps", args.gps, 2, "LON,LAT (degrees, e.g. 2.3704,48.8981)")
+        (sigma,) = _numbers_of("--gps-sigma-m", args.gps_sigma_m, 1, "a number of metres")
+        gps = (lon, lat, sigma)
+    if (args.compass is None) != (args.compass_sigma_deg is None):
+        raise InputError("--compass", "a compass heading needs both --compass DEG and --compass-sigma-deg S")
+    if args.compass is not None:
+        (heading,) = _numbers_of("--compass", args.compass, 1, "a heading in degrees (clockwise from north)")
+        (hsig,) = _numbers_of("--compass-sigma-deg", args.compass_sigma_deg, 1, "a number of degrees")
+        compass = (heading, hsig)
+    return gps, compass
+
+
 def localize_query(args) -> int:
-    """Localize the query (or queries) of a JSON file on a map; print the answer as JSON."""
+    """Localize the query (or queries, or a sequence) of a JSON file on a map; print the answer as JSON."""
     from flatlandia import localize
-    from flatlandia.errors import InputError
 
     try:
         near = None
         if args.near is not None:
-            parts = args.near.split(",")
-            try:
-                near = tuple(float(v) for v in parts)
-            except ValueError:
-                near = ()
-            if len(near) != 2:
-                raise InputError("--near", f"{args.near!r} is not LON,LAT (degrees, e.g. 2.3704,48.8981)")
-        if (near is None) != (args.radius_m is None):
+            near = _numbers_of("--near", args.near, 2, "LON,LAT (degrees, e.g. 2.3704,48.8981)")
+        radius = None
+        if args.radius_m is not None:
+            (radius,) = _numbers_of("--radius-m", args.radius_m, 1, "a number of metres")
+        if (near is None) != (radius is None):
             raise InputError("--near", "a prior position needs both --near LON,LAT and --radius-m R")
-        if args.alternatives < 0:
-            raise InputError("--alternatives", f"{args.alternatives} is negative")
+        try:
+            alternatives = int(args.alternatives)
+        except ValueError:
+            raise InputError("--alternatives", f"{args.alternatives!r} is not a whole number") from None
+        if alternatives < 0:
+            raise InputError("--alternatives", f"{alternatives} is negative")
+        gps, compass = _prior_args(args)
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
         result = localize.localize_file(
-            args.map, args.query, args.map_type, near, args.radius_m, args.alternatives, learned=learned
+            args.map,
+            args.query,
+            args.map_type,
+            near,
+            radius,
+            alternatives,
+            gps=gps,
+            compass=compass,
+            sequence_path=args.sequence,
+            learned=learned,
         )
     except InputError as e:
         print(f"ERROR: {e}")
         return 1
     text = localize.dumps(result)
     if args.out:
-        from flatlandia import io
-
         io.write_text(text + "\n", args.out)
     print(text)
     return 0
@@ -301,14 +343,31 @@ def main(argv: list[str] | None = None) -> int:
         '"y": left}, ...]}, or {"queries": [{"id": ..., "objects": [...]}, ...]}) on a scene\'s reference map '
         "(.parquet, .geojson: the workflow's, with its training cameras and learned priors, or any map of classed "
         "points with lon/lat) or a city index (results/city/{n}/index or one of its .npz); print the pose(s) as JSON "
-        "(flatlandia.localize).",
+        "(flatlandia.localize). Optionally a phone's GPS fix (--gps, --gps-sigma-m) and compass (--compass, "
+        '--compass-sigma-deg), or a sequence of depth frames ({"frames": [{"objects": [...]}, {"objects": [...], '
+        '"pose": {"x": forward m, "y": left m, "theta_deg": turn}}, ...]}: each later frame\'s pose in the first '
+        "frame's camera frame, from odometry) localized together: the first frame's pose and every frame's.",
     )
     lq.add_argument("--map", required=True, help="reference map (.parquet, .geojson) or city index (folder, .npz)")
-    lq.add_argument("--query", required=True, help='query JSON: one query, or {"queries": [...]}')
+    lq.add_argument("--query", help='query JSON: one query, or {"queries": [...]} (or give --sequence)')
+    lq.add_argument(
+        "--sequence",
+        metavar="FILE.json",
+        help='instead of --query: frames localized together, {"frames": [...]} (needs --map-type depth)',
+    )
     lq.add_argument("--map-type", default="gt", help="gt: x/y in metres (default); depth: any unit, scale unknown")
     lq.add_argument("--near", metavar="LON,LAT", help="a prior position: search only the map objects near it")
-    lq.add_argument("--radius-m", type=float, metavar="R", help="with --near: the radius searched, metres")
-    lq.add_argument("--alternatives", type=int, default=3, metavar="K", help="next-best distinct poses (default 3)")
+    lq.add_argument("--radius-m", metavar="R", help="with --near: the radius searched, metres")
+    lq.add_argument(
+        "--gps",
+        metavar="LON,LAT",
+        help="a GPS fix of the camera (of the sequence's first frame), weighed as a Gaussian likelihood; "
+        "a western longitude as --gps=-0.12,51.5",
+    )
+    lq.add_argument("--gps-sigma-m", metavar="M", help="with --gps: the fix's sigma in metres (east and north)")
+    lq.add_argument("--compass", metavar="DEG", help="with --gps: a compass heading, degrees clockwise from north")
+    lq.add_argument("--compass-sigma-deg", metavar="S", help="with --compass: its sigma in degrees")
+    lq.add_argument("--alternatives", default="3", metavar="K", help="next-best distinct poses (default 3)")
     lq.add_argument(
         "--priors",
         default="auto",
