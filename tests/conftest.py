@@ -1,6 +1,8 @@
-"""Shared fixtures: the real published data (../shared/flatlandia), the tiny committed scene
-(tests/data/tiny) and the repo root; and the `slow` marker, set here for every test that needs
-the published data or runs Snakemake jobs (`make test-fast` runs the others: `pytest -m "not slow"`).
+"""Shared fixtures: the real published data (../shared/flatlandia), the Lund photos
+(../shared/images/lund), each fetched as `make all` fetches it on a clone without ../shared, the
+tiny committed scene (tests/data/tiny) and the repo root; and the `slow` marker, set here for every
+test that needs the published data or runs Snakemake jobs (`make test-fast` runs the others:
+`pytest -m "not slow"`).
 """
 
 from __future__ import annotations
@@ -67,6 +69,76 @@ def ensure_published_data(dest: Path, url: str | None = None) -> str:
     return ""
 
 
+# ---------------------------------------------------------------- the Lund photos
+#: the images scene of the scene sheet (config/scenes.tsv) whose photos the images tests read
+LUND_SCENE = "lund"
+#: where `make all` fetches them when the sheet's path is missing (rule fetch_images' output)
+LUND_FETCHED = REPO / "resources" / "images" / LUND_SCENE
+
+
+def lund_source() -> dict[str, str]:
+    """The Lund row of the scene sheet: its local ``path`` (relative to the repository:
+    ../shared/images/lund), the ``url`` of the public archive and its ``subfolder``, and the
+    ``sha256`` pinned for it ('' when the sheet pins none), as rule fetch_images reads them."""
+    import pandas as pd
+
+    sheet = pd.read_csv(REPO / "config" / "scenes.tsv", sep="\t", dtype=str, keep_default_na=False)
+    row = sheet.set_index("scene").loc[LUND_SCENE]
+    return {key: row.get(key, "") for key in ("path", "url", "subfolder", "sha256")}
+
+
+def find_lund_images(shared: Path, dest: Path, url: str | None = None) -> tuple[Path, str]:
+    """The folder of the Lund photos and '', or where they were looked for and why they are not
+    there, in one line: ``shared`` when it exists; else ``dest`` when a complete fetch of the same
+    source is there (flatlandia.data.fetch.fetched_before: its marker, written last, so a
+    half-fetched or hand-made folder is not trusted); else fetched into ``dest`` the way `make all`
+    does (rule fetch_images: the sheet's url and subfolder, the config's fetch settings; ``url`` or
+    the environment variable FLATLANDIA_LUND_URL instead of the sheet's url, e.g. a file:// zip)."""
+    from flatlandia import config, io
+    from flatlandia.data import fetch
+
+    if shared.is_dir():
+        return shared, ""
+    src = lund_source()
+    url = url or os.environ.get("FLATLANDIA_LUND_URL") or src["url"]
+    if fetch.fetched_before(dest) and io.read_json(dest / fetch.FETCH_MARKER).get("url") == url:
+        return dest, ""
+    cfg = config.section_defaults("fetch")
+    print(f"\nthe Lund photos are not at {shared}: fetching them as `make all` does ...", flush=True)
+    try:
+        fetch.fetch_images(
+            url,
+            src["subfolder"],
+            dest,
+            float(cfg["timeout_s"]),
+            sha256=src["sha256"] if url == src["url"] else "",
+            limits=fetch.Limits.from_dict(cfg),
+        )
+    except fetch.FetchError as e:
+        why = " ".join(str(e).splitlines())
+        return dest, (
+            f"the Lund photos are needed: not at {shared} (the scene sheet's path), not fetched into {dest}: "
+            f"fetching {url} ({src['subfolder']}) failed: {why} For the tests, FLATLANDIA_LUND_URL may also "
+            "name a copy of the archive (file://...)"
+        )
+    return dest, ""
+
+
+@functools.cache
+def _lund_images() -> tuple[Path, str]:
+    return find_lund_images((REPO / lund_source()["path"]).resolve(), LUND_FETCHED)
+
+
+def lund_images() -> Path:
+    """The Lund photos (29 geotagged Mapillary images): ../shared/images/lund, else where `make all`
+    fetches them (resources/images/lund), fetched there first when needed, once a session; a test
+    that cannot have them fails with one line saying where they were looked for and why."""
+    folder, problem = _lund_images()
+    if problem:
+        pytest.fail(problem, pytrace=False)
+    return folder
+
+
 def pytest_collection_finish(session):
     """A session with tests of the slow lane on a machine without the published data (no
     FLATLANDIA_ROOT, no ../shared) fetches it first, as `make all` does, into resources/flatlandia."""
@@ -90,6 +162,12 @@ def flat_root() -> Path:
         why = FETCH_PROBLEM.get("problem") or "set FLATLANDIA_ROOT, or let the tests fetch it (network)"
         pytest.fail(f"the published Flatlandia data is needed at {root}: {why}")
     return root
+
+
+@pytest.fixture(scope="session")
+def lund() -> Path:
+    """The folder of the Lund photos (:func:`lund_images`)."""
+    return lund_images()
 
 
 @pytest.fixture(scope="session")
@@ -136,14 +214,15 @@ def smk_dry_run(repo: Path, workdir: Path, *args: str, **kw):
 # A test is slow when it uses a fixture of the published data (or one built on them: the closure
 # holds them), or when its code, its fixtures' code or the test-module helpers they call reach
 # the published data (conftest.data_root, a module-level Path under it or under ../shared, such as
-# ROOT = data_root() or LUND = .../shared/images/lund) or the Snakemake runner (snakemake_runner.smk).
+# ROOT = data_root() or BERLIN = .../shared/images/berlin), the Lund photos (lund_images(), the
+# fixture lund) or the Snakemake runner (snakemake_runner.smk).
 # Anything else that is slow carries an explicit @pytest.mark.slow.
-DATA_FIXTURES = {"flat_root", "all_local_maps", "scene9"}
+DATA_FIXTURES = {"flat_root", "all_local_maps", "scene9", "lund"}
 
 
 @functools.cache
 def _shared_roots() -> tuple[Path, ...]:
-    return (data_root(), (REPO.parent / "shared").resolve())
+    return (data_root(), (REPO.parent / "shared").resolve(), LUND_FETCHED.resolve())
 
 
 def _code_names(code: types.CodeType) -> set[str]:
@@ -164,7 +243,7 @@ def _under_shared(value) -> bool:
 def _value_reason(value) -> str | None:
     if value is smk:
         return "runs Snakemake jobs"
-    if value is data_root or value is published_scene or _under_shared(value):
+    if value is data_root or value is published_scene or value is lund_images or _under_shared(value):
         return "reads the published data"
     return None
 

@@ -28,7 +28,6 @@ import pytest
 from snakemake_runner import SNAKEMAKE, smk
 
 REPO = Path(__file__).resolve().parents[1]
-LUND = REPO.parent / "shared" / "images" / "lund"
 LUND_IMAGES = ["01.jpg", "02.jpg", "03.jpg", "04.jpg", "05.jpg", "06.jpg"]
 
 CHECKPOINT = "results/fine/models/mlp_gt_gtbb/checkpoint.pt"
@@ -257,15 +256,15 @@ def test_killed_during_a_training(tiny_clean, tmp_path):
 
 
 @pytest.mark.slow
-def test_killed_during_sfm(tmp_path):
+def test_killed_during_sfm(lund, tmp_path):
     """SfM on six Lund photos (single-threaded COLMAP: the same model run to run), killed during
     its feature extraction: the rerun removes its scratch folder and redoes SfM only."""
-    if not all((LUND / n).exists() for n in LUND_IMAGES):
-        pytest.fail(f"the Lund images are needed at {LUND}")
+    if not all((lund / n).exists() for n in LUND_IMAGES):
+        pytest.fail(f"the Lund images are needed at {lund}")
     photos = tmp_path / "lund6"
     photos.mkdir()
     for n in LUND_IMAGES:
-        shutil.copy(LUND / n, photos / n)
+        shutil.copy(lund / n, photos / n)
     sheet = tmp_path / "scenes.tsv"
     header = (REPO / "config" / "scenes.tsv").read_text().splitlines()[0]
     sheet.write_text(f"{header}\nlund\timages\tLund\tlund_six\t{photos}\t\t\n")

@@ -38,9 +38,8 @@ def test_fetch_flatlandia_unpacks_data_and_adds_sheets(upstream_zip, tmp_path):
     assert rep["n_queries"] == 3 and rep["available"]["transformations"]
 
 
-def test_fetch_images_takes_the_subfolder(tmp_path, flat_root):
+def test_fetch_images_takes_the_subfolder(tmp_path, lund):
     z = tmp_path / "OpenSfM-main.zip"
-    lund = flat_root.parent / "images" / "lund"
     with zipfile.ZipFile(z, "w") as out:
         for name in ("01.jpg", "02.jpg"):
             out.write(lund / name, f"OpenSfM-main/data/lund/images/{name}")

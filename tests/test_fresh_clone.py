@@ -1,5 +1,6 @@
 """`make test` on a clone without ../shared: the tests get the published data the way `make all`
-does (the workflow's fetch into resources/flatlandia), here from a file:// archive of it."""
+does (the workflow's fetch into resources/flatlandia), here from a file:// archive of it; and the
+Lund photos the same way (rule fetch_images' fetch into resources/images/lund)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,11 @@ import sys
 import zipfile
 from pathlib import Path
 
+import conftest
 import pytest
-from conftest import REPO, data_root, ensure_published_data
+from conftest import REPO, data_root, ensure_published_data, find_lund_images, lund_source
+
+from flatlandia.data import fetch
 
 #: the published files one scene's tests read, in the upstream repository's layout (data/...)
 SCENE12 = [
@@ -66,3 +70,45 @@ def test_a_fresh_clone_without_shared_passes_a_data_test(tmp_path):
     assert "fetching it as `make all` does" in res.stdout and "1 passed" in res.stdout
     fetched = clone / "resources" / "flatlandia"
     assert (fetched / "local_maps.json").exists() and (fetched / ".flatlandia-fetch").exists()
+
+
+def opensfm_archive(lund: Path, path: Path, names=("01.jpg", "02.jpg", "03.jpg")) -> Path:
+    """A zip laid out as GitHub's archive of mapillary/OpenSfM: OpenSfM-main/data/lund/images/..."""
+    sub = lund_source()["subfolder"]
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("OpenSfM-main/data/lund/config.yaml", "x")
+        for name in names:
+            z.write(lund / name, f"OpenSfM-main/{sub}/{name}")
+    return path
+
+
+def test_the_lund_photos_are_fetched_as_make_all_fetches_them(lund, tmp_path, monkeypatch):
+    """No ../shared/images/lund: the photos are fetched from the scene sheet's source (here
+    FLATLANDIA_LUND_URL, a file:// zip) into resources/images/lund, once; a failed fetch is one line."""
+    archive = opensfm_archive(lund, tmp_path / "OpenSfM-main.zip")
+    shared = tmp_path / "shared" / "images" / "lund"  # absent
+    dest = tmp_path / "main" / "resources" / "images" / "lund"
+    monkeypatch.setenv("FLATLANDIA_LUND_URL", archive.as_uri())
+    assert find_lund_images(shared, dest) == (dest, "")
+    assert sorted(p.name for p in dest.glob("*.jpg")) == ["01.jpg", "02.jpg", "03.jpg"]
+    assert (dest / "01.jpg").read_bytes() == (lund / "01.jpg").read_bytes() and fetch.fetched_before(dest)
+    archive.unlink()  # a complete fetch of the same source is used as it is: nothing is downloaded
+    assert find_lund_images(shared, dest) == (dest, "")
+    shared.mkdir(parents=True)  # ../shared/images/lund, when there, comes first
+    assert find_lund_images(shared, dest) == (shared, "")
+
+    half = tmp_path / "half"  # a folder without the marker of a complete fetch is not trusted
+    half.mkdir()
+    (half / "01.jpg").write_bytes(b"")
+    missing = tmp_path / "missing.zip"
+    for where in (half, tmp_path / "nothing"):
+        folder, problem = find_lund_images(tmp_path / "absent", where, missing.as_uri())
+        assert folder == where and "\n" not in problem, problem
+        for said in ("the Lund photos are needed", str(tmp_path / "absent"), str(where), "missing.zip"):
+            assert said in problem, (said, problem)
+        assert "FLATLANDIA_LUND_URL" in problem
+    assert not (tmp_path / "nothing").exists()
+    monkeypatch.setattr(conftest, "_lund_images", lambda: (dest, problem))
+    with pytest.raises(pytest.fail.Exception, match="the Lund photos are needed") as failed:
+        conftest.lund_images()
+    assert not failed.value.pytrace  # one line, no traceback

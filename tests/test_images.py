@@ -12,11 +12,15 @@ from PIL import Image
 from flatlandia.errors import InputError
 from flatlandia.images import image_audit, segment
 
+#: the Berlin photos and their published masks (OpenSfM's data/berlin): ../shared only
+BERLIN = Path(__file__).resolve().parents[2] / "shared" / "images" / "berlin"
+#: ../shared/images/lund, for test_sfm.py (`from test_images import LUND`) until it moves to the
+#: fixture lund; the tests here read the Lund photos through it (conftest.lund_images())
 LUND = Path(__file__).resolve().parents[2] / "shared" / "images" / "lund"
 
 
-def test_exif_metadata_of_a_real_mapillary_image():
-    rec = image_audit.read_exif_metadata(LUND / "01.jpg")
+def test_exif_metadata_of_a_real_mapillary_image(lund):
+    rec = image_audit.read_exif_metadata(lund / "01.jpg")
     assert (rec["width"], rec["height"]) == (1024, 768)
     assert rec["lat"] == pytest.approx(55.698167, abs=1e-5) and rec["lon"] == pytest.approx(13.195389, abs=1e-5)
     assert rec["alt"] == pytest.approx(37.0)
@@ -24,18 +28,18 @@ def test_exif_metadata_of_a_real_mapillary_image():
     assert rec["capture_time"].startswith("2014-06-07T10:24:05")
 
 
-def test_audit_table_of_lund_keeps_distinct_images():
-    df = image_audit.audit_table(LUND, dedup_threshold=0.02)
+def test_audit_table_of_lund_keeps_distinct_images(lund):
+    df = image_audit.audit_table(lund, dedup_threshold=0.02)
     assert len(df) == 29 and df["kept"].all()
     assert df["capture_time"].is_monotonic_increasing
 
 
-def test_near_duplicate_missing_gps_and_broken_files(tmp_path):
+def test_near_duplicate_missing_gps_and_broken_files(lund, tmp_path):
     for n in ("01.jpg", "02.jpg"):
-        shutil.copy(LUND / n, tmp_path / n)
-    shutil.copy(LUND / "02.jpg", tmp_path / "02b.jpg")  # the same picture again
+        shutil.copy(lund / n, tmp_path / n)
+    shutil.copy(lund / "02.jpg", tmp_path / "02b.jpg")  # the same picture again
     Image.new("RGB", (64, 48), (120, 120, 120)).save(tmp_path / "nogps.jpg")
-    data = (LUND / "03.jpg").read_bytes()
+    data = (lund / "03.jpg").read_bytes()
     (tmp_path / "truncated.jpg").write_bytes(data[: len(data) // 3])
     (tmp_path / "garbage.jpg").write_bytes(b"not a jpeg at all")
     df = image_audit.audit_table(tmp_path, dedup_threshold=0.02).set_index("name")
@@ -67,17 +71,17 @@ def test_empty_or_missing_folder_is_a_clear_error(tmp_path):
         image_audit.list_images(tmp_path / "nope")
 
 
-def test_offline_people_detector_finds_the_pedestrian_of_lund_01():
-    rgb = np.asarray(Image.open(LUND / "01.jpg").convert("RGB"))
+def test_offline_people_detector_finds_the_pedestrian_of_lund_01(lund):
+    rgb = np.asarray(Image.open(lund / "01.jpg").convert("RGB"))
     boxes = segment.detect_people(rgb)
     assert len(boxes) == 1
     x, y, w, h = boxes[0]
     assert 380 < x + w / 2 < 480 and h > 100  # the walker in the middle of the street
-    assert segment.detect_people(np.asarray(Image.open(LUND / "10.jpg").convert("RGB"))) == []
+    assert segment.detect_people(np.asarray(Image.open(lund / "10.jpg").convert("RGB"))) == []
 
 
-def test_offline_backend_masks_sky_but_claims_no_objects():
-    ids, names = segment.make_backend("offline").labels(LUND / "15.jpg")
+def test_offline_backend_masks_sky_but_claims_no_objects(lund):
+    ids, names = segment.make_backend("offline").labels(lund / "15.jpg")
     mask, cls, shares = segment.mask_and_classes(ids, names, [0.0, 0.95, 1.0, 1.0])
     assert mask.dtype == np.uint8 and set(np.unique(mask)) <= {0, 255}
     assert 0.15 < shares["nature--sky"] < 0.6  # the top of this street view is sky
@@ -141,11 +145,10 @@ def test_ignore_iou_on_hand_made_masks():
 @pytest.mark.slow
 def test_offline_masks_overlap_the_published_berlin_masks():
     """Published masks outline the crowd; ours (HOG boxes + colour rules) must overlap them."""
-    berlin = LUND.parent / "berlin"
     backend = segment.make_backend("offline")
     for name in ("01.jpg", "02.jpg"):
-        ref = np.asarray(Image.open(berlin / "masks" / f"{name}.png").convert("L"))
-        ids, names = backend.labels(berlin / "images" / name)
+        ref = np.asarray(Image.open(BERLIN / "masks" / f"{name}.png").convert("L"))
+        ids, names = backend.labels(BERLIN / "images" / name)
         ours, _, _ = segment.mask_and_classes(ids, names, None)
         assert segment.ignore_iou(ours, ref) > 0.1  # measured 0.17-0.18
 

@@ -25,6 +25,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import lund_images
 from PIL import Image, ImageFile
 from snakemake_runner import smk
 
@@ -33,7 +34,7 @@ from flatlandia.errors import InputError
 from flatlandia.images import gps_alignment, image_audit, segment
 
 REPO = Path(__file__).resolve().parents[1]
-LUND = REPO.parent / "shared" / "images" / "lund"
+#: the Berlin photos (OpenSfM's data/berlin/images): ../shared only; the Lund ones: lund_images()
 BERLIN = REPO.parent / "shared" / "images" / "berlin" / "images"
 IMAGES = config.section_defaults("images")
 
@@ -42,7 +43,7 @@ def _photos(dest: Path, n: int = 3) -> Path:
     """Copies of the first ``n`` Lund photos (1024 x 768, geotagged)."""
     dest.mkdir(exist_ok=True)
     for k in range(1, n + 1):
-        shutil.copy(LUND / f"{k:02d}.jpg", dest / f"{k:02d}.jpg")
+        shutil.copy(lund_images() / f"{k:02d}.jpg", dest / f"{k:02d}.jpg")
     return dest
 
 
@@ -70,7 +71,7 @@ def _run_script(name: str, snakemake: SimpleNamespace, capsys) -> list[str]:
 
 
 def test_every_lund_and_berlin_photo_is_within_the_size_limits():
-    for folder in (LUND, BERLIN):
+    for folder in (lund_images(), BERLIN):
         df = image_audit.read_folder_metadata(folder)
         assert df["problem"].isna().all(), df[["name", "problem"]]
         assert (df[["width", "height"]].min(axis=1) >= IMAGES["min_side_px"]).all()
@@ -83,7 +84,7 @@ def test_a_fifo_named_like_a_photo_is_dropped_without_being_opened(tmp_path):
     os.mkfifo(fifo)
     (photos / "folder.jpg").mkdir()
     (photos / "dangling.jpg").symlink_to(tmp_path / "nowhere.jpg")
-    (photos / "link.jpg").symlink_to(LUND / "04.jpg")  # a link to a regular file is fine
+    (photos / "link.jpg").symlink_to(lund_images() / "04.jpg")  # a link to a regular file is fine
     result = {}
     worker = threading.Thread(
         target=lambda: result.update(df=image_audit.audit_table(photos, IMAGES["dedup_threshold"])), daemon=True
@@ -340,14 +341,14 @@ def test_gps_alignment_without_headings_has_no_compass_comparison(tmp_path, capl
 
 
 @pytest.mark.slow
-def test_lund_placed_by_a_metadata_csv_without_headings_builds_its_map(repo, flat_root, tmp_path):
+def test_lund_placed_by_a_metadata_csv_without_headings_builds_its_map(repo, flat_root, lund, tmp_path):
     """Lund's photos stripped of EXIF, placed by a metadata.csv of the documented columns name, lat,
     lon only: the workflow builds the scene's map (`maps`), its GPS alignment with the compass
     comparison null and said so."""
     photos = tmp_path / "photos"
     photos.mkdir()
     rows = ["name,lat,lon"]
-    for p in sorted(LUND.glob("*.jpg"))[:12]:  # a dozen: enough for SfM and a GPS alignment
+    for p in sorted(lund.glob("*.jpg"))[:12]:  # a dozen: enough for SfM and a GPS alignment
         rec = image_audit.read_exif_metadata(p)
         rows.append(f"{p.name},{rec['lat']},{rec['lon']}")
         with Image.open(p) as im:

@@ -22,8 +22,11 @@ from flatlandia.objects import clustering, labels
 
 
 @pytest.fixture(scope="module")
-def lund_run(repo, flat_root, tmp_path_factory):
+def lund_run(repo, flat_root, lund, tmp_path_factory):
     wd = tmp_path_factory.mktemp("lund")
+    sheet = pd.read_csv(repo / "config" / "scenes.tsv", sep="\t", dtype=str, keep_default_na=False)
+    sheet.loc[sheet["scene"] == "lund", "path"] = str(lund)  # ../shared/images/lund, else as fetched
+    sheet.to_csv(wd / "scenes.tsv", sep="\t", index=False)
     res = smk(
         repo,
         wd,
@@ -38,6 +41,7 @@ def lund_run(repo, flat_root, tmp_path_factory):
         str(repo / "config/test/images_lund.yaml"),  # the solver only: no benchmark model to train here
         "--config",
         f"flatlandia_root={flat_root}",
+        f"scenes={wd / 'scenes.tsv'}",
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     return wd
@@ -242,13 +246,13 @@ def test_local_frame_is_the_gps_map_up_to_a_rotation_and_scale(lund_run):
     assert np.allclose(objs[["x_m", "y_m"]].to_numpy(), gps_alignment.map_points(local, objs[["cx", "cy", "cz"]]))
 
 
-def test_photos_without_gps_in_local_frame_mode_give_a_local_map(repo, flat_root, tmp_path):
+def test_photos_without_gps_in_local_frame_mode_give_a_local_map(repo, flat_root, lund, tmp_path):
     """The way forward the audit names for photos without GPS: images.align.mode none ends in an
     SfM model and a reference map in the SfM frame (unit stated, no lon/lat, no CRS)."""
     import geopandas as gpd
 
     photos = tmp_path / "photos"
-    _photos_without_gps(flat_root.parent / "images" / "lund", photos, [f"{k:02d}.jpg" for k in range(1, 6)])
+    _photos_without_gps(lund, photos, [f"{k:02d}.jpg" for k in range(1, 6)])
     sheet = tmp_path / "scenes.tsv"
     sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
     res = smk(
@@ -317,7 +321,7 @@ def test_lund_instance_images_split_merged_objects(lund_run, tmp_path):
         classify_points.load_instance_maps(tmp_path / "absent", names)
 
 
-def test_editing_the_photo_folder_reruns_the_audit(repo, flat_root, tmp_path):
+def test_editing_the_photo_folder_reruns_the_audit(repo, flat_root, lund, tmp_path):
     """The images folder is fingerprinted (names, sizes, times): metadata.csv edits and new photos
     rerun the audit; an untouched folder is up to date."""
     import shutil
@@ -325,7 +329,7 @@ def test_editing_the_photo_folder_reruns_the_audit(repo, flat_root, tmp_path):
     photos = tmp_path / "photos"
     photos.mkdir()
     for name in ("01.jpg", "02.jpg", "03.jpg"):
-        shutil.copy(flat_root.parent / "images" / "lund" / name, photos / name)
+        shutil.copy(lund / name, photos / name)
     sheet = tmp_path / "scenes.tsv"
     sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
     target = "results/mine/images/images.parquet"
@@ -341,7 +345,7 @@ def test_editing_the_photo_folder_reruns_the_audit(repo, flat_root, tmp_path):
     res = smk(repo, tmp_path, "-n", target, *args)
     assert "image_audit" in res.stdout and "params" in res.stdout.lower(), res.stdout[-2000:]
     assert smk(repo, tmp_path, "--cores", "1", target, *args).returncode == 0
-    shutil.copy(flat_root.parent / "images" / "lund" / "04.jpg", photos / "04.jpg")
+    shutil.copy(lund / "04.jpg", photos / "04.jpg")
     assert "image_audit" in smk(repo, tmp_path, "-n", target, *args).stdout
     # a manifest of this run, whose target is one artifact, not `all`
     flatlandia = str(Path(sys.executable).parent / "flatlandia")
@@ -362,9 +366,9 @@ def _photos_without_gps(src, dest, names):
 
 
 @pytest.mark.parametrize("missing_gps", ["keep", "drop"])
-def test_photos_without_gps_stop_at_the_audit_with_one_error(repo, flat_root, tmp_path, missing_gps):
+def test_photos_without_gps_stop_at_the_audit_with_one_error(repo, flat_root, lund, tmp_path, missing_gps):
     photos = tmp_path / "photos"
-    _photos_without_gps(flat_root.parent / "images" / "lund", photos, [f"{k:02d}.jpg" for k in range(1, 6)])
+    _photos_without_gps(lund, photos, [f"{k:02d}.jpg" for k in range(1, 6)])
     sheet = tmp_path / "scenes.tsv"
     sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
     res = smk(
