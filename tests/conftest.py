@@ -1,5 +1,6 @@
 """Shared fixtures: the real published data (../shared/flatlandia), the Lund photos
-(../shared/images/lund), each fetched as `make all` fetches it on a clone without ../shared, the
+(../shared/images/lund) and the Berlin photos and masks (../shared/images/berlin), each fetched as
+`make all` fetches it on a clone without ../shared (Berlin from the Lund photos' archive), the
 tiny committed scene (tests/data/tiny) and the repo root; and the `slow` marker, set here for every
 test that needs the published data or runs Snakemake jobs (`make test-fast` runs the others:
 `pytest -m "not slow"`).
@@ -69,11 +70,18 @@ def ensure_published_data(dest: Path, url: str | None = None) -> str:
     return ""
 
 
-# ---------------------------------------------------------------- the Lund photos
+# ---------------------------------------------------------------- the OpenSfM photos
 #: the images scene of the scene sheet (config/scenes.tsv) whose photos the images tests read
 LUND_SCENE = "lund"
 #: where `make all` fetches them when the sheet's path is missing (rule fetch_images' output)
 LUND_FETCHED = REPO / "resources" / "images" / LUND_SCENE
+#: the Berlin photos and their masks (images/01-03.jpg, masks/01-03.jpg.png, the naming pycolmap's
+#: mask_path expects): not a scene of the sheet (the workflow does not use them, the tests do), so
+#: here: their local folder (relative to the repository), the folder of the same OpenSfM archive as
+#: the Lund row's (data/berlin) and where the tests fetch them (beside the Lund photos)
+BERLIN_PATH = "../shared/images/berlin"
+BERLIN_SUBFOLDER = "data/berlin"
+BERLIN_FETCHED = REPO / "resources" / "images" / "berlin"
 
 
 def lund_source() -> dict[str, str]:
@@ -87,24 +95,40 @@ def lund_source() -> dict[str, str]:
     return {key: row.get(key, "") for key in ("path", "url", "subfolder", "sha256")}
 
 
-def find_lund_images(shared: Path, dest: Path, url: str | None = None) -> tuple[Path, str]:
-    """The folder of the Lund photos and '', or where they were looked for and why they are not
-    there, in one line: ``shared`` when it exists; else ``dest`` when a complete fetch of the same
-    source is there (flatlandia.data.fetch.fetched_before: its marker, written last, so a
-    half-fetched or hand-made folder is not trusted); else fetched into ``dest`` the way `make all`
-    does (rule fetch_images: the sheet's url and subfolder, the config's fetch settings; ``url`` or
-    the environment variable FLATLANDIA_LUND_URL instead of the sheet's url, e.g. a file:// zip)."""
+def berlin_source() -> dict[str, str]:
+    """Where the Berlin photos and masks are (:data:`BERLIN_PATH`) and come from: the Lund row's
+    archive (OpenSfM's, with its ``sha256`` pin), its subfolder :data:`BERLIN_SUBFOLDER`."""
+    return {**lund_source(), "path": BERLIN_PATH, "subfolder": BERLIN_SUBFOLDER}
+
+
+def find_photos(
+    what: str,
+    shared: Path,
+    dest: Path,
+    src: dict[str, str],
+    env: tuple[str, ...],
+    url: str | None = None,
+    shared_is: str = "the scene sheet's path",
+) -> tuple[Path, str]:
+    """The folder of ``what`` (a set of photos of the OpenSfM archive) and '', or where they were
+    looked for and why they are not there, in one line: ``shared`` when it exists; else ``dest``
+    when a complete fetch of the same source is there (flatlandia.data.fetch.fetched_before: its
+    marker, written last, so a half-fetched or hand-made folder is not trusted); else fetched into
+    ``dest`` the way `make all` does (rule fetch_images: ``src``'s url and subfolder, the config's
+    fetch settings; ``url``, or the first environment variable of ``env`` that is set, instead of
+    ``src``'s url, e.g. a file:// zip); ``shared_is`` says in the problem where ``shared`` comes from."""
     from flatlandia import config, io
     from flatlandia.data import fetch
 
     if shared.is_dir():
         return shared, ""
-    src = lund_source()
-    url = url or os.environ.get("FLATLANDIA_LUND_URL") or src["url"]
-    if fetch.fetched_before(dest) and io.read_json(dest / fetch.FETCH_MARKER).get("url") == url:
-        return dest, ""
+    url = url or next((os.environ[name] for name in env if os.environ.get(name)), "") or src["url"]
+    if fetch.fetched_before(dest):
+        marker = io.read_json(dest / fetch.FETCH_MARKER)
+        if marker.get("url") == url and marker.get("subfolder", src["subfolder"]) == src["subfolder"]:
+            return dest, ""
     cfg = config.section_defaults("fetch")
-    print(f"\nthe Lund photos are not at {shared}: fetching them as `make all` does ...", flush=True)
+    print(f"\n{what} are not at {shared}: fetching them as `make all` does ...", flush=True)
     try:
         fetch.fetch_images(
             url,
@@ -117,11 +141,23 @@ def find_lund_images(shared: Path, dest: Path, url: str | None = None) -> tuple[
     except fetch.FetchError as e:
         why = " ".join(str(e).splitlines())
         return dest, (
-            f"the Lund photos are needed: not at {shared} (the scene sheet's path), not fetched into {dest}: "
-            f"fetching {url} ({src['subfolder']}) failed: {why} For the tests, FLATLANDIA_LUND_URL may also "
+            f"{what} are needed: not at {shared} ({shared_is}), not fetched into {dest}: "
+            f"fetching {url} ({src['subfolder']}) failed: {why} For the tests, {env[0]} may also "
             "name a copy of the archive (file://...)"
         )
     return dest, ""
+
+
+def find_lund_images(shared: Path, dest: Path, url: str | None = None) -> tuple[Path, str]:
+    """The Lund photos (:func:`find_photos`: the Lund row of the scene sheet; FLATLANDIA_LUND_URL)."""
+    return find_photos("the Lund photos", shared, dest, lund_source(), ("FLATLANDIA_LUND_URL",), url)
+
+
+def find_berlin_images(shared: Path, dest: Path, url: str | None = None) -> tuple[Path, str]:
+    """The Berlin photos and masks (:func:`find_photos`: :func:`berlin_source`; FLATLANDIA_BERLIN_URL,
+    else FLATLANDIA_LUND_URL: a copy of the whole OpenSfM archive serves both)."""
+    env = ("FLATLANDIA_BERLIN_URL", "FLATLANDIA_LUND_URL")
+    return find_photos("the Berlin photos and masks", shared, dest, berlin_source(), env, url, "conftest.BERLIN_PATH")
 
 
 @functools.cache
@@ -129,11 +165,26 @@ def _lund_images() -> tuple[Path, str]:
     return find_lund_images((REPO / lund_source()["path"]).resolve(), LUND_FETCHED)
 
 
+@functools.cache
+def _berlin_images() -> tuple[Path, str]:
+    return find_berlin_images((REPO / BERLIN_PATH).resolve(), BERLIN_FETCHED)
+
+
 def lund_images() -> Path:
     """The Lund photos (29 geotagged Mapillary images): ../shared/images/lund, else where `make all`
     fetches them (resources/images/lund), fetched there first when needed, once a session; a test
     that cannot have them fails with one line saying where they were looked for and why."""
     folder, problem = _lund_images()
+    if problem:
+        pytest.fail(problem, pytrace=False)
+    return folder
+
+
+def berlin_images() -> Path:
+    """The Berlin folder (3 Mapillary images of 3264 x 2448 in images/, their masks in masks/):
+    ../shared/images/berlin, else resources/images/berlin, fetched there first when needed, once a
+    session, from the OpenSfM archive; a test that cannot have them fails with one line."""
+    folder, problem = _berlin_images()
     if problem:
         pytest.fail(problem, pytrace=False)
     return folder
@@ -168,6 +219,12 @@ def flat_root() -> Path:
 def lund() -> Path:
     """The folder of the Lund photos (:func:`lund_images`)."""
     return lund_images()
+
+
+@pytest.fixture(scope="session")
+def berlin() -> Path:
+    """The folder of the Berlin photos and masks (:func:`berlin_images`)."""
+    return berlin_images()
 
 
 @pytest.fixture(scope="session")
@@ -214,15 +271,15 @@ def smk_dry_run(repo: Path, workdir: Path, *args: str, **kw):
 # A test is slow when it uses a fixture of the published data (or one built on them: the closure
 # holds them), or when its code, its fixtures' code or the test-module helpers they call reach
 # the published data (conftest.data_root, a module-level Path under it or under ../shared, such as
-# ROOT = data_root() or BERLIN = .../shared/images/berlin), the Lund photos (lund_images(), the
-# fixture lund) or the Snakemake runner (snakemake_runner.smk).
+# ROOT = data_root()), the OpenSfM photos (lund_images() or berlin_images(), the fixtures lund and
+# berlin, a Path under their fetched folders) or the Snakemake runner (snakemake_runner.smk).
 # Anything else that is slow carries an explicit @pytest.mark.slow.
-DATA_FIXTURES = {"flat_root", "all_local_maps", "scene9", "lund"}
+DATA_FIXTURES = {"flat_root", "all_local_maps", "scene9", "lund", "berlin"}
 
 
 @functools.cache
 def _shared_roots() -> tuple[Path, ...]:
-    return (data_root(), (REPO.parent / "shared").resolve(), LUND_FETCHED.resolve())
+    return (data_root(), (REPO.parent / "shared").resolve(), LUND_FETCHED.resolve(), BERLIN_FETCHED.resolve())
 
 
 def _code_names(code: types.CodeType) -> set[str]:
@@ -243,7 +300,7 @@ def _under_shared(value) -> bool:
 def _value_reason(value) -> str | None:
     if value is smk:
         return "runs Snakemake jobs"
-    if value is data_root or value is published_scene or value is lund_images or _under_shared(value):
+    if any(value is f for f in (data_root, published_scene, lund_images, berlin_images)) or _under_shared(value):
         return "reads the published data"
     return None
 

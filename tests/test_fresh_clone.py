@@ -1,6 +1,7 @@
 """`make test` on a clone without ../shared: the tests get the published data the way `make all`
 does (the workflow's fetch into resources/flatlandia), here from a file:// archive of it; and the
-Lund photos the same way (rule fetch_images' fetch into resources/images/lund)."""
+Lund photos the same way (rule fetch_images' fetch into resources/images/lund), and the Berlin
+photos and masks from the same OpenSfM archive (into resources/images/berlin)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,15 @@ from pathlib import Path
 
 import conftest
 import pytest
-from conftest import REPO, data_root, ensure_published_data, find_lund_images, lund_source
+from conftest import (
+    REPO,
+    berlin_source,
+    data_root,
+    ensure_published_data,
+    find_berlin_images,
+    find_lund_images,
+    lund_source,
+)
 
 from flatlandia.data import fetch
 
@@ -72,13 +81,18 @@ def test_a_fresh_clone_without_shared_passes_a_data_test(tmp_path):
     assert (fetched / "local_maps.json").exists() and (fetched / ".flatlandia-fetch").exists()
 
 
-def opensfm_archive(lund: Path, path: Path, names=("01.jpg", "02.jpg", "03.jpg")) -> Path:
-    """A zip laid out as GitHub's archive of mapillary/OpenSfM: OpenSfM-main/data/lund/images/..."""
+def opensfm_archive(lund: Path, path: Path, names=("01.jpg", "02.jpg", "03.jpg"), berlin: Path | None = None) -> Path:
+    """A zip laid out as GitHub's archive of mapillary/OpenSfM: OpenSfM-main/data/lund/images/...,
+    and with ``berlin`` its folder's files as OpenSfM-main/data/berlin/{images,masks}/..."""
     sub = lund_source()["subfolder"]
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
         z.writestr("OpenSfM-main/data/lund/config.yaml", "x")
         for name in names:
             z.write(lund / name, f"OpenSfM-main/{sub}/{name}")
+        if berlin is not None:
+            z.writestr("OpenSfM-main/data/berlin/config.yaml", "x")
+            for file in sorted(berlin.glob("*/*.*")):
+                z.write(file, f"OpenSfM-main/{berlin_source()['subfolder']}/{file.relative_to(berlin)}")
     return path
 
 
@@ -112,3 +126,35 @@ def test_the_lund_photos_are_fetched_as_make_all_fetches_them(lund, tmp_path, mo
     with pytest.raises(pytest.fail.Exception, match="the Lund photos are needed") as failed:
         conftest.lund_images()
     assert not failed.value.pytrace  # one line, no traceback
+
+
+def test_the_berlin_photos_and_masks_are_fetched_from_the_same_archive(lund, berlin, tmp_path, monkeypatch):
+    """No ../shared/images/berlin: its photos and masks are fetched from OpenSfM's data/berlin, the
+    archive of the Lund photos (here a file:// zip: FLATLANDIA_LUND_URL serves both, unless
+    FLATLANDIA_BERLIN_URL is set), into resources/images/berlin, with the layout of ../shared's."""
+    archive = opensfm_archive(lund, tmp_path / "OpenSfM-main.zip", ("01.jpg",), berlin=berlin)
+    shared = tmp_path / "shared" / "images" / "berlin"  # absent
+    dest = tmp_path / "main" / "resources" / "images" / "berlin"
+    monkeypatch.delenv("FLATLANDIA_BERLIN_URL", raising=False)
+    monkeypatch.setenv("FLATLANDIA_LUND_URL", archive.as_uri())
+    assert find_berlin_images(shared, dest) == (dest, "") and fetch.fetched_before(dest)
+    for sub in ("images", "masks"):
+        want = sorted(p.name for p in (berlin / sub).iterdir())
+        assert want and sorted(p.name for p in (dest / sub).iterdir()) == want
+    assert (dest / "masks" / "01.jpg.png").read_bytes() == (berlin / "masks" / "01.jpg.png").read_bytes()
+    lund_dest = tmp_path / "main" / "resources" / "images" / "lund"
+    assert find_lund_images(tmp_path / "absent", lund_dest) == (lund_dest, "")  # the same archive
+    assert [p.name for p in lund_dest.glob("*.jpg")] == ["01.jpg"]
+    archive.unlink()  # a complete fetch of the same source is used as it is
+    assert find_berlin_images(shared, dest) == (dest, "")
+
+    missing = tmp_path / "missing.zip"
+    monkeypatch.setenv("FLATLANDIA_BERLIN_URL", missing.as_uri())  # it comes first
+    folder, problem = find_berlin_images(shared, tmp_path / "nothing")
+    assert folder == tmp_path / "nothing" and "\n" not in problem, problem
+    for said in ("the Berlin photos and masks are needed", str(shared), "missing.zip", "FLATLANDIA_BERLIN_URL"):
+        assert said in problem, (said, problem)
+    monkeypatch.setattr(conftest, "_berlin_images", lambda: (dest, problem))
+    with pytest.raises(pytest.fail.Exception, match="the Berlin photos and masks are needed") as failed:
+        conftest.berlin_images()
+    assert not failed.value.pytrace

@@ -12,12 +12,6 @@ from PIL import Image
 from flatlandia.errors import InputError
 from flatlandia.images import image_audit, segment
 
-#: the Berlin photos and their published masks (OpenSfM's data/berlin): ../shared only
-BERLIN = Path(__file__).resolve().parents[2] / "shared" / "images" / "berlin"
-#: ../shared/images/lund, for test_sfm.py (`from test_images import LUND`) until it moves to the
-#: fixture lund; the tests here read the Lund photos through it (conftest.lund_images())
-LUND = Path(__file__).resolve().parents[2] / "shared" / "images" / "lund"
-
 
 def test_exif_metadata_of_a_real_mapillary_image(lund):
     rec = image_audit.read_exif_metadata(lund / "01.jpg")
@@ -143,12 +137,13 @@ def test_ignore_iou_on_hand_made_masks():
 
 
 @pytest.mark.slow
-def test_offline_masks_overlap_the_published_berlin_masks():
-    """Published masks outline the crowd; ours (HOG boxes + colour rules) must overlap them."""
+def test_offline_masks_overlap_the_published_berlin_masks(berlin):
+    """Published masks (OpenSfM's data/berlin/masks) outline the crowd; ours (HOG boxes + colour rules)
+    must overlap them."""
     backend = segment.make_backend("offline")
     for name in ("01.jpg", "02.jpg"):
-        ref = np.asarray(Image.open(BERLIN / "masks" / f"{name}.png").convert("L"))
-        ids, names = backend.labels(BERLIN / "images" / name)
+        ref = np.asarray(Image.open(berlin / "masks" / f"{name}.png").convert("L"))
+        ids, names = backend.labels(berlin / "images" / name)
         ours, _, _ = segment.mask_and_classes(ids, names, None)
         assert segment.ignore_iou(ours, ref) > 0.1  # measured 0.17-0.18
 

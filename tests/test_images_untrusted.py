@@ -25,7 +25,7 @@ from types import SimpleNamespace
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import lund_images
+from conftest import berlin_images, lund_images
 from PIL import Image, ImageFile
 from snakemake_runner import smk
 
@@ -34,8 +34,6 @@ from flatlandia.errors import InputError
 from flatlandia.images import gps_alignment, image_audit, segment
 
 REPO = Path(__file__).resolve().parents[1]
-#: the Berlin photos (OpenSfM's data/berlin/images): ../shared only; the Lund ones: lund_images()
-BERLIN = REPO.parent / "shared" / "images" / "berlin" / "images"
 IMAGES = config.section_defaults("images")
 
 
@@ -71,7 +69,7 @@ def _run_script(name: str, snakemake: SimpleNamespace, capsys) -> list[str]:
 
 
 def test_every_lund_and_berlin_photo_is_within_the_size_limits():
-    for folder in (lund_images(), BERLIN):
+    for folder in (lund_images(), berlin_images() / "images"):
         df = image_audit.read_folder_metadata(folder)
         assert df["problem"].isna().all(), df[["name", "problem"]]
         assert (df[["width", "height"]].min(axis=1) >= IMAGES["min_side_px"]).all()

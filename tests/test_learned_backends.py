@@ -1,6 +1,6 @@
 """The learned backends run for real: tiny, randomly initialised Mask2Former (Vistas classes) and
 Depth-Anything models of the real architectures, saved with save_pretrained (nothing downloaded),
-on Lund images. Outputs are controlled through the class and depth head biases."""
+on Lund images (the fixture lund). Outputs are controlled through the class and depth head biases."""
 
 from __future__ import annotations
 
@@ -20,7 +20,6 @@ from flatlandia.errors import InputError
 from flatlandia.images import depth, segment
 from flatlandia.images.image_queries import View
 
-LUND = Path(__file__).resolve().parents[2] / "shared" / "images" / "lund"
 IMAGES = ["01.jpg", "15.jpg", "29.jpg"]  # geotagged, ~170 m apart: enough for the images audit
 #: the 65 classes of the public Mask2Former Vistas checkpoints, by their readable names
 VISTAS_V12 = [n for n in segment.VISTAS_V12_READABLE if n != "Unlabeled"]
@@ -118,10 +117,10 @@ def backend(vistas_model):
     return segment.make_backend("transformers", weights=str(vistas_model))
 
 
-def test_mask2former_labels_every_pixel_of_lund_images(backend):
+def test_mask2former_labels_every_pixel_of_lund_images(backend, lund):
     assert backend.names == [segment.VISTAS_V12_READABLE[n] for n in VISTAS_V12]  # readable -> label names
     for name in IMAGES[:2]:
-        ids, names = backend.labels(LUND / name)
+        ids, names = backend.labels(lund / name)
         assert ids.shape == (768, 1024) and ids.dtype == np.int32
         assert 0 <= ids.min() and ids.max() < len(names) == 65
 
@@ -139,9 +138,9 @@ def test_mask2former_labels_every_pixel_of_lund_images(backend):
         ("Ego Vehicle", None, True),
     ],
 )
-def test_vistas_classes_map_to_flatlandia_classes_and_masks(backend, winner, flatlandia_class, masked):
+def test_vistas_classes_map_to_flatlandia_classes_and_masks(backend, lund, winner, flatlandia_class, masked):
     vote_for(backend.model, VISTAS_V12.index(winner))
-    ids, names = backend.labels(LUND / IMAGES[0])
+    ids, names = backend.labels(lund / IMAGES[0])
     assert (ids == VISTAS_V12.index(winner)).all()
     mask, cls, shares = segment.mask_and_classes(ids, names, WATERMARK)
     body = slice(0, 729)  # above the watermark strip (rows 730-767)
@@ -192,11 +191,11 @@ def test_dilation_grows_moving_things_only():
     assert shares["masked"] == pytest.approx((mask == 0).mean())
 
 
-def test_segment_rule_with_the_transformers_backend(repo, flat_root, tmp_path):
+def test_segment_rule_with_the_transformers_backend(repo, flat_root, lund, tmp_path):
     photos = tmp_path / "photos"
     photos.mkdir()
     for name in IMAGES:
-        shutil.copy(LUND / name, photos / name)
+        shutil.copy(lund / name, photos / name)
     weights = save_mask2former(tmp_path / "m2f", VISTAS_V12, winner="Pole")
     sheet = tmp_path / "scenes.tsv"
     sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
@@ -234,28 +233,28 @@ def _view(name: str, depths: np.ndarray) -> tuple[View, dict[int, np.ndarray]]:
     return View(name, K, np.eye(3), np.zeros(3), 1024, 768, ids, xy), dict(enumerate(xyz))
 
 
-def test_depth_anything_predicts_at_the_camera_size(tmp_path):
+def test_depth_anything_predicts_at_the_camera_size(lund, tmp_path):
     model = depth.MonocularDepth(str(save_depth_anything(tmp_path)))
-    pred = model.predict(LUND / IMAGES[0], (768, 1024))
+    pred = model.predict(lund / IMAGES[0], (768, 1024))
     assert pred.shape == (768, 1024) and np.isfinite(pred).all() and (pred >= 0).all()  # ReLU head
 
 
 @pytest.mark.parametrize("inverse", [True, False])
-def test_monocular_depth_is_scaled_to_the_sfm_depths(tmp_path, inverse):
+def test_monocular_depth_is_scaled_to_the_sfm_depths(lund, tmp_path, inverse):
     c = 0.25
     model = depth.MonocularDepth(str(save_depth_anything(tmp_path, constant=c)), inverse=inverse)
     view, xyz = _view(IMAGES[0], np.full(40, 3.0 / c if inverse else 3.0 * c))
-    dm = model.scaled_map(view, LUND / IMAGES[0], xyz)
+    dm = model.scaled_map(view, lund / IMAGES[0], xyz)
     assert dm.shape == (768, 1024)
     # the known scale: depth = 3 / prediction (inverse) or 3 * prediction
     assert np.allclose(dm, 3.0 / c if inverse else 3.0 * c)
 
 
-def test_queries_lifter_puts_detections_at_the_scaled_depth(tmp_path):
+def test_queries_lifter_puts_detections_at_the_scaled_depth(lund, tmp_path):
     weights = save_depth_anything(tmp_path, constant=0.5)
     depths = np.linspace(4.0, 20.0, 41)  # median 12
     view, xyz = _view(IMAGES[1], depths)
-    lift = depth.make_lifter("transformers", xyz, images_dir=str(LUND), weights=str(weights), inverse=True)
+    lift = depth.make_lifter("transformers", xyz, images_dir=str(lund), weights=str(weights), inverse=True)
     box = [600.0, 300.0, 700.0, 500.0]
     X = lift(view, box)
     ray = np.linalg.solve(view.K, [650.0, 400.0, 1.0])

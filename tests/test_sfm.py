@@ -1,11 +1,10 @@
-"""SfM bad input and edge cases on real images (small sets, seconds each)."""
+"""SfM bad input and edge cases on real images (small sets of the Lund photos, seconds each)."""
 
 import shutil
 
 import numpy as np
 import pytest
 from PIL import Image
-from test_images import LUND
 
 from flatlandia.errors import InputError
 from flatlandia.images import sfm
@@ -13,9 +12,9 @@ from flatlandia.images import sfm
 OPTS = sfm.SfmOptions(num_threads=1, max_image_size=800)
 
 
-def test_a_folder_with_one_image_is_a_clear_error(tmp_path):
+def test_a_folder_with_one_image_is_a_clear_error(lund, tmp_path):
     with pytest.raises(InputError, match="SfM needs at least 3 images, 1 kept"):
-        sfm.run_sfm(LUND, ["01.jpg"], None, tmp_path / "w", OPTS)
+        sfm.run_sfm(lund, ["01.jpg"], None, tmp_path / "w", OPTS)
 
 
 def test_images_that_do_not_overlap_give_a_clear_error(tmp_path):
@@ -27,12 +26,12 @@ def test_images_that_do_not_overlap_give_a_clear_error(tmp_path):
 
 
 @pytest.mark.slow
-def test_mixed_image_sizes_reconstruct_with_one_camera_per_size(tmp_path):
+def test_mixed_image_sizes_reconstruct_with_one_camera_per_size(lund, tmp_path):
     names = [f"{k:02d}.jpg" for k in range(1, 9)]
     for n in names[0::2]:
-        shutil.copy(LUND / n, tmp_path / n)
+        shutil.copy(lund / n, tmp_path / n)
     for n in names[1::2]:
-        Image.open(LUND / n).resize((800, 600)).save(tmp_path / n, quality=95)
+        Image.open(lund / n).resize((800, 600)).save(tmp_path / n, quality=95)
     rec = sfm.run_sfm(tmp_path, names, None, tmp_path / "w", sfm.SfmOptions(num_threads=1))
     assert rec.num_reg_images() >= 3
     sizes = {(c.width, c.height) for c in rec.cameras.values()}

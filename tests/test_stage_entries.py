@@ -275,19 +275,17 @@ def test_scene_cities_skip_scenes_without_queries_and_are_seeded(flat_root, scen
 
 
 @pytest.mark.slow
-def test_sfm_reconstruct_cleans_a_camera_far_from_its_gps(tmp_path):
-    from test_images import LUND
-
+def test_sfm_reconstruct_cleans_a_camera_far_from_its_gps(lund, tmp_path):
     from flatlandia.images import image_audit, sfm
 
     images = config.section_defaults("images")
-    table = image_audit.audit_table(LUND, images["dedup_threshold"], images["missing_gps"])
+    table = image_audit.audit_table(lund, images["dedup_threshold"], images["missing_gps"])
     table = table[table["name"].isin([f"{k:02d}.jpg" for k in range(1, 9)])].reset_index(drop=True)
     moved = "04.jpg"  # its GPS fix 500 m north: the cleaning must drop it, whatever SfM made of it
     table.loc[table["name"] == moved, "lat"] += 500 / 111_320
     options = {**config.section_defaults("sfm"), "max_image_size": 800}
     messages = []
-    rec, stats, cameras = sfm.reconstruct(LUND, table, None, tmp_path / "w", options, 0, log=messages.append)
+    rec, stats, cameras = sfm.reconstruct(lund, table, None, tmp_path / "w", options, 0, log=messages.append)
     s = stats.iloc[0]
     assert s["registered"] == rec.num_reg_images() == len(cameras) and s["images_input"] == 8
     assert moved not in set(cameras["name"]) and f"{moved}: over 50.0 m from its GPS fix" in s["removed"]

@@ -264,15 +264,15 @@ def _photos(src: Path, dest: Path, n: int = 3) -> Path:
 
 
 @pytest.mark.parametrize("name", ["../x.jpg", "/etc/x.jpg", "sub/01.jpg", "..", "a\\b.jpg"])
-def test_metadata_csv_names_must_be_plain_file_names(flat_root, tmp_path, name):
-    photos = _photos(flat_root.parent / "images" / "lund", tmp_path / "photos")
+def test_metadata_csv_names_must_be_plain_file_names(lund, tmp_path, name):
+    photos = _photos(lund, tmp_path / "photos")
     (photos / "metadata.csv").write_text(f"name,lat,lon\n01.jpg,55.7,13.19\n{name},55.7,13.19\n")
     with pytest.raises(InputError, match=re.escape(f"metadata.csv: image name {name!r} is refused")):
         image_audit.read_folder_metadata(photos)
 
 
-def test_metadata_csv_naming_a_parent_file_stops_the_workflow(repo, flat_root, tmp_path):
-    photos = _photos(flat_root.parent / "images" / "lund", tmp_path / "photos")
+def test_metadata_csv_naming_a_parent_file_stops_the_workflow(repo, flat_root, lund, tmp_path):
+    photos = _photos(lund, tmp_path / "photos")
     (photos / "metadata.csv").write_text("name,lat,lon\n../x.jpg,55.7,13.19\n")
     sheet = tmp_path / "scenes.tsv"
     sheet.write_text(f"scene\tsource\tcity\tname\tpath\turl\tsubfolder\nmine\timages\tLund\tmine\t{photos}\t\t\n")
