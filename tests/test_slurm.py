@@ -267,15 +267,15 @@ def test_maps_of_the_tiny_scene_through_slurm_equal_the_local_run(slurm, repo, t
 
 @pytest.mark.slow
 def test_benchmark_of_two_scenes_through_slurm_equals_the_local_run(slurm, repo, flat_root, tmp_path):
-    """Dataset tables, a coarse and four fine models (2 epochs each: config/test/slurm_small.yaml)
-    and the localization tables of scenes 9 and 12: 34 SLURM jobs, one per job of a rule (per
+    """Dataset tables, a coarse and two fine models (2 epochs each: config/test/slurm_small.yaml)
+    and the localization tables of scenes 9 and 12: 27 SLURM jobs, one per job of a rule (per
     scene for the grouped light steps)."""
     configs = [str(TEST_CONFIGS / name) for name in ("two_scenes.yaml", "slurm_small.yaml")]
     local, cluster, out = local_and_slurm(
         repo, tmp_path, "benchmark", "--configfile", *configs, "--config", f"flatlandia_root={flat_root}"
     )
     run_id = _run_id(out)
-    assert len(re.findall(r"has been submitted with SLURM jobid \d+", out)) > 30
+    assert len(re.findall(r"has been submitted with SLURM jobid \d+", out)) >= 25
     assert not _jobs_of(run_id, "PENDING,RUNNING")
     assert differences(local, cluster) == []
     for table in ("dataset_stats", "coarse_localization", "fine_localization"):

@@ -110,6 +110,10 @@ def test_city_target_tiles_the_benchmark_scenes_and_writes_the_table(run_two_sce
     assert tiled.loc[(2, "whole-map solver"), "objects"] == 13 + 44  # scenes 9 and 12 in one map
     assert (df[df["map"] == "simulated"]["objects"] >= 150).all()
     assert "City scale" in (run_two_scenes / "results/tables/city_scale.md").read_text()
+    # beyond one frame: the city rows in a table of their own, beside the scene rows of `all`'s
+    beyond = pd.read_parquet(run_two_scenes / "results/tables/beyond_one_frame_city.parquet")
+    assert set(beyond["map"]) == {"scene", "city-2", "simulated-150"}
+    assert set(pd.read_parquet(run_two_scenes / "results/tables/beyond_one_frame.parquet")["map"]) == {"scene"}
 
 
 def _umask() -> int:

@@ -1,6 +1,8 @@
 # Beyond one frame: a GPS fix and sequences of frames (flatlandia.beyond), on each scene's whole
-# map (rule beyond_scene, in `all`) and in the cities (rule beyond_city, in `city`), and the table
-# results/tables/beyond_one_frame.{parquet,md} (its city rows once `city` asks for them or they exist).
+# map (rule beyond_scene, in `all`) and in the cities (rule beyond_city, in `city`), and the tables
+# results/tables/beyond_one_frame.{parquet,md} (the scene rows, in `all`) and
+# results/tables/beyond_one_frame_city.{parquet,md} (the scene and city rows, in `city`): two files,
+# so that `all` never reruns the city rows, nor drops them from a table `city` wrote.
 
 
 include: "inputs/beyond.smk"
@@ -65,10 +67,12 @@ rule beyond_table:
     input:
         summaries=beyond_summaries,
     output:
-        parquet="results/tables/beyond_one_frame.parquet",
-        markdown="results/tables/beyond_one_frame.md",
+        parquet="results/tables/beyond_{part}.parquet",
+        markdown="results/tables/beyond_{part}.md",
     log:
-        "logs/beyond_table/all.log",
+        "logs/beyond_table/{part}.log",
+    wildcard_constraints:
+        part="one_frame|one_frame_city",
     conda:
         "../../envs/flatlandia.yaml"
     threads: rule_threads("beyond_table")

@@ -1,5 +1,5 @@
-"""Rule beyond_table: results/tables/beyond_one_frame.{parquet,md}, the rows of rules beyond_scene
-and beyond_city (flatlandia.beyond.table)."""
+"""Rule beyond_table: results/tables/beyond_{part}.{parquet,md}, the rows of rule beyond_scene
+(`one_frame`) and of beyond_city too (`one_frame_city`) (flatlandia.beyond.table)."""
 
 import json
 from pathlib import Path

@@ -1,4 +1,5 @@
-"""The table of "beyond one frame": results/tables/beyond_one_frame.{parquet,md}.
+"""The table of "beyond one frame": results/tables/beyond_one_frame.{parquet,md} (the scene rows) and
+beyond_one_frame_city.{parquet,md} (the same columns, the scene and city rows).
 
 One row per (map, frames, GPS sigma, camera prior) from the summaries of rules beyond_scene and
 beyond_city (:func:`flatlandia.beyond.evaluate.summaries`); the Markdown puts the headline columns

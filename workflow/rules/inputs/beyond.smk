@@ -44,24 +44,14 @@ def beyond_city_maps():
     return maps
 
 
-def beyond_city_requested():
-    """The `city` target (or a city row) was asked for (read when the DAG is built: the targets
-    are not known while the workflow is parsed)."""
-    settings = getattr(workflow, "dag_settings", None)
-    targets = {str(t) for t in (settings.targets if settings is not None else ())}
-    return "city" in targets or any(t.startswith("results/beyond/") and "/scene/" not in t for t in targets)
-
-
-def beyond_summaries(wildcards=None):
-    """The table's inputs: the scene rows always, the city rows when `city` asks for them or they
-    already exist (so `all` keeps them in the table once `city` has built them). An input function:
-    the targets are known once the DAG is built."""
+def beyond_summaries(wildcards):
+    """The table's inputs: the scene rows, and for `beyond_one_frame_city` the city rows too."""
     if not benchmark_scenes():
         return []
     scene = expand("results/beyond/scene/summary_{prior}.json", prior=beyond_scene_priors())
-    city = [f"results/beyond/{m}/summary.json" for m in beyond_city_maps()]
-    wanted = beyond_city_requested()
-    return scene + [c for c in city if wanted or os.path.exists(c)]
+    if wildcards.part == "one_frame":
+        return scene
+    return scene + [f"results/beyond/{m}/summary.json" for m in beyond_city_maps()]
 
 
 def beyond_products():
@@ -72,7 +62,7 @@ def beyond_products():
 
 
 def beyond_city_products():
-    """The `city` target's share: the city rows and the table holding them."""
+    """The `city` target's share: the table with the city rows."""
     if not benchmark_scenes():
         return []
-    return [f"results/beyond/{m}/summary.json" for m in beyond_city_maps()] + beyond_products()
+    return ["results/tables/beyond_one_frame_city.parquet", "results/tables/beyond_one_frame_city.md"]

@@ -36,8 +36,8 @@ def city_summaries():
 
 
 def city_products():
-    """The `city` target (not in `all`): the city-scale table, and the city rows of the table
-    beyond_one_frame (rules/beyond.smk)."""
+    """The `city` target (not in `all`): the city-scale table, and the table beyond_one_frame_city
+    (rules/beyond.smk)."""
     if not benchmark_scenes():
         return []
     return ["results/tables/city_scale.parquet", "results/tables/city_scale.md"] + beyond_city_products()
