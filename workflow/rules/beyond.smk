@@ -29,7 +29,7 @@ rule beyond_scene:
         scenes=benchmark_scenes(),
         seed=config["seed"],
         solver=config["solver"],
-        beyond=config["beyond"],
+        beyond=BEYOND_PROTOCOL,
     script:
         "../scripts/beyond_scene.py"
 
@@ -58,7 +58,7 @@ rule beyond_city:
         search=config["city"]["search"],
         simulate=config["city"]["simulate"],
         spacing_m=config["city"]["spacing_m"],
-        beyond=config["beyond"],
+        beyond=BEYOND_PROTOCOL,
     script:
         "../scripts/beyond_city.py"
 
@@ -80,6 +80,6 @@ rule beyond_table:
         **rule_resources("beyond_table"),
     params:
         split=config["beyond"]["split"],
-        beyond=config["beyond"],
+        beyond=BEYOND_PROTOCOL,
     script:
         "../scripts/beyond_table.py"

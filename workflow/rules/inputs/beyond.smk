@@ -27,6 +27,11 @@ def beyond_city_inputs(wildcards):
     return inp
 
 
+#: what the beyond rules read of config `beyond`: the protocol and the solver's settings, not which
+#: cities the city rows use (those name the rules' outputs), so another city does not rerun them
+BEYOND_PROTOCOL = {k: v for k, v in config["beyond"].items() if k not in ("city_scenes", "city_objects")}
+
+
 def beyond_scene_priors():
     """The scene rows' camera priors: `on` and/or `off` (config beyond.scene_camera_prior)."""
     return ["on" if p else "off" for p in dict.fromkeys(config["beyond"]["scene_camera_prior"])]
