@@ -1,6 +1,7 @@
 # One-command entry points (see README.md):
 #   make all    set everything up, then run `snakemake --cores 2 all` on the default config
 #   make test   set everything up, then lint (ruff, snakefmt, snakemake --lint) and run the whole test suite
+#               in two pytest workers (TEST_WORKERS=1 for one)
 #   make test-fast  set everything up, then run the tests that need neither the published data nor
 #               Snakemake jobs (pytest -m "not slow"; tests/conftest.py says which are slow)
 PYTHON ?= python3
@@ -8,6 +9,8 @@ VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 CORES  ?= 2
+# pytest workers of `make test` (pytest-xdist, one test module per worker at a time)
+TEST_WORKERS ?= 2
 
 .PHONY: all test test-fast check format install system-deps bench report clean
 
@@ -15,7 +18,7 @@ all: install
 	$(BIN)/snakemake --cores $(CORES) all
 
 test: install check
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: install
 	$(BIN)/python -m pytest -q -m "not slow"

@@ -8,6 +8,8 @@ test that needs the published data or runs Snakemake jobs (`make test-fast` runs
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import functools
 import inspect
 import os
@@ -101,6 +103,21 @@ def berlin_source() -> dict[str, str]:
     return {**lund_source(), "path": BERLIN_PATH, "subfolder": BERLIN_SUBFOLDER}
 
 
+@contextlib.contextmanager
+def fetch_lock():
+    """One fetch at a time across the test workers of a session (`make test` runs two, pytest-xdist):
+    an exclusive lock on resources/.tests-fetch.lock; a caller checks again for the data once it
+    holds the lock (another worker may have fetched them meanwhile)."""
+    path = REPO / "resources" / ".tests-fetch.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 def find_photos(
     what: str,
     shared: Path,
@@ -117,12 +134,19 @@ def find_photos(
     ``dest`` the way `make all` does (rule fetch_images: ``src``'s url and subfolder, the config's
     fetch settings; ``url``, or the first environment variable of ``env`` that is set, instead of
     ``src``'s url, e.g. a file:// zip); ``shared_is`` says in the problem where ``shared`` comes from."""
-    from flatlandia import config, io
-    from flatlandia.data import fetch
 
     if shared.is_dir():
         return shared, ""
     url = url or next((os.environ[name] for name in env if os.environ.get(name)), "") or src["url"]
+    with fetch_lock():
+        return _fetch_photos(what, shared, dest, src, env, url, shared_is)
+
+
+def _fetch_photos(what, shared, dest, src, env, url, shared_is) -> tuple[Path, str]:
+    """:func:`find_photos` under :func:`fetch_lock`: an earlier complete fetch, else a fetch now."""
+    from flatlandia import config, io
+    from flatlandia.data import fetch
+
     if fetch.fetched_before(dest):
         marker = io.read_json(dest / fetch.FETCH_MARKER)
         if marker.get("url") == url and marker.get("subfolder", src["subfolder"]) == src["subfolder"]:
@@ -197,8 +221,11 @@ def pytest_collection_finish(session):
     if os.environ.get("FLATLANDIA_ROOT") or (root / "local_maps.json").exists():
         return
     if any(item.get_closest_marker("slow") for item in session.items):
-        print(f"\nthe published data is not at {root}: fetching it as `make all` does ...", flush=True)
-        FETCH_PROBLEM["problem"] = ensure_published_data(root)
+        with fetch_lock():  # the other test worker may be fetching it
+            if (root / "local_maps.json").exists():
+                return
+            print(f"\nthe published data is not at {root}: fetching it as `make all` does ...", flush=True)
+            FETCH_PROBLEM["problem"] = ensure_published_data(root)
 
 
 @pytest.fixture(scope="session")
