@@ -26,6 +26,16 @@ TINY_ROOT = REPO / "tests" / "data" / "tiny"
 TINY_SCENE = "0"
 
 
+def benchmark_module(name: str):
+    """A hand-run script of benchmarks/ loaded as a module (its functions shared with the tests)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def data_root() -> Path:
     """The published data: FLATLANDIA_ROOT, else ../shared/flatlandia, else where `make all` fetches
     it (the config's fetch.dest in the repository: resources/flatlandia)."""

@@ -7,7 +7,6 @@ published scenes (slow)."""
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
 import math
 import shutil
@@ -16,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from conftest import REPO, TINY_ROOT, TINY_SCENE, smk_dry_run
+from conftest import REPO, TINY_ROOT, TINY_SCENE, benchmark_module, smk_dry_run
 from snakemake_runner import smk
 
 from flatlandia import cli, config, figures, geo, io, score, tables
@@ -27,15 +26,7 @@ from flatlandia.fine import evaluation
 from flatlandia.fine import table as fine_table
 from flatlandia.viewer import page, query_figures, scene
 
-
-def _compare_tables():
-    spec = importlib.util.spec_from_file_location("compare_tables", REPO / "benchmarks" / "compare_tables.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-compare_tables = _compare_tables()
+compare_tables = benchmark_module("compare_tables")
 #: an errors row's columns that are the solver's own fit, not its pose (an external method has none)
 FIT_COLUMNS = {"confidence", "n_inliers", "n_correct_inliers", "matched_obj_idx"}
 #: radians(degrees(t)) is t to the last bit or two: headings round-trip to 1e-13 deg

@@ -10,7 +10,6 @@ end when this module started it (tests/slurm/stop_slurm.sh)."""
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 import shutil
@@ -22,7 +21,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import REPO, smk_dry_run
+from conftest import REPO, benchmark_module, smk_dry_run
 from snakemake_runner import SNAKEMAKE, smk
 
 SLURM_SCRIPTS = REPO / "tests" / "slurm"
@@ -33,14 +32,7 @@ TEST_CONFIGS = REPO / "config" / "test"
 SMALL_NODE = (2, 20000)
 
 
-def _compare_tables():
-    spec = importlib.util.spec_from_file_location("compare_tables", REPO / "benchmarks" / "compare_tables.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-compare_tables = _compare_tables()
+compare_tables = benchmark_module("compare_tables")
 
 
 # ---------------------------------------------------------------- resources, profile (fast)

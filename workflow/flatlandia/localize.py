@@ -703,7 +703,6 @@ def localize(
     (the solver's time); ``reason`` when nothing was found. ``gps`` (lon, lat, sigma_m) and
     ``compass`` (heading_deg clockwise from north, sigma_deg): a phone's fix, weighed as a likelihood
     (:func:`fixes`; not with ``near``)."""
-    from flatlandia import solver
     from flatlandia.city import search as city_search
 
     if map_type not in MAP_TYPES:
@@ -738,21 +737,7 @@ def localize(
         best, alts, rows = found.solution, found.alternatives, found.rows
     else:
         rows = np.arange(len(m.xy)) if near is None else _near_rows(m, near, radius_m)[0]
-        priors = m.priors[map_type]
-        found = (
-            solver.localize(
-                xy,
-                q.cls,
-                m.xy[rows],
-                m.cls[rows],
-                metric=metric,
-                config=m.settings,
-                priors=priors.rows(rows) if priors is not None else None,
-                alternatives=alternatives,
-            )
-            if len(rows) >= 2
-            else solver.Localization(None)
-        )
+        found = _solve_rows(m, xy, q.cls, rows, metric, map_type, alternatives)
         best, alts = found.best, found.alternatives
     seconds = time.perf_counter() - t0
     if near is not None:
@@ -799,11 +784,31 @@ def _gps_used(gps, compass) -> dict:
     return out
 
 
+def _solve_rows(m: ObjectMap, xy, cls, rows: np.ndarray, metric: bool, map_type: str, alternatives: int, fix=None):
+    """The solver on the scene map's ``rows`` with the map's priors over them (none found when fewer
+    than 2 objects are searched): one query, with or without a fix."""
+    from flatlandia import solver
+
+    if len(rows) < 2:
+        return solver.Localization(None)
+    priors = m.priors[map_type]
+    return solver.localize(
+        xy,
+        cls,
+        m.xy[rows],
+        m.cls[rows],
+        metric=metric,
+        config=m.settings,
+        priors=priors.rows(rows) if priors is not None else None,
+        alternatives=alternatives,
+        fix=fix,
+    )
+
+
 def _localize_with_fix(m: ObjectMap, xy, cls, metric: bool, alternatives: int, fx: list, map_type: str):
     """(best, alternatives, rows searched) of one query with a fix: the map objects within the fix's
     reach, the fix as the solver's likelihood; on a city, each tile the fix falls in, the cheapest
     answer kept."""
-    from flatlandia import solver
     from flatlandia.city import search as city_search
 
     answers = []
@@ -815,22 +820,7 @@ def _localize_with_fix(m: ObjectMap, xy, cls, metric: bool, alternatives: int, f
             answers.append((found.solution, found.alternatives, found.rows))
             continue
         rows = np.flatnonzero(np.hypot(*(m.xy - fix.xy).T) <= fix.crop_m)
-        priors = m.priors[map_type]
-        found = (
-            solver.localize(
-                xy,
-                cls,
-                m.xy[rows],
-                m.cls[rows],
-                metric=metric,
-                config=m.settings,
-                priors=priors.rows(rows) if priors is not None else None,
-                alternatives=alternatives,
-                fix=fix,
-            )
-            if len(rows) >= 2
-            else solver.Localization(None)
-        )
+        found = _solve_rows(m, xy, cls, rows, metric, map_type, alternatives, fix)
         answers.append((found.best, found.alternatives, rows))
     found = [a for a in answers if a[0] is not None]
     if not found:
