@@ -296,9 +296,11 @@ def read_parquet_metadata(path: str | Path) -> dict[str, Any]:
     """The ``flatlandia`` JSON metadata stored by :func:`write_parquet` (empty if none)."""
     import pyarrow.parquet as pq
 
+    from flatlandia import validate
+
     meta = pq.read_schema(path).metadata or {}
     raw = meta.get(b"flatlandia")
-    return json.loads(raw) if raw else {}
+    return validate.parse_json(raw, path) if raw else {}
 
 
 def write_json(obj: Any, path: str | Path) -> None:
@@ -336,14 +338,15 @@ def _need(path: Path) -> Path:
     return path
 
 
-def read_json(path: str | Path) -> Any:
-    path = _need(Path(path))
-    try:
-        return json.loads(path.read_text())
-    except UnicodeDecodeError as e:
-        raise InputError(path, f"not UTF-8 text ({e})") from e
-    except json.JSONDecodeError as e:
-        raise InputError(path, f"invalid JSON (truncated or corrupt?): {e}") from e
+def read_json(path: str | Path, max_bytes: int | None = None) -> Any:
+    """A JSON file, checked at the door (:func:`flatlandia.validate.read_json`: a regular file of at
+    most ``max_bytes``, default :data:`~flatlandia.validate.MAX_JSON_BYTES`, nested at most
+    :data:`~flatlandia.validate.MAX_JSON_DEPTH` deep; long integers read as floats)."""
+    from flatlandia import validate
+
+    if max_bytes is None:
+        return validate.read_json(path)
+    return validate.read_json(path, max_bytes, "")
 
 
 def read_tsv(path: str | Path, required: list[str]) -> pd.DataFrame:
@@ -433,7 +436,22 @@ def read_transformations(path: str | Path) -> dict:
         raise InputError(path, f"malformed transformations ({e})") from e
     if rpp.shape != (3, 3) or r2.shape != (3, 3) or tr.size < 2 or not math.isfinite(s) or s <= 0:
         raise InputError(path, "transformations have wrong shapes or a non-positive scale")
+    tf = t["to_flatlandia"]
+    for name, a in (("to_principal_plane", rpp), ("to_mapillary.rotation", r2), ("to_mapillary.translation", tr)):
+        if not np.isfinite(a).all():
+            raise InputError(path, f"{name} holds NaN or inf: the published chain would put objects nowhere")
+    if isinstance(tf, bool) or not isinstance(tf, (int, float)) or not math.isfinite(tf) or tf <= 0:
+        raise InputError(path, f"to_flatlandia must be a positive finite number, got {tf!r}")
+    for name, a in (("to_principal_plane", rpp), ("to_mapillary.rotation", r2)):
+        if not np.allclose(a @ a.T, np.eye(3), atol=ROTATION_TOL):
+            raise InputError(path, f"{name} is not a rotation or a reflection (its rows are not orthonormal)")
+    if np.abs(tr[:2]).max() > 180 or abs(float(tr[1])) > 90:
+        raise InputError(path, "to_mapillary.translation is not lon, lat in degrees")
     return t
+
+
+#: how far a published rotation's rows may be from orthonormal (the published ones: 2e-16)
+ROTATION_TOL = 1e-6
 
 
 def sha256(path: str | Path, chunk: int = 1 << 20) -> str:

@@ -53,6 +53,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from flatlandia import validate
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
@@ -85,9 +86,12 @@ def class_id(label: Any, source: str | Path, where: str) -> int:
     """The class id of a Vistas label (``classes.tsv``); unknown: InputError naming the closest."""
     if isinstance(label, str) and label in _CLASS_IDS:
         return _CLASS_IDS[label]
-    closest = difflib.get_close_matches(str(label), CLASSES, n=1, cutoff=0.0)
+    short = len(str(label)) <= 2 * max(map(len, CLASSES))  # a long text is like no label: no search
+    closest = difflib.get_close_matches(str(label), CLASSES, n=1, cutoff=0.0) if short else []
     hint = f"; closest known label: {closest[0]!r}" if closest else ""
-    raise InputError(source, f"{where}: unknown class {label!r}{hint} (the Mapillary Vistas labels of classes.tsv)")
+    raise InputError(
+        source, f"{where}: unknown class {validate.shown(label)}{hint} (the Mapillary Vistas labels of classes.tsv)"
+    )
 
 
 _CLASS_IDS = {c: k for k, c in enumerate(CLASSES)}
@@ -131,14 +135,15 @@ def parse_query(obj: Any, source: str | Path = "<query>", qid: str | None = None
     """A query from its JSON value ``{"objects": [{"class", "x", "y"}, ...]}``; InputError naming
     the ``source`` and what is wrong (an unknown class with the closest label, fewer than 3
     objects, a coordinate that is not a finite number)."""
-    name = f"query {qid!r}" if qid is not None else "query"
+    name = f"query {validate.shown(qid)}" if qid is not None else "query"
     if not isinstance(obj, dict) or not isinstance(obj.get("objects"), list):
         raise InputError(source, f'{name}: expected {{"objects": [{{"class": ..., "x": ..., "y": ...}}, ...]}}')
     qid = str(obj["id"]) if obj.get("id") is not None else qid
-    name = f"query {qid!r}" if qid is not None else "query"
+    name = f"query {validate.shown(qid)}" if qid is not None else "query"
     objects = obj["objects"]
     if len(objects) < MIN_OBJECTS:
         raise InputError(source, f"{name} has {len(objects)} objects; at least {MIN_OBJECTS} are needed")
+    validate.count(len(objects), validate.MAX_QUERY_OBJECTS, source, f"objects in {name}", "MAX_QUERY_OBJECTS")
     xy, cls = np.empty((len(objects), 2)), np.empty(len(objects), np.int64)
     for k, o in enumerate(objects):
         where = f"{name} object {k}"
@@ -148,8 +153,12 @@ def parse_query(obj: Any, source: str | Path = "<query>", qid: str | None = None
         for j, axis in enumerate("xy"):
             v = o.get(axis)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise InputError(source, f"{where}: {axis} must be a finite number of the local map, got {v!r}")
-            xy[k, j] = float(v)
+                raise InputError(
+                    source, f"{where}: {axis} must be a finite number of the local map, got {validate.shown(v)}"
+                )
+            xy[k, j] = validate.finite(
+                v, source, f"{where}: {axis} (MAX_LOCAL_COORD)", -validate.MAX_LOCAL_COORD, validate.MAX_LOCAL_COORD
+            )
     if np.any(np.hypot(xy[:, 0], xy[:, 1]) == 0):
         raise InputError(source, f"{name}: an object at the camera (0, 0) has no bearing")
     return Query(qid, xy, cls, str(source))
@@ -157,12 +166,11 @@ def parse_query(obj: Any, source: str | Path = "<query>", qid: str | None = None
 
 def read_queries(path: str | Path) -> tuple[list[Query], bool]:
     """The queries of a JSON file and whether it held many (``{"queries": [...]}``) or one."""
-    from flatlandia import io
-
-    doc = io.read_json(path)
+    doc = validate.read_json(path, validate.MAX_QUERY_JSON_BYTES, "MAX_QUERY_JSON_BYTES")
     if isinstance(doc, dict) and "queries" in doc:
         if not isinstance(doc["queries"], list) or not doc["queries"]:
             raise InputError(path, '"queries" must be a non-empty list of {"id": ..., "objects": [...]}')
+        validate.count(len(doc["queries"]), validate.MAX_QUERIES, path, "queries", "MAX_QUERIES")
         return [parse_query(q, path, str(k)) for k, q in enumerate(doc["queries"])], True
     return [parse_query(doc, path)], False
 
@@ -186,10 +194,12 @@ class Sequence:
     source: str = "<sequence>"
 
 
-def _number(v, source, where: str, positive: bool = False) -> float:
+def _number(v, source, where: str, positive: bool = False, bound: float = math.inf) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (positive and v <= 0):
         kind = "a positive number" if positive else "a finite number"
-        raise InputError(source, f"{where} must be {kind}, got {v!r}")
+        raise InputError(source, f"{where} must be {kind}, got {validate.shown(v)}")
+    if abs(v) > bound:
+        raise InputError(source, f"{where} must be at most {bound:g} in size, got {validate.shown(v)}")
     return float(v)
 
 
@@ -205,6 +215,7 @@ def parse_sequence(obj: Any, source: str | Path = "<sequence>") -> Sequence:
             source,
             'expected {"frames": [{"objects": [...]}, {"objects": [...], "pose": {"x": ..., "y": ..., "theta_deg": ...}}, ...]}',
         )
+    validate.count(len(obj["frames"]), validate.MAX_SEQUENCE_FRAMES, source, "frames", "MAX_SEQUENCE_FRAMES")
     beyond = config.section_defaults("beyond")
     frames, rel, sigma = [], [], []
     for k, f in enumerate(obj["frames"]):
@@ -222,15 +233,15 @@ def parse_sequence(obj: Any, source: str | Path = "<sequence>") -> Sequence:
                 source,
                 f'{where}: needs "pose": {{"x": forward m, "y": left m, "theta_deg": turn}} in the first frame\'s camera frame',
             )
-        x, y = (_number(pose.get(a), source, f"{where} pose {a}") for a in ("x", "y"))
-        th = _number(pose.get("theta_deg", 0.0), source, f"{where} pose theta_deg")
+        x, y = (_number(pose.get(a), source, f"{where} pose {a}", bound=validate.MAX_ODOMETRY_M) for a in ("x", "y"))
+        th = _number(pose.get("theta_deg", 0.0), source, f"{where} pose theta_deg", bound=360.0)
         rel.append((x, y, math.radians(th)))
         sm = f.get("sigma_m", max(0.05, beyond["odometry_distance_pct"] / 100 * math.hypot(x, y)))
         sd = f.get("sigma_deg", max(0.1, beyond["odometry_heading_deg"] * math.sqrt(k)))
         sigma.append(
             (
-                _number(sm, source, f"{where} sigma_m", True),
-                math.radians(_number(sd, source, f"{where} sigma_deg", True)),
+                _number(sm, source, f"{where} sigma_m", True, validate.MAX_ODOMETRY_M),
+                math.radians(_number(sd, source, f"{where} sigma_deg", True, validate.MAX_COMPASS_SIGMA_DEG)),
             )
         )
     return Sequence(frames, np.array(rel, float), np.array(sigma, float), str(source))
@@ -238,9 +249,7 @@ def parse_sequence(obj: Any, source: str | Path = "<sequence>") -> Sequence:
 
 def read_sequence(path: str | Path) -> Sequence:
     """The sequence of a JSON file (:func:`parse_sequence`)."""
-    from flatlandia import io
-
-    return parse_sequence(io.read_json(path), path)
+    return parse_sequence(validate.read_json(path, validate.MAX_QUERY_JSON_BYTES, "MAX_QUERY_JSON_BYTES"), path)
 
 
 # ----------------------------------------------------------------------------- maps
@@ -341,17 +350,23 @@ def _read_table(path: Path) -> tuple[pd.DataFrame, dict]:
 
     if path.suffix.lower() == ".parquet":
         try:
+            validate.parquet_size(
+                path, validate.MAX_MAP_OBJECTS, validate.MAX_MAP_BYTES, "objects", ("MAX_MAP_OBJECTS", "MAX_MAP_BYTES")
+            )
             df = pd.read_parquet(path)
             meta = io.read_parquet_metadata(path)
+        except InputError:
+            raise
         except Exception as e:  # pyarrow raises several types for files that are not Parquet
             raise InputError(path, f"not a readable Parquet file ({type(e).__name__}: {e})") from None
         if "geometry" in df.columns and not (_pick(df.columns, LON_KEYS) and _pick(df.columns, LAT_KEYS)):
             df = _geometry_lonlat(path, df)
         return df, meta
-    doc = io.read_json(path)
+    doc = validate.read_json(path, validate.MAX_MAP_BYTES, "MAX_MAP_BYTES")
     feats = doc.get("features") if isinstance(doc, dict) else None
     if not isinstance(feats, list):
         raise InputError(path, "not GeoJSON: expected a FeatureCollection with a list of features")
+    validate.count(len(feats), validate.MAX_MAP_OBJECTS, path, "features", "MAX_MAP_OBJECTS")
     meta = doc.get("flatlandia") if isinstance(doc.get("flatlandia"), dict) else {}
     rows = []
     for k, f in enumerate(feats):
@@ -359,8 +374,14 @@ def _read_table(path: Path) -> tuple[pd.DataFrame, dict]:
         coords = geom.get("coordinates") if isinstance(geom, dict) else None
         if not isinstance(geom, dict) or geom.get("type") != "Point" or not isinstance(coords, list) or len(coords) < 2:
             raise InputError(path, f"feature {k}: expected a Point geometry with [lon, lat] coordinates")
-        props = f.get("properties") or {}
-        rows.append({**props, "lon": coords[0], "lat": coords[1]})
+        if any(isinstance(c, bool) for c in coords[:2]):
+            raise InputError(path, f"feature {k}: coordinates must be numbers, not true/false")
+        props = f.get("properties")
+        if props is not None and not isinstance(props, dict):
+            raise InputError(
+                path, f"feature {k}: properties must be a JSON object (or null), not {type(props).__name__}"
+            )
+        rows.append({**(props or {}), "lon": coords[0], "lat": coords[1]})
     df = pd.DataFrame(rows)
     if meta.get("frame") == "local":  # a map without GPS: its coordinates are x/y, not lon/lat
         df = df.drop(columns=["lon", "lat"])
@@ -405,11 +426,14 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
     df, meta = _read_table(path)
     if len(df) == 0:
         raise InputError(path, "the map holds no objects")
+    origin = validate.frame_origin(meta, path)  # metadata that is no object, or a lon0 that is no degree: refused
+    meta = meta or {}
     cls = _table_classes(df, path)
     obj = _numbers(df, ["obj_idx"], path, np.int64)[:, 0] if "obj_idx" in df.columns else np.arange(len(df))
+    validate.unique_ids(obj, path)
     lon, lat = _pick(df.columns, LON_KEYS), _pick(df.columns, LAT_KEYS)
     lonlat = _numbers(df, [lon, lat], path) if lon and lat else None
-    ours = meta.get("lon0") is not None and meta.get("lat0") is not None and {"x_m", "y_m"} <= set(df.columns)
+    ours = origin is not None and {"x_m", "y_m"} <= set(df.columns)
     to_lonlat = to_xy = None
     if meta.get("frame") == "local" and {"x_m", "y_m"} <= set(df.columns):  # an images scene without GPS
         xy, lonlat, frame = (
@@ -423,7 +447,7 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
         if not np.isfinite(lonlat).all() or (np.abs(lonlat[:, 0]) > 180).any() or (np.abs(lonlat[:, 1]) > 90).any():
             raise InputError(path, "lon/lat must be finite degrees (lon in [-180, 180], lat in [-90, 90])")
         if ours:  # the workflow's map: its own frame and metres, as the benchmark reads them
-            lon0, lat0 = float(meta["lon0"]), float(meta["lat0"])
+            lon0, lat0 = origin
             xy = _numbers(df, ["x_m", "y_m"], path)
         else:
             from flatlandia import geo
@@ -433,6 +457,8 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
         to_lonlat, to_xy = _transformers(lon0, lat0)
         if not ours:
             xy = np.column_stack(to_xy.transform(lonlat[:, 0], lonlat[:, 1]))
+        elif np.isfinite(xy).all():  # the metadata must describe the map's own lon/lat and metres
+            validate.frame_matches(lonlat, xy, to_xy, origin, path)
         frame = f"transverse Mercator at lon {lon0:.7f}, lat {lat0:.7f} (x east, y north, metres)"
     if not np.isfinite(xy).all():
         raise InputError(path, "some objects have no finite position")
@@ -475,7 +501,9 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
     from flatlandia.city.index import ViewIndex
 
     try:
-        ix = ViewIndex.load(path)
+        ix = ViewIndex.load(path)  # checked there (flatlandia.validate.city_index)
+    except InputError:
+        raise
     except Exception as e:
         raise InputError(path, f"not a city index ({type(e).__name__}: {e})") from None
     if ix.n_objects == 0:
@@ -530,6 +558,7 @@ def load_map(
             listed = ", ".join(p.name for p in found[:8]) or "none"
             raise InputError(path, f"a city index folder holds one .npz per city ({listed}): name one")
         path = found[0]
+    validate.regular_file(path)  # a pipe or a device is refused without being opened
     suffix = path.suffix.lower()
     if suffix == ".npz":
         m = _city_map(path, settings, learned, search)
@@ -648,13 +677,18 @@ def _check_prior(gps, compass) -> None:
             raise InputError("--gps", f"{gps} is not lon, lat, sigma_m")
         if abs(gps[0]) > 180 or abs(gps[1]) > 90:
             raise InputError("--gps", f"{gps[:2]} is not lon, lat in degrees")
-        if gps[2] <= 0:
-            raise InputError("--gps-sigma-m", f"{gps[2]} is not a positive number of metres")
+        if not 0 < gps[2] <= validate.MAX_PRIOR_M:
+            raise InputError(
+                "--gps-sigma-m", f"{gps[2]} is not a positive number of metres up to {validate.MAX_PRIOR_M:g}"
+            )
     if compass is not None:
         if len(compass) != 2 or not all(isinstance(v, (int, float)) and math.isfinite(v) for v in compass):
             raise InputError("--compass", f"{compass} is not heading_deg, sigma_deg")
-        if compass[1] <= 0:
-            raise InputError("--compass-sigma-deg", f"{compass[1]} is not a positive number of degrees")
+        if not 0 < compass[1] <= validate.MAX_COMPASS_SIGMA_DEG:
+            raise InputError(
+                "--compass-sigma-deg",
+                f"{compass[1]} is not a positive number of degrees up to {validate.MAX_COMPASS_SIGMA_DEG:g}",
+            )
 
 
 def fixes(m: ObjectMap, gps, compass=None) -> list:
@@ -714,8 +748,8 @@ def localize(
         math.isfinite(near[0]) and math.isfinite(near[1]) and abs(near[0]) <= 180 and abs(near[1]) <= 90
     ):
         raise InputError("--near", f"{near} is not lon, lat in degrees")
-    if radius_m is not None and not (math.isfinite(radius_m) and radius_m > 0):
-        raise InputError("--radius-m", f"{radius_m} is not a positive number of metres")
+    if radius_m is not None and not (math.isfinite(radius_m) and 0 < radius_m <= validate.MAX_PRIOR_M):
+        raise InputError("--radius-m", f"{radius_m} is not a positive number of metres up to {validate.MAX_PRIOR_M:g}")
     _check_prior(gps, compass)
     if gps is not None and near is not None:
         raise InputError("--gps", "give either a GPS fix (--gps) or a search radius (--near), not both")

@@ -72,8 +72,24 @@ class ViewIndex:
 
     @classmethod
     def load(cls, path: str | Path) -> ViewIndex:
-        with np.load(path) as z:
-            return cls(**{f: z[f] for f in _FIELDS})
+        """The index saved at ``path``, checked before anything uses it (:func:`flatlandia.validate.city_index`:
+        a crafted pointer would send the compiled kernels out of bounds); InputError naming the file."""
+        from flatlandia import validate
+        from flatlandia.errors import InputError
+
+        validate.npz_members(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                missing = [f for f in _FIELDS if f not in z.files]
+                if missing:
+                    raise InputError(path, f"not a city index: no {', '.join(missing)}")
+                arrays = {f: z[f] for f in _FIELDS}
+        except InputError:
+            raise
+        except Exception as e:  # numpy and zipfile raise several types for a file that is not an index
+            raise InputError(path, f"not a city index ({type(e).__name__}: {str(e)[:200]})") from None
+        validate.city_index(arrays, path, classes.N_CLASSES)
+        return cls(**arrays)
 
     def seen(self, view: int) -> np.ndarray:
         """Map rows that view ``view`` saw."""

@@ -59,10 +59,13 @@ class LearnedPriors:
 
     @classmethod
     def read(cls, path: str | Path) -> LearnedPriors:
+        from flatlandia import validate
         from flatlandia.errors import InputError
 
+        d = io.read_json(path)
+        validate.learned_priors(d, path, len(verify.FEATURES))  # finite, positive spreads, one weight per feature
         try:
-            return cls.from_dict(io.read_json(path))
+            return cls.from_dict(d)
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(path, f"not the solver's learned priors ({e}); delete it to have it refitted") from None
 
