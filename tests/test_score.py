@@ -376,18 +376,26 @@ def test_honest_poses_raise_no_warning_poor_ones_neither(tiny_scenes, tmp_path):
     assert _warnings(poor, tmp_path, tiny_scenes, "poor.csv") == []
 
 
-def test_swapped_lon_lat_is_a_warning(tiny_scenes, tmp_path, capsys, tiny_results):
+def test_swapped_lon_lat_stops_the_file_and_a_few_swapped_rows_are_a_warning(
+    tiny_scenes, tmp_path, capsys, tiny_results
+):
     t = _truth(tiny_scenes)
     g = _geographic(_noisy(t), tiny_scenes)
     swapped = g.rename(columns={"lon": "lat", "lat": "lon"})
-    w = _warnings(swapped, tmp_path, tiny_scenes)
-    assert len(w) == 1 and "lon and lat look swapped" in w[0], w
+    with pytest.raises(
+        InputError, match=r"10 of its 10 poses look wrong .*lon and lat look swapped.*nothing was scored"
+    ):
+        _warnings(swapped, tmp_path, tiny_scenes)
     xy = _noisy(t, metres=0.5).rename(columns={"x_m": "y_m", "y_m": "x_m"})  # the tiny street is 80 m long
-    w = _warnings(xy, tmp_path, tiny_scenes, "xy.csv")
-    assert len(w) == 1 and "x_m and y_m look swapped" in w[0], w
+    with pytest.raises(InputError, match=r"poses look wrong .*x_m and y_m look swapped"):
+        _warnings(xy, tmp_path, tiny_scenes, "xy.csv")
+    some = pd.concat([swapped.iloc[:3], g.iloc[3:]], ignore_index=True)[["scene", "token", "lon", "lat", "heading_deg"]]
+    w = _warnings(some, tmp_path, tiny_scenes, "some.csv")
+    assert len(w) == 1 and "3 of its 10 poses look wrong" in w[0] and "lon and lat look swapped" in w[0], w
+    assert all(f"line {k}" in w[0] for k in (2, 3, 4)) and "line 5" not in w[0], w
     rc, lines = _cli(
         capsys,
-        tmp_path / "p.csv",
+        tmp_path / "some.csv",
         "--name",
         "mine",
         "--out",
@@ -397,8 +405,12 @@ def test_swapped_lon_lat_is_a_warning(tiny_scenes, tmp_path, capsys, tiny_result
         "--split",
         "train",
     )
-    assert rc == 0 and any(ln.startswith("WARNING: p.csv: lon and lat look swapped") for ln in lines)
+    assert rc == 0 and any(ln.startswith("WARNING: some.csv: 3 of its 10 poses look wrong") for ln in lines), lines
     assert (tmp_path / "o" / "mine_depth_whole" / "errors.parquet").exists()  # a warning writes the scores
+    args = ("--name", "mine", "--out", tmp_path / "o2", "--results", tiny_results, "--split", "train")
+    rc, lines = _cli(capsys, tmp_path / "p.csv", *args)
+    assert rc == 1 and len(lines) == 1 and not (tmp_path / "o2").exists(), lines
+    assert lines[0].startswith(f"ERROR: {tmp_path / 'p.csv'}: 10 of its 10 poses look wrong"), lines
 
 
 def test_radians_for_degrees_and_back_are_warnings(tiny_scenes, tmp_path):

@@ -79,7 +79,12 @@ def _unsafe_global(err: Exception) -> str:
 
 
 def _read(path) -> dict:
-    """The checkpoint's dict, loaded with ``weights_only=True``: tensors and plain data only."""
+    """The checkpoint's dict, loaded with ``weights_only=True``: tensors and plain data only; a file
+    that is not a regular one or is over :data:`flatlandia.validate.MAX_CHECKPOINT_BYTES` is refused
+    before torch reads it."""
+    from flatlandia import validate
+
+    validate.regular_file(path, validate.MAX_CHECKPOINT_BYTES, "MAX_CHECKPOINT_BYTES")
     try:
         ck = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as e:
@@ -98,10 +103,14 @@ def _read(path) -> dict:
 
 def _meta(path, ck: dict) -> dict:
     """The config and bookkeeping of a checkpoint, parsed from its JSON text."""
+    from flatlandia import validate
+
     try:
-        meta = json.loads(ck["meta"])
-    except (KeyError, TypeError, json.JSONDecodeError) as e:
+        meta = validate.parse_json(ck["meta"], path)
+    except (KeyError, TypeError) as e:
         raise InputError(path, f"the checkpoint's config is not readable JSON ({e}): {REBUILD}") from None
+    except InputError as e:
+        raise InputError(path, f"the checkpoint's config is not readable: {e.problem}: {REBUILD}") from None
     if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
         raise InputError(path, f"the checkpoint holds no config: {REBUILD}")
     return meta
@@ -110,16 +119,19 @@ def _meta(path, ck: dict) -> dict:
 def load_checkpoint(path, config_class, build_model: Callable) -> tuple[nn.Module, object]:
     """The model of a checkpoint, in eval mode, and its config (``config_class.from_dict``)."""
     ck = _read(path)
+    state = ck.get("state_dict")
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise InputError(path, f"the checkpoint's weights are not a mapping of names to tensors: {REBUILD}")
     try:
         cfg = config_class.from_dict(_meta(path, ck)["config"])
-        model = build_model(cfg)
+        with torch.device("meta"):  # shapes only, no memory: a config asking for 10 TB of weights costs nothing
+            shell = build_model(cfg)
     except (TypeError, ValueError, KeyError) as e:  # ConfigError is a ValueError
         raise InputError(
             path, f"the checkpoint's config does not build a model ({_first_line(e)}): {REBUILD}"
         ) from None
-    state = ck.get("state_dict")
-    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise InputError(path, f"the checkpoint's weights are not a mapping of names to tensors: {REBUILD}")
+    _weights_fit(path, shell.state_dict(), state)
+    model = build_model(cfg)  # now known to be the size of the weights the file holds
     try:
         model.load_state_dict(state)
     except RuntimeError as e:  # missing or unexpected keys, tensors of another shape
@@ -128,6 +140,27 @@ def load_checkpoint(path, config_class, build_model: Callable) -> tuple[nn.Modul
         ) from None
     model.eval()
     return model, cfg
+
+
+def _weights_fit(path, expected: dict, state: dict) -> None:
+    """Before the model is built for real: the file's weights are exactly the tensors the config's
+    model holds (names and shapes), and every one is finite (a NaN weight makes every pose NaN)."""
+    want = {k: tuple(v.shape) for k, v in expected.items()}
+    have = {k: tuple(v.shape) for k, v in state.items()}
+    if want != have:
+        missing, extra = sorted(set(want) - set(have)), sorted(set(have) - set(want))
+        shape = [k for k in want if k in have and want[k] != have[k]]
+        what = (
+            f"missing {missing[0]}"
+            if missing
+            else f"unexpected {extra[0]}"
+            if extra
+            else f"{shape[0]} is {list(have[shape[0]])}, the model's {list(want[shape[0]])}"
+        )
+        raise InputError(path, f"the weights do not fit the model its config describes ({what}): {REBUILD}")
+    for k, v in state.items():
+        if v.is_floating_point() and not bool(torch.isfinite(v).all()):
+            raise InputError(path, f"the weights {k} hold NaN or inf: {REBUILD}")
 
 
 def _first_line(err: Exception) -> str:

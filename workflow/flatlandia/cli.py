@@ -22,12 +22,20 @@ def _records(args) -> pd.DataFrame:
     """The live provenance records (they describe the latest run, whatever its target), without
     those of outputs since deleted; the manifest is the fallback for a results folder copied
     without its logs."""
-    df = provenance.manifest(args.provenance)
+    skipped: list[str] = []
+    df = provenance.manifest(args.provenance, skipped)
+    for line in skipped:  # a broken or tampered record: said, and the others audited
+        print(f"WARNING: {line}")
     if not df.empty:
         df = df[[Path(a).exists() for a in df["artifact"]]]
     path = Path(args.manifest)
     if df.empty and path.exists():
         df = pd.read_parquet(path)
+    if not df.empty:  # only what lies inside this run's folder is ever hashed
+        inside = [provenance.in_run(a) for a in df["artifact"]]
+        for a in df.loc[[not i for i in inside], "artifact"]:
+            print(f"WARNING: {str(a)[:200]}: an artifact outside the run's folder, left out of the audit")
+        df = df[inside]
     return df
 
 

@@ -90,3 +90,42 @@ def mathtext(text) -> str:
     """``text`` for a matplotlib title or label: ``$`` would start mathtext (which parses TeX-like
     commands and fails on unknown ones), so it is escaped."""
     return str(text).replace("$", r"\$")
+
+
+#: what starts a formula in a spreadsheet (Excel, LibreOffice, Google Sheets) opening a CSV: ``=``,
+#: ``+``, ``@``, ``-``, a tab or a line break, and their full-width forms (which some of them fold)
+_FORMULA_START = frozenset("=+@-\t\r\n\uff1d\uff0b\uff20\uff0d")
+#: a cell starting with ``-`` that holds only these is a word or a number, not a formula: the
+#: published Mapillary tokens (``-AB21Af_LPev08UY_96ptQ``) and negative numbers pass unchanged
+_PLAIN_DASHED = re.compile(r"-[A-Za-z0-9_.\-]*", re.ASCII)
+#: a PROJ string (the export's ``crs``: ``+proj=tmerc +lat_0=... +no_defs``) of plain characters: no
+#: call, no reference, no ``|`` can be in it, so it passes unchanged
+_PROJ = re.compile(r"\+proj=[A-Za-z0-9_.=+ \-]*", re.ASCII)
+
+
+def csv_cell(text) -> str:
+    """``text`` as a CSV cell no spreadsheet runs: a cell that starts a formula (:data:`_FORMULA_START`;
+    one starting with ``-`` only when it is not a plain word or number, :data:`_PLAIN_DASHED`; one
+    starting with ``+`` unless it is a plain PROJ string, :data:`_PROJ`) gets
+    a leading ``'``, which spreadsheets show as text; every other cell is unchanged. Why: the
+    export's cells come from files a user or a download controls (query tokens, the scene sheet's
+    city), and ``=HYPERLINK(...)`` or ``+cmd|...`` would run when the CSV is opened.
+    :func:`csv_cell_read` undoes it."""
+    s = str(text)
+    return "'" + s if _runs(s) else s
+
+
+def _runs(s: str) -> bool:
+    """Whether a spreadsheet would run the cell ``s``, or ``s`` is such a cell already made text
+    (leading ``'`` s before it: escaped again, so :func:`csv_cell_read` gets back every value)."""
+    rest = s.lstrip("'")
+    if not rest or rest[0] not in _FORMULA_START:
+        return False
+    return not ((rest[0] == "-" and _PLAIN_DASHED.fullmatch(rest)) or (rest == s and _PROJ.fullmatch(s)))
+
+
+def csv_cell_read(text: str) -> str:
+    """A cell as :func:`csv_cell` wrote it, back to its value (``'=x`` -> ``=x``; ``'abc`` stays)."""
+    if text.startswith("'") and csv_cell(text[1:]) == text:
+        return text[1:]
+    return text

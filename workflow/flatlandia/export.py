@@ -124,12 +124,17 @@ def _floats(values) -> list[str]:
 
 
 def csv_text(df: pd.DataFrame) -> str:
-    """A table as CSV text: floats exact and positional (:func:`_floats`), ``\\n`` line ends, no index."""
+    """A table as CSV text: floats exact and positional (:func:`_floats`), text cells no spreadsheet
+    runs (:func:`flatlandia.escape.csv_cell`: ``=HYPERLINK(...)`` becomes ``'=HYPERLINK(...)``, a
+    published token such as ``-AB21Af_LPev08UY_96ptQ`` stays as it is), ``\\n`` line ends, no index."""
     out = df.copy()
     for c in out.columns:
         if pd.api.types.is_float_dtype(out[c]):
             out[c] = _floats(out[c])
-    return out.to_csv(index=False, lineterminator="\n")
+        elif not pd.api.types.is_numeric_dtype(out[c]):
+            out[c] = [escape.csv_cell(v) if isinstance(v, str) else v for v in out[c]]
+    header = [escape.csv_cell(c) for c in out.columns]
+    return out.to_csv(index=False, lineterminator="\n", header=header)
 
 
 def heading_deg(theta_deg) -> np.ndarray:

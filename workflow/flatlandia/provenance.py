@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import re
 import resource
 import subprocess
 import sys
@@ -57,11 +59,13 @@ _STARTED: dict[str, float] = {}
 
 
 def path_digest(path: str | Path) -> tuple[str, int]:
-    """sha256 and size of a file; for a folder, of its sorted (name, file sha256) list."""
+    """sha256 and size of a file; for a folder, of its sorted (name, file sha256) list (its regular
+    files: a link inside it is not followed)."""
     p = Path(path)
     if p.is_dir():
         h, size = hashlib.sha256(), 0
-        for f in sorted(q for q in p.rglob("*") if q.is_file() and q.name != ".snakemake_timestamp"):
+        files = (q for q in p.rglob("*") if q.is_file() and not q.is_symlink() and q.name != ".snakemake_timestamp")
+        for f in sorted(files):
             d = sha256(f)
             h.update(f"{f.relative_to(p)}\0{d}\n".encode())
             size += f.stat().st_size
@@ -200,16 +204,88 @@ def write_record(smk) -> Path:
     return path
 
 
-def records(folder: str | Path = PROVENANCE_DIR) -> list[dict]:
-    """Every rule record under ``folder`` (the stored configs excluded)."""
+def in_run(path: str | Path, root: str | Path | None = None) -> bool:
+    """Whether an artifact a record names lies inside the run's folder ``root`` (default: the working
+    folder): a relative path that stays there once links are resolved. The audit hashes nothing
+    else, so a tampered record cannot make it read the filesystem root or a 40 GB file elsewhere."""
+    p = Path(path)
+    if p.is_absolute() or ".." in p.parts or not str(path).strip():
+        return False
+    base = Path(root or Path.cwd()).resolve()
+    try:
+        return (base / p).resolve().is_relative_to(base)
+    except (OSError, RuntimeError):
+        return False
+
+
+#: keys a rule record must hold, and the type of each (what the manifest reads)
+RECORD_KEYS = {
+    "rule": str,
+    "wildcards": dict,
+    "inputs": dict,
+    "outputs": dict,
+    "config_hash": str,
+    "package_version": str,
+    "git_commit": str,
+    "finished_at": str,
+}
+
+
+def record_problem(rec) -> str | None:
+    """Why ``rec`` (a parsed record) is not a rule record this module wrote (None: it is one)."""
+    if not isinstance(rec, dict):
+        return f"not a JSON object but {type(rec).__name__}"
+    for key, kind in RECORD_KEYS.items():
+        if not isinstance(rec.get(key), kind):
+            return f"'{key}' is missing or not {'text' if kind is str else 'an object'}"
+    for path, out in rec["outputs"].items():
+        if not isinstance(out, dict) or not isinstance(out.get("sha256"), str) or type(out.get("bytes")) is not int:
+            return f"output {path!r}: expected {{sha256, bytes}}"
+        if not in_run(path):
+            return f"output {str(path)[:200]!r} lies outside the run's folder"
+    if not all(isinstance(k, str) and isinstance(v, str) for k, v in rec["inputs"].items()):
+        return "'inputs' must map paths to sha256 digests"
+    if not all(isinstance(v, (str, int, float)) for v in rec["wildcards"].values()):
+        return "'wildcards' must map names to values"
+    for key, kinds in (("workflow", dict), ("scene_sheet", dict), ("software", dict), ("settings", dict)):
+        if key in rec and not isinstance(rec[key], kinds):
+            return f"'{key}' must be an object"
+    for key in ("wall_seconds", "cpu_seconds"):
+        if key in rec and (isinstance(rec[key], bool) or not isinstance(rec[key], (int, float))):
+            return f"'{key}' must be a number"
+    if not re.fullmatch(r"[0-9a-f]{0,64}", str(rec.get("config_id", ""))):
+        return "'config_id' must be a hex digest (it names a file of the stored configs)"
+    return None
+
+
+def records(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = None) -> list[dict]:
+    """Every rule record under ``folder`` (the stored configs excluded). A file that is not one
+    (not a regular file, over :data:`flatlandia.validate.MAX_RECORD_BYTES`, invalid JSON, a record
+    lacking a key or naming an output outside the run) is left out, and said in ``skipped``."""
+    from flatlandia import validate
+    from flatlandia.errors import InputError
+
     folder = Path(folder)
     out = []
-    for f in sorted(folder.rglob("*.json")):
-        if f.parent.name == CONFIGS_DIR.name and f.parent.parent == folder:
+    files = []
+    for dirpath, dirnames, filenames in os.walk(folder):  # links to other folders are not followed
+        dirnames[:] = [d for d in dirnames if not (Path(dirpath) == folder and d == CONFIGS_DIR.name)]
+        files += [Path(dirpath, n) for n in filenames if n.endswith(".json")]
+    for f in sorted(files):
+        try:
+            rec = validate.read_json(f, validate.MAX_RECORD_BYTES, "MAX_RECORD_BYTES")
+        except InputError as e:
+            if skipped is not None:
+                skipped.append(f"{e}: not a provenance record, left out")
             continue
-        rec = json.loads(f.read_text())
-        if isinstance(rec, dict) and "outputs" in rec:
-            out.append(rec)
+        if isinstance(rec, dict) and "outputs" not in rec and "rule" not in rec:
+            continue  # another JSON file kept beside the records
+        why = record_problem(rec)
+        if why:
+            if skipped is not None:
+                skipped.append(f"{f}: not a provenance record ({why}), left out")
+            continue
+        out.append(rec)
     return out
 
 
@@ -236,10 +312,11 @@ MANIFEST_COLUMNS = [
 ]
 
 
-def manifest(folder: str | Path = PROVENANCE_DIR) -> pd.DataFrame:
-    """One row per artifact, from every provenance record under ``folder``."""
+def manifest(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = None) -> pd.DataFrame:
+    """One row per artifact, from every provenance record under ``folder`` (those that are not
+    records are left out and said in ``skipped``: :func:`records`)."""
     rows = []
-    for rec in records(folder):
+    for rec in records(folder, skipped):
         state = rec.get("workflow", {})
         for path, out in rec["outputs"].items():
             rows.append(
@@ -319,5 +396,14 @@ def check(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def stored_config(config_id: str, folder: str | Path = CONFIGS_DIR) -> dict | None:
+    from flatlandia import validate
+    from flatlandia.errors import InputError
+
     path = Path(folder) / f"{config_id}.json"
-    return json.loads(path.read_text()) if config_id and path.exists() else None
+    if not (config_id and re.fullmatch(r"[0-9a-f]{1,64}", config_id) and path.exists()):
+        return None
+    try:
+        value = validate.read_json(path, validate.MAX_RECORD_BYTES, "MAX_RECORD_BYTES")
+    except InputError:
+        return None
+    return value if isinstance(value, dict) else None

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, geo, io, paper
+from flatlandia import escape, geo, io, paper, validate
 from flatlandia import proposals as proposals_module
 from flatlandia.errors import InputError
 from flatlandia.fine import evaluation
@@ -165,10 +165,9 @@ class Poses:
 def _read_table(path: Path) -> tuple[pd.DataFrame, str, dict[str, np.ndarray]]:
     """The file's rows (CSV: every cell as text), how its rows are named ('line' or 'row') and,
     per column, which cells are blank (CSV: empty; Parquet: null)."""
-    if not path.exists():
+    if not path.exists() and not path.is_symlink():
         raise InputError(path, "no such file")
-    if not path.is_file():
-        raise InputError(path, "not a file")
+    validate.regular_file(path, validate.MAX_POSES_BYTES, "MAX_POSES_BYTES")  # a pipe or device: never opened
     suffixes = [s.lower() for s in path.suffixes]
     if suffixes[-1:] in ([".parquet"], [".pq"]):
         kind, fmt = "row", "Parquet"
@@ -182,13 +181,19 @@ def _read_table(path: Path) -> tuple[pd.DataFrame, str, dict[str, np.ndarray]]:
         if fmt == "Parquet":
             import pyarrow.parquet as pq
 
+            validate.parquet_size(
+                path, validate.MAX_POSES_ROWS, validate.MAX_POSES_BYTES, "rows", ("MAX_POSES_ROWS", "MAX_POSES_BYTES")
+            )
             table = pq.read_table(path)
             df = table.to_pandas()
             # a null cell is blank (no value); a NaN is a value, and not a finite one
             blank = {name: np.asarray(table.column(name).is_null(), bool) for name in table.column_names}
             return df, kind, blank
-        df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+        df = pd.read_csv(_csv_bytes(path), dtype=str, keep_default_na=False, skipinitialspace=True)
+        validate.count(len(df), validate.MAX_POSES_ROWS, path, "rows", "MAX_POSES_ROWS")
         return df, kind, {name: (df[name].str.strip() == "").to_numpy(bool) for name in df.columns}
+    except InputError:
+        raise
     except pd.errors.EmptyDataError:
         raise InputError(path, "empty file: expected a header line (scene,token,...) and one row per query") from None
     except Exception as e:  # a file that is not what its suffix says (pyarrow's, pandas' parser errors)
@@ -196,9 +201,34 @@ def _read_table(path: Path) -> tuple[pd.DataFrame, str, dict[str, np.ndarray]]:
         raise InputError(path, f"cannot be read as {fmt}: {first}") from None
 
 
+#: how a compressed poses CSV is opened, by its last suffix
+_DECOMPRESS = {".gz": "gzip", ".bz2": "bz2", ".xz": "lzma"}
+
+
+def _csv_bytes(path: Path):
+    """A poses CSV's bytes, as a file object: read at most :data:`flatlandia.validate.MAX_POSES_BYTES`,
+    a compressed one decompressed as a stream and stopped there (a 4 MB archive of 2 GB of rows is
+    refused after 64 MB, never held whole)."""
+    import importlib
+    import io as _io
+
+    module = _DECOMPRESS.get(path.suffix.lower())
+    if module:
+        opener = importlib.import_module(module).open
+        data = validate.read_decompressed(path, opener, validate.MAX_POSES_BYTES, "MAX_POSES_BYTES")
+    else:
+        data = validate.read_bytes(path, validate.MAX_POSES_BYTES, "MAX_POSES_BYTES")
+    return _io.BytesIO(data)
+
+
 def _natural(s: str) -> tuple:
     """Scene ids in natural order (2 before 10)."""
     return tuple((0, int(p), "") if p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", str(s)) if p)
+
+
+def _short(text: str) -> str:
+    """A cell as an error message quotes it: a long one by its start (:func:`flatlandia.validate.shown`)."""
+    return text if len(text) <= validate.SHOW_CHARS else validate.shown(text)
 
 
 def _where(kind: str, i: int) -> str:
@@ -212,7 +242,8 @@ def _listing(items, n: int = SHOW) -> str:
 
 
 def _text(values) -> list:
-    """Cells as stripped text (None for an empty or missing cell)."""
+    """Cells as stripped text (None for an empty or missing cell); a cell the export made safe for
+    spreadsheets (``'=x``, :func:`flatlandia.escape.csv_cell`) is read back as its value."""
     out = []
     for v in values:
         if v is None or (isinstance(v, float) and math.isnan(v)):
@@ -220,21 +251,30 @@ def _text(values) -> list:
             continue
         if isinstance(v, (int, np.integer)):
             v = int(v)
-        s = str(v).strip()
+        s = escape.csv_cell_read(str(v).strip())
         out.append(s or None)
     return out
 
 
+#: a number as a CSV cell holds it: ASCII digits, a point, an exponent (or nan/inf, refused as not
+#: finite); Python's float() would also take ``1_000`` and full-width digits, which no CSV means
+NUMBER_RE = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE)
+
+
 def _numbers(values) -> tuple[np.ndarray, list[int]]:
-    """Cells as floats (NaN for an empty cell) and the positions of cells that are not numbers."""
+    """Cells as floats (NaN for an empty cell) and the positions of cells that are not numbers
+    (text that is not a plain decimal number: :data:`NUMBER_RE`)."""
     out = np.full(len(values), np.nan)
     bad = []
     for i, v in enumerate(values):
         if v is None or (isinstance(v, str) and not v.strip()):
             continue
+        if isinstance(v, (bool, np.bool_)) or (isinstance(v, str) and not NUMBER_RE.fullmatch(v.strip())):
+            bad.append(i)
+            continue
         try:
             out[i] = float(v)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             bad.append(i)
     return out, bad
 
@@ -279,7 +319,7 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
             raise InputError(path, f"empty {name} in {_listing(_where(kind, i) for i in empty)}")
 
     def label(i: int) -> str:
-        return f"{_where(kind, i)} (scene {scene[i]}, token {token[i]})"
+        return f"{_where(kind, i)} (scene {_short(scene[i])}, token {_short(token[i])})"
 
     setting = {}
     for name, known, default in (("map_type", MAP_TYPES, DEFAULT_MAP_TYPE), ("proposal", PROPOSALS, DEFAULT_PROPOSAL)):
@@ -289,7 +329,7 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
         values = [default if v is None else v for v in _text(raw[name])]  # an empty cell: the default
         bad = [i for i, v in enumerate(values) if v not in known]
         if bad:
-            shown = sorted({repr(values[i]) for i in bad})
+            shown = sorted({validate.shown(values[i]) for i in bad})
             raise InputError(
                 path,
                 f"unknown {name} {_listing(shown)} in {_listing(_where(kind, i) for i in bad)}; "
@@ -343,7 +383,7 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
     if unknown_scenes:
         raise InputError(
             path,
-            f"unknown scene(s) {_listing(repr(s) for s in unknown_scenes)}; the benchmark's scenes: "
+            f"unknown scene(s) {_listing(validate.shown(s) for s in unknown_scenes)}; the benchmark's scenes: "
             f"{_listing(sorted(scenes, key=_natural), 25)}",
         )
     split_of = {s: dict(zip(b.queries["token"].astype(str), b.queries["split"].astype(str))) for s, b in scenes.items()}
@@ -357,7 +397,9 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
         raise InputError(
             path,
             f"{len(unknown)} unknown token(s): "
-            + "; ".join(f"scene {s}: {_listing(repr(token[i]) for i in rows)}" for s, rows in by_scene.items())
+            + "; ".join(
+                f"scene {_short(s)}: {_listing(validate.shown(token[i]) for i in rows)}" for s, rows in by_scene.items()
+            )
             + f" (scene {s0}'s {split} queries are e.g. {', '.join(some) or 'none'})",
         )
 
@@ -625,20 +667,127 @@ def _truth(poses: Poses, scenes: dict[str, BenchmarkScene]) -> pd.DataFrame:
     return poses.table.merge(truth, on=["scene", "token"], how="left")
 
 
+#: a pose this far outside its scene (the box around its map objects and query cameras), metres, is
+#: nowhere a method could have put it from that map
+EXTENT_MARGIN_M = 500.0
+
+
+def scene_extents(scenes: dict[str, BenchmarkScene]) -> dict[str, tuple[float, float, float, float]]:
+    """Per scene the box (x0, y0, x1, y1) in its metric frame around its reference objects and every
+    query camera, grown by :data:`EXTENT_MARGIN_M`: where a pose of that scene can be."""
+    out = {}
+    for s, b in scenes.items():
+        xy = np.vstack(
+            [
+                b.ref[["x_m", "y_m"]].to_numpy(float).reshape(-1, 2),
+                b.queries[["x_m", "y_m"]].to_numpy(float).reshape(-1, 2),
+            ]
+        )
+        xy = xy[np.isfinite(xy).all(axis=1)]
+        if len(xy):
+            lo, hi = xy.min(axis=0) - EXTENT_MARGIN_M, xy.max(axis=0) + EXTENT_MARGIN_M
+            out[s] = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    return out
+
+
+def _readings(t: pd.DataFrame, form: str, scenes: dict[str, BenchmarkScene], path) -> dict[str, tuple]:
+    """The pose rows read the ways a file's units or order are mixed up: reason -> (x, y) per row
+    in the scene frame (NaN where that reading gives no position)."""
+    a, b = t["a"].to_numpy(float), t["b"].to_numpy(float)
+    if form == "metric":
+        ways = {
+            "x_m, y_m look like kilometres (the columns are metres)": (a * 1000.0, b * 1000.0),
+            "x_m and y_m look swapped (x_m is east, y_m north)": (b, a),
+            "x_m, y_m look like kilometres and swapped": (b * 1000.0, a * 1000.0),
+        }
+        return ways
+    ways = {
+        "lon and lat look swapped (lon is longitude, lat latitude)": (b, a),
+        "lon, lat look like radians (the columns are degrees)": (np.degrees(a), np.degrees(b)),
+        "lon, lat look like radians and swapped": (np.degrees(b), np.degrees(a)),
+    }
+    out = {}
+    for why, (la, lb) in ways.items():
+        x, y = np.full(len(t), np.nan), np.full(len(t), np.nan)
+        ok = (np.abs(la) <= 180) & (np.abs(lb) <= 90)
+        for sc, rows in t[ok].groupby("scene", sort=False).indices.items():
+            frame = scenes[sc].frame
+            if frame is None:
+                continue
+            idx = np.flatnonzero(ok)[rows]
+            with np.errstate(all="ignore"):
+                xy = frame.to_xy(np.column_stack([la[idx], lb[idx]]))
+            x[idx], y[idx] = xy[:, 0], xy[:, 1]
+        out[why] = (x, y)
+    return out
+
+
+def row_plausibility(poses: Poses, scenes: dict[str, BenchmarkScene]) -> list[str]:
+    """Pose by pose, against its scene: a pose outside the scene's extent (:func:`scene_extents`), or
+    one that a mixed-up unit or order (kilometres, x/y or lon/lat swapped, lon/lat in radians) would
+    put within :data:`IMPLAUSIBLE_M` of its truth while it is :data:`FAR_SMALLER` times further as
+    given, looks wrong. Some such rows: a warning naming them (returned); most of them (over half):
+    InputError, the file is not scored."""
+    t = _truth(poses, scenes)
+    if not len(t):
+        return []
+    x, y = t["x_m"].to_numpy(float), t["y_m"].to_numpy(float)
+    gx, gy = t["gx"].to_numpy(float), t["gy"].to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        err = np.hypot(x - gx, y - gy)
+    box = scene_extents(scenes)
+    ext = np.array([box.get(sc, (-np.inf, -np.inf, np.inf, np.inf)) for sc in t["scene"]], float).reshape(-1, 4)
+    outside = ~((x >= ext[:, 0]) & (y >= ext[:, 1]) & (x <= ext[:, 2]) & (y <= ext[:, 3]))
+    reason = np.array(["" for _ in range(len(t))], dtype=object)
+    best = np.full(len(t), np.inf)
+    for why, (rx, ry) in _readings(t, poses.form, scenes, poses.path).items():
+        with np.errstate(invalid="ignore"):
+            e = np.hypot(rx - gx, ry - gy)
+            fixes = (e <= IMPLAUSIBLE_M) & (e * FAR_SMALLER < err) & (e < best)
+        reason[fixes], best[fixes] = why, e[fixes]
+    far = outside & (reason == "")
+    with np.errstate(invalid="ignore"):
+        km = np.hypot(
+            np.maximum(ext[:, 0] - x, x - ext[:, 2]).clip(0), np.maximum(ext[:, 1] - y, y - ext[:, 3]).clip(0)
+        )
+    reason[far] = [f"{d / 1000:.4g} km outside the scene" for d in km[far]]
+    wrong = np.flatnonzero(reason != "")
+    if not len(wrong):
+        return []
+    name = Path(poses.path).name
+    groups: dict[str, list[str]] = {}
+    for i in wrong:
+        why = "outside the scene" if far[i] else str(reason[i])
+        detail = f" ({reason[i]})" if far[i] else ""
+        label = f"{t['where'].iloc[i]} (scene {_short(t['scene'].iloc[i])}, token {_short(t['token'].iloc[i])}){detail}"
+        groups.setdefault(why, []).append(label)
+    what = f"{len(wrong)} of its {len(t)} poses look wrong for their scene: " + "; ".join(
+        f"{why}: {_listing(rows, 3)}" for why, rows in groups.items()
+    )
+    hint = (
+        " (x_m, y_m: metres in the scene's own frame, transverse Mercator centred on the scene, lon0/lat0 in its "
+        "reference map's metadata; lon, lat: degrees)"
+    )
+    if 2 * len(wrong) > len(t):
+        raise InputError(poses.path, f"{what}{hint}; fix the file: nothing was scored")
+    return [f"{name}: {what}{hint}; scored as given"]
+
+
 def plausibility(poses: Poses, scenes: dict[str, BenchmarkScene], min_poses: int = 3) -> list[str]:
     """Warnings (text, not errors) where the poses look like a convention mixed up: swapping
     lon/lat (or x_m/y_m) gives far smaller position errors; reading the angles as radians (or as
     degrees converted twice), or as the other angle convention (compass heading vs counter-clockwise
     from east), gives far smaller heading errors; positions kilometres off (another frame)."""
+    rows = row_plausibility(poses, scenes)  # most rows wrong: InputError
     t = _truth(poses, scenes)
     if len(t) < min_poses:
-        return []
+        return rows
     gt = t[["gx", "gy"]].to_numpy(float)
     g_theta = np.radians(t["gtheta"].to_numpy(float))
     x, y, theta = (t[c].to_numpy(float) for c in ("x_m", "y_m", "theta_deg"))
     e_m, e_deg = geo.pose_errors(x, y, np.radians(theta), gt[:, 0], gt[:, 1], g_theta)
     med_m, med_deg = float(np.median(e_m)), float(np.median(e_deg))
-    out = []
+    out = list(rows)
     name = Path(poses.path).name
     cols = FORMS[poses.form]
     if med_m > IMPLAUSIBLE_M:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import config, io
+from flatlandia import config, escape, io
 from flatlandia.classes import CLASSES
 
 UPSTREAM_ZIP = "https://codeload.github.com/IIT-PAVIS/Flatlandia/zip/refs/heads/main"
@@ -450,7 +450,8 @@ def fetch_flatlandia(
     """
 
     def sheets(folder: Path) -> None:
-        scenes[["scene", "city", "name"]].to_csv(folder / "scenes.tsv", sep="\t", index=False)
+        sheet = scenes[["scene", "city", "name"]].map(escape.csv_cell)  # no spreadsheet formula (flatlandia.escape)
+        sheet.to_csv(folder / "scenes.tsv", sep="\t", index=False)
         pd.DataFrame({"class_id": range(len(CLASSES)), "mapillary_label": CLASSES}).to_csv(
             folder / "classes.tsv", sep="\t", index=False
         )
