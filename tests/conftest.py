@@ -46,6 +46,14 @@ def data_root() -> Path:
     return shared if shared.exists() else fetched_root()
 
 
+def fetch_workdir(dest: Path) -> Path:
+    """The working folder of a fetch into ``dest`` as `make all` makes it: the folder whose
+    ``resources/`` holds it (the repository for resources/flatlandia and resources/images/lund), where
+    the run keeps its record of what it fetched (flatlandia.data.fetch.FETCH_STATE)."""
+    dest = Path(dest).absolute()
+    return next((p.parent for p in dest.parents if p.name == "resources"), REPO)
+
+
 def fetched_root() -> Path:
     from flatlandia import config
 
@@ -76,6 +84,8 @@ def ensure_published_data(dest: Path, url: str | None = None) -> str:
             float(cfg["timeout_s"]),
             sha256=cfg["sha256"] if url == cfg["url"] else "",
             limits=fetch.Limits.from_dict(cfg),
+            workdir=fetch_workdir(dest),  # as `make all`: its working folder's resources/ hold the fetch and its record
+            data_folder=dest,
         )
     except fetch.FetchError as e:
         return str(e)
@@ -139,8 +149,8 @@ def find_photos(
 ) -> tuple[Path, str]:
     """The folder of ``what`` (a set of photos of the OpenSfM archive) and '', or where they were
     looked for and why they are not there, in one line: ``shared`` when it exists; else ``dest``
-    when a complete fetch of the same source is there (flatlandia.data.fetch.fetched_before: its
-    marker, written last, so a half-fetched or hand-made folder is not trusted); else fetched into
+    when a complete fetch of the same source is there (flatlandia.data.fetch.fetched_before: the
+    repository's record of its fetches, so a half-fetched or hand-made folder is not trusted); else fetched into
     ``dest`` the way `make all` does (rule fetch_images: ``src``'s url and subfolder, the config's
     fetch settings; ``url``, or the first environment variable of ``env`` that is set, instead of
     ``src``'s url, e.g. a file:// zip); ``shared_is`` says in the problem where ``shared`` comes from."""
@@ -157,7 +167,7 @@ def _fetch_photos(what, shared, dest, src, env, url, shared_is) -> tuple[Path, s
     from flatlandia import config, io
     from flatlandia.data import fetch
 
-    if fetch.fetched_before(dest):
+    if fetch.fetched_before(dest, fetch_workdir(dest)):
         marker = io.read_json(dest / fetch.FETCH_MARKER)
         if marker.get("url") == url and marker.get("subfolder", src["subfolder"]) == src["subfolder"]:
             return dest, ""
@@ -171,6 +181,7 @@ def _fetch_photos(what, shared, dest, src, env, url, shared_is) -> tuple[Path, s
             float(cfg["timeout_s"]),
             sha256=src["sha256"] if url == src["url"] else "",
             limits=fetch.Limits.from_dict(cfg),
+            workdir=fetch_workdir(dest),
         )
     except fetch.FetchError as e:
         why = " ".join(str(e).splitlines())

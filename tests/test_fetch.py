@@ -31,7 +31,7 @@ def upstream_zip(tmp_path, flat_root):
 
 def test_fetch_flatlandia_unpacks_data_and_adds_sheets(upstream_zip, tmp_path):
     scenes = pd.DataFrame({"scene": ["12"], "city": ["Paris"], "name": ["ParisRosaPark"]})
-    dest = fetch.fetch_flatlandia(tmp_path / "data", scenes, url=upstream_zip.as_uri(), timeout_s=5)
+    dest = fetch.fetch_flatlandia(tmp_path / "data", scenes, url=upstream_zip.as_uri(), timeout_s=5, workdir=tmp_path)
     assert (dest / "local_maps.json").exists() and not (dest / "README.md").exists()
     assert (dest / "classes.tsv").read_text().count("\n") == 43
     rep = ingest.ingest_scene(dest, "12", verify_hash=True)
@@ -44,7 +44,7 @@ def test_fetch_images_takes_the_subfolder(tmp_path, lund):
         for name in ("01.jpg", "02.jpg"):
             out.write(lund / name, f"OpenSfM-main/data/lund/images/{name}")
         out.writestr("OpenSfM-main/data/lund/config.yaml", "x")
-    dest = fetch.fetch_images(z.as_uri(), "data/lund/images", tmp_path / "imgs", timeout_s=5)
+    dest = fetch.fetch_images(z.as_uri(), "data/lund/images", tmp_path / "imgs", timeout_s=5, workdir=tmp_path)
     assert sorted(p.name for p in dest.iterdir()) == [fetch.FETCH_MARKER, "01.jpg", "02.jpg"]
 
 
@@ -55,13 +55,16 @@ def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
             pd.DataFrame({"scene": ["0"], "city": ["x"], "name": ["y"]}),
             url="https://127.0.0.1:9/nothing.zip",
             timeout_s=5,
+            workdir=tmp_path,
         )
     assert not (tmp_path / "data").exists()
     with pytest.raises(fetch.FetchError, match="archive holds no data/ folder"):
         bad = tmp_path / "bad.zip"
         with zipfile.ZipFile(bad, "w") as out:
             out.writestr("x/readme", "nothing")
-        fetch.fetch_flatlandia(tmp_path / "data", pd.DataFrame({"scene": [], "city": [], "name": []}), url=bad.as_uri())
+        fetch.fetch_flatlandia(
+            tmp_path / "data", pd.DataFrame({"scene": [], "city": [], "name": []}), url=bad.as_uri(), workdir=tmp_path
+        )
     assert not (tmp_path / "data").exists()
 
 

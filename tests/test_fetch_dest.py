@@ -1,7 +1,8 @@
 """A fetch never deletes what it did not write, and a killed run's temporaries are cleaned.
 
-``fetch.dest`` (and an images scene's folder) is replaced only when it holds the marker of an
-earlier fetch; '.', '..', the working folder, its parents, the root and the home folder are refused
+``fetch.dest`` (and an images scene's folder) is replaced only when the run's own record says a fetch
+of this run wrote it and it is unchanged since; '.', '..', the working folder, its parents, the root,
+the home folder and any folder outside the working folder (but the declared data folder) are refused
 before anything is downloaded. Temporaries of an interrupted fetch or atomic write (a ``kill -9``,
 simulated here by a child process that kills itself mid-write) are removed at the next start when
 their process is gone, and nothing else is. Every hostile input is built in the test's tmp_path and
@@ -89,9 +90,9 @@ def test_an_existing_destination_no_fetch_wrote_is_refused_and_kept(tmp_path, ar
     before = tree(tmp_path)
     with pytest.raises(fetch.FetchError) as err:
         if which == "flatlandia":
-            fetch.fetch_flatlandia(dest, SCENES, url=archive.as_uri(), timeout_s=5)
+            fetch.fetch_flatlandia(dest, SCENES, url=archive.as_uri(), timeout_s=5, workdir=tmp_path)
         else:
-            fetch.fetch_images(archive.as_uri(), "imgs", dest, timeout_s=5)
+            fetch.fetch_images(archive.as_uri(), "imgs", dest, timeout_s=5, workdir=tmp_path)
     msg = str(err.value)
     assert str(dest) in msg and "Remove it yourself" in msg and "nothing was downloaded" in msg, msg
     assert ("fetch.dest" in msg) == (which == "flatlandia"), msg
@@ -133,8 +134,12 @@ def test_dest_holding_the_working_folder_is_refused_before_any_download(tmp_path
         with pytest.raises(fetch.FetchError, match="is refused"):
             fetch.fetch_images(archive.as_uri(), "imgs", dest, timeout_s=5)
     assert downloads == [] and tree(tmp_path) == before
-    for ok in ("resources/flatlandia", "../shared/flatlandia", str(tmp_path / "data"), "resources/images/x"):
+    for ok in ("resources/flatlandia", "resources/images/x", "data"):
         fetch.check_dest(ok, run_dir)
+    for outside in ("../shared/flatlandia", str(tmp_path / "data")):  # only as the declared data folder
+        with pytest.raises(fetch.FetchError, match="outside the working folder"):
+            fetch.check_dest(outside, run_dir)
+        fetch.check_dest(outside, run_dir, data_folder=outside)
 
 
 # ----------------------------------------------------------------------------- an earlier fetch
@@ -146,17 +151,21 @@ def test_a_folder_from_an_earlier_fetch_is_replaced_whole(tmp_path, downloads):
     one = make_zip(src / "one.zip", {"Flatlandia-main/data/local_maps.json": b"{}", "Flatlandia-main/data/old": b"o"})
     two = make_zip(src / "two.zip", {"Flatlandia-main/data/local_maps.json": b"{1}"})
     dest = tmp_path / "data"
-    fetch.fetch_flatlandia(dest, SCENES, url=one.as_uri(), timeout_s=5)
+    fetch.fetch_flatlandia(dest, SCENES, url=one.as_uri(), timeout_s=5, workdir=tmp_path)
     assert tree(dest) == {"local_maps.json", "old", "scenes.tsv", "classes.tsv", fetch.FETCH_MARKER}
-    assert fetch.fetched_before(dest)
-    (dest / "added-by-hand").write_text("x")  # the fetch's folder is the fetch's: replaced whole
-    fetch.fetch_flatlandia(dest, SCENES, url=two.as_uri(), timeout_s=5)
+    assert fetch.fetched_before(dest, tmp_path)
+    fetch.fetch_flatlandia(dest, SCENES, url=two.as_uri(), timeout_s=5, workdir=tmp_path)  # replaced whole
     assert tree(dest) == {"local_maps.json", "scenes.tsv", "classes.tsv", fetch.FETCH_MARKER}
     assert (dest / "local_maps.json").read_bytes() == b"{1}"
     marker = json.loads((dest / fetch.FETCH_MARKER).read_text())
     assert marker["url"] == two.as_uri() and marker["subfolder"] == "data" and len(marker["sha256"]) == 64
-    assert tree(tmp_path) == {"src", "src/one.zip", "src/two.zip", "data"} | {f"data/{p}" for p in tree(dest)}
+    state = {"resources", str(fetch.FETCH_STATE)}  # the run's record of what its fetches wrote
+    assert tree(tmp_path) == {"src", "src/one.zip", "src/two.zip", "data"} | {f"data/{p}" for p in tree(dest)} | state
     assert downloads == [one.as_uri(), two.as_uri()]
+    (dest / "added-by-hand").write_text("x")  # changed since the fetch: no longer the fetch's alone
+    with pytest.raises(fetch.FetchError, match="whose files changed since"):
+        fetch.fetch_flatlandia(dest, SCENES, url=one.as_uri(), timeout_s=5, workdir=tmp_path)
+    assert (dest / "added-by-hand").read_text() == "x" and downloads == [one.as_uri(), two.as_uri()]
 
 
 def test_a_destination_appearing_during_the_download_is_kept(tmp_path, archive, monkeypatch):
@@ -170,7 +179,7 @@ def test_a_destination_appearing_during_the_download_is_kept(tmp_path, archive, 
 
     monkeypatch.setattr(fetch, "download", meanwhile)
     with pytest.raises(fetch.FetchError, match="a folder not written by a fetch"):
-        fetch.fetch_images(archive.as_uri(), "imgs", dest, timeout_s=5)
+        fetch.fetch_images(archive.as_uri(), "imgs", dest, timeout_s=5, workdir=tmp_path)
     assert tree(dest) == {"canary.txt"}
     assert tree(tmp_path) == {"src", "src/good.zip", "imgs", "imgs/canary.txt"}
 
@@ -194,7 +203,7 @@ KILLED_MID_WRITE = textwrap.dedent(
     with io.atomic_path(root / "results/s/maps/map.parquet") as f, io.atomic_dir(root / "results/s/sfm/model") as d:
         f.write_bytes(b"half")
         (d / "cameras.bin").write_bytes(b"half")
-        fetch.fetch_images(url, "imgs", root / "resources/images/s")
+        fetch.fetch_images(url, "imgs", root / "resources/images/s", workdir=root)
     """
 )
 
@@ -296,7 +305,7 @@ def test_a_fetch_removes_the_temporaries_of_a_killed_fetch_of_the_same_folder(tm
     _, left = killed_mid_write(root, archive.as_uri())
     assert partials(left)
     other = with_canary(root / "resources/images/.t.x1y2z3")  # not ours: kept
-    fetch.fetch_images(archive.as_uri(), "imgs", root / "resources/images/s", timeout_s=5)
+    fetch.fetch_images(archive.as_uri(), "imgs", root / "resources/images/s", timeout_s=5, workdir=root)
     assert tree(root / "resources/images") == {
         "s",
         "s/1.jpg",

@@ -105,7 +105,9 @@ def test_the_lund_photos_are_fetched_as_make_all_fetches_them(lund, tmp_path, mo
     monkeypatch.setenv("FLATLANDIA_LUND_URL", archive.as_uri())
     assert find_lund_images(shared, dest) == (dest, "")
     assert sorted(p.name for p in dest.glob("*.jpg")) == ["01.jpg", "02.jpg", "03.jpg"]
-    assert (dest / "01.jpg").read_bytes() == (lund / "01.jpg").read_bytes() and fetch.fetched_before(dest)
+    assert (dest / "01.jpg").read_bytes() == (lund / "01.jpg").read_bytes() and fetch.fetched_before(
+        dest, conftest.fetch_workdir(dest)
+    )
     archive.unlink()  # a complete fetch of the same source is used as it is: nothing is downloaded
     assert find_lund_images(shared, dest) == (dest, "")
     shared.mkdir(parents=True)  # ../shared/images/lund, when there, comes first
@@ -137,7 +139,7 @@ def test_the_berlin_photos_and_masks_are_fetched_from_the_same_archive(lund, ber
     dest = tmp_path / "main" / "resources" / "images" / "berlin"
     monkeypatch.delenv("FLATLANDIA_BERLIN_URL", raising=False)
     monkeypatch.setenv("FLATLANDIA_LUND_URL", archive.as_uri())
-    assert find_berlin_images(shared, dest) == (dest, "") and fetch.fetched_before(dest)
+    assert find_berlin_images(shared, dest) == (dest, "") and fetch.fetched_before(dest, conftest.fetch_workdir(dest))
     for sub in ("images", "masks"):
         want = sorted(p.name for p in (berlin / sub).iterdir())
         assert want and sorted(p.name for p in (dest / sub).iterdir()) == want

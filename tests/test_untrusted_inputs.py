@@ -89,7 +89,9 @@ def test_crafted_archive_is_refused_and_nothing_is_written(tmp_path, deep_dest, 
     archive = make_zip(tmp_path / "crafted.zip", members)
     before = tree(tmp_path)
     with pytest.raises(fetch.FetchError) as err:
-        fetch.fetch_images(archive.as_uri(), "imgs", deep_dest, timeout_s=5, limits=fetch.Limits(**caps))
+        fetch.fetch_images(
+            archive.as_uri(), "imgs", deep_dest, timeout_s=5, limits=fetch.Limits(**caps), workdir=tmp_path
+        )
     msg = str(err.value)
     assert msg.startswith(archive.as_uri()) and repr(bad) in msg and "nothing was unpacked" in msg, msg
     assert tree(tmp_path) == before  # no member, no temporary folder, not even the destination
@@ -100,11 +102,13 @@ def test_too_many_members_and_too_big_a_download_are_refused(tmp_path):
     dest = tmp_path / "dest"
     before = tree(tmp_path)
     with pytest.raises(fetch.FetchError, match=r"holds 5 members, over fetch.max_members \(4\)"):
-        fetch.fetch_images(archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_members=4))
+        fetch.fetch_images(archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_members=4), workdir=tmp_path)
     with pytest.raises(fetch.FetchError, match=r"exceeds fetch.max_download_mb \(0.0001 MB\)"):
-        fetch.fetch_images(archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_download_mb=0.0001))
+        fetch.fetch_images(
+            archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_download_mb=0.0001), workdir=tmp_path
+        )
     assert tree(tmp_path) == before
-    got = fetch.fetch_images(archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_members=5))
+    got = fetch.fetch_images(archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_members=5), workdir=tmp_path)
     assert sorted(p.name for p in got.iterdir()) == [fetch.FETCH_MARKER] + [f"{i}.jpg" for i in range(5)]
 
 
@@ -113,15 +117,16 @@ def test_members_outside_the_subfolder_are_never_written(tmp_path):
         tmp_path / "mixed.zip",
         [("top/imgs/ok.jpg", b"a"), ("top/src/imgs/other.jpg", b"b"), ("top/../imgs/x.jpg", b"c"), ("top/imgs/", b"")],
     )
-    got = fetch.fetch_images(archive.as_uri(), "imgs", tmp_path / "dest")
+    got = fetch.fetch_images(archive.as_uri(), "imgs", tmp_path / "dest", workdir=tmp_path)
     assert tree(got) == {"ok.jpg", fetch.FETCH_MARKER}
-    assert tree(tmp_path) == {"mixed.zip", "dest", "dest/ok.jpg", f"dest/{fetch.FETCH_MARKER}"}
+    state = {"resources", str(fetch.FETCH_STATE)}  # the run's record of what its fetches wrote
+    assert tree(tmp_path) == {"mixed.zip", "dest", "dest/ok.jpg", f"dest/{fetch.FETCH_MARKER}"} | state
 
 
 @pytest.mark.parametrize("url", ["http://example.org/a.zip", "ftp://example.org/a.zip", "data:,x", "/tmp/a.zip"])
 def test_only_https_and_local_files_are_fetched(tmp_path, url):
     with pytest.raises(fetch.FetchError, match="only https:// sources"):
-        fetch.fetch_images(url, "imgs", tmp_path / "dest")
+        fetch.fetch_images(url, "imgs", tmp_path / "dest", workdir=tmp_path)
     assert tree(tmp_path) == set()
 
 
@@ -139,9 +144,9 @@ def test_sha256_mismatch_stops_before_unpacking_and_a_match_unpacks(tmp_path):
     dest = tmp_path / "dest"
     before = tree(tmp_path)
     with pytest.raises(fetch.FetchError, match=f"sha256 mismatch: the download is {pin}, the pinned value is 0+;"):
-        fetch.fetch_images(archive.as_uri(), "imgs", dest, sha256="0" * 64)
+        fetch.fetch_images(archive.as_uri(), "imgs", dest, sha256="0" * 64, workdir=tmp_path)
     assert tree(tmp_path) == before
-    got = fetch.fetch_images(archive.as_uri(), "imgs", dest, sha256=pin.upper())
+    got = fetch.fetch_images(archive.as_uri(), "imgs", dest, sha256=pin.upper(), workdir=tmp_path)
     assert (got / "01.jpg").read_bytes() == b"one" and (got / "02.jpg").read_bytes() == b"two"
 
 
@@ -149,7 +154,7 @@ def test_flatlandia_archive_pin_mismatch_says_how_to_point_at_a_local_copy(tmp_p
     archive = make_zip(tmp_path / "Flatlandia-main.zip", [("Flatlandia-main/data/local_maps.json", b"{}")])
     scenes = SimpleNamespace()  # never reached: the mismatch stops first
     with pytest.raises(fetch.FetchError, match="sha256 mismatch.*FLATLANDIA_ROOT"):
-        fetch.fetch_flatlandia(tmp_path / "data", scenes, url=archive.as_uri(), sha256="a" * 64)
+        fetch.fetch_flatlandia(tmp_path / "data", scenes, url=archive.as_uri(), sha256="a" * 64, workdir=tmp_path)
     assert tree(tmp_path) == {"Flatlandia-main.zip"}
 
 

@@ -162,9 +162,10 @@ def _resolve_root():
 
 
 FLAT_ROOT_GIVEN = _resolve_root()
-# a fetch replaces fetch.dest: '.', '..', the working folder, its parents, the root or home are refused
+# a fetch replaces fetch.dest: '.', '..', the working folder, its parents, the root or home are refused,
+# and so is a folder outside the working folder unless it is the declared data folder (flatlandia_root)
 try:
-    check_dest(config["fetch"]["dest"])
+    check_dest(config["fetch"]["dest"], data_folder=FLAT_ROOT_GIVEN)
 except FetchError as err:
     sys.exit(f"ERROR: config: {err}")
 FLAT_FETCH = not FLAT_ROOT_GIVEN.exists()

@@ -15,6 +15,7 @@ if FLAT_FETCH:
             "../../envs/flatlandia.yaml"
         params:
             dest=config["fetch"]["dest"],
+            data_folder=str(FLAT_ROOT_GIVEN),
             url=config["fetch"]["url"],
             sha256=config["fetch"]["sha256"],
             timeout_s=config["fetch"]["timeout_s"],

@@ -11,7 +11,7 @@ def main(smk, log):
     scenes = scenes[scenes["source"] == "flatlandia"]
     log.info("fetching %s into %s", smk.params.url, smk.params.dest)
     log.info("pinned sha256: %s; caps %s", smk.params.sha256 or "none", smk.params.limits)
-    if fetch.fetched_before(smk.params.dest):  # only a folder holding the marker of a fetch is replaced
+    if fetch.fetched_before(smk.params.dest):  # only a folder this run's fetch wrote, unchanged, is replaced
         log.info("replacing the earlier fetch in %s", smk.params.dest)
     try:
         dest = fetch.fetch_flatlandia(
@@ -21,6 +21,7 @@ def main(smk, log):
             smk.params.timeout_s,
             sha256=smk.params.sha256,
             limits=fetch.Limits.from_config(smk.params.limits),
+            data_folder=smk.params.data_folder,
         )
     except fetch.FetchError as e:
         log.error("%s", e)

@@ -12,8 +12,11 @@ The archives are untrusted: the scene sheet and the config name them. So a fetch
 - writes nothing outside the destination: all happens in one temporary folder beside it, renamed
   into place once complete and removed on any failure;
 - never deletes what it did not write: the destination may not be '.', '..', the working folder or
-  its parents, the root or the home folder (:func:`check_dest`), and an existing one is replaced
-  only when it holds the marker (FETCH_MARKER) of an earlier fetch; otherwise the fetch is refused.
+  its parents, the root or the home folder, nor lie outside the working folder unless the config
+  declares it as the data folder (:func:`check_dest`); an existing one is replaced only when the
+  run's own record (FETCH_STATE, in the working folder) says a fetch of this run wrote it and its
+  files are unchanged since; a marker file inside a folder proves nothing. Otherwise the fetch is
+  refused.
 """
 
 from __future__ import annotations
@@ -110,6 +113,7 @@ def _too_big(url: str, n_bytes: int, max_bytes: int) -> str:
 def download(url: str, to: Path, timeout_s: float, max_bytes: int) -> str:
     """Stream ``url`` into the file ``to`` (at most ``max_bytes``, never all in memory); its sha256."""
     check_url(url)
+    _check_local_source(url)
     digest, n = hashlib.sha256(), 0
     try:
         with _OPENER.open(url, timeout=timeout_s) as resp, open(to, "wb") as out:
@@ -125,6 +129,21 @@ def download(url: str, to: Path, timeout_s: float, max_bytes: int) -> str:
     except (urllib.error.URLError, TimeoutError, OSError) as e:
         raise DownloadError(f"could not download {url}: {e}") from e
     return digest.hexdigest()
+
+
+def _check_local_source(url: str) -> None:
+    """A file:// source must be a regular file, checked before it is opened: a named pipe would
+    block the fetch for ever, a device never end."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme.lower() != "file":
+        return
+    path = urllib.request.url2pathname(parts.path)
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise DownloadError(f"could not download {url}: {e.strerror or e}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise FetchError(f"{url}: refused: not a regular file (a folder, a named pipe or a device); nothing was read")
 
 
 def check_sha256(url: str, got: str, expected: str | None) -> None:
@@ -276,23 +295,33 @@ def unpack_subfolder(archive: Path, subfolder: str, root: Path, url: str, limits
 
 # ----------------------------------------------------------------------------- destination
 
-#: The file a fetch writes into the folder it unpacks (JSON: url, subfolder, sha256, time): only a
-#: folder holding it is ever replaced by a later fetch.
+#: The file a fetch writes into the folder it unpacks (JSON: url, subfolder, sha256, time): what the
+#: folder holds, for people and the tests; it proves nothing (anyone can write one), so it is not
+#: what allows a later fetch to replace the folder: the run's own record is (FETCH_STATE).
 FETCH_MARKER = ".flatlandia-fetch"
+#: The run's record of the folders its fetches wrote, in its working folder (JSON: resolved
+#: destination -> the folder's identity and a fingerprint of its files): only a folder recorded
+#: here, and unchanged since, is ever replaced by a later fetch.
+FETCH_STATE = Path("resources") / ".flatlandia-fetches.json"
 #: Folders of the working folder that the workflow writes itself: never a fetch's destination.
 WORKFLOW_FOLDERS = (".snakemake", "config", "logs", "resources", "results", "workflow")
-_MAX_MARKER_BYTES = 65536
+_MAX_STATE_BYTES = 16 * MB
 
 
-def check_dest(dest: str | Path, cwd: str | Path | None = None, setting: str = "fetch.dest") -> Path:
+def check_dest(
+    dest: str | Path, cwd: str | Path | None = None, setting: str = "fetch.dest", data_folder: str | Path | None = None
+) -> Path:
     """The resolved destination of a fetch, refused (FetchError) when replacing it could delete
     what a fetch did not write: '.', '..', a name ending in them, the working folder ``cwd``, any
     of its parents, the filesystem root, the home folder or its parents, a folder of the workflow's
-    own (results, resources, ...). Called at parse time and again before any download."""
+    own (results, resources, ...), or any folder outside the working folder but the one the config
+    declares as the data folder (``data_folder``: ``flatlandia_root``). Called at parse time and
+    again before any download."""
     raw = str(dest)
     cwd = Path(cwd if cwd is not None else os.getcwd()).resolve()
     try:
         target = (cwd / raw).resolve() if raw.strip() else cwd
+        declared = (cwd / Path(data_folder)).resolve() if data_folder is not None else None
     except (OSError, RuntimeError) as e:  # a loop of links
         raise FetchError(f"{setting} {raw!r} is refused: it cannot be resolved ({e}); nothing was downloaded") from e
     try:
@@ -312,6 +341,11 @@ def check_dest(dest: str | Path, cwd: str | Path | None = None, setting: str = "
         why = "a folder the workflow writes itself"
     elif not raw.strip() or Path(raw).name in ("", ".", ".."):
         why = "it does not end in a folder name of its own (it is empty or ends in '.' or '..')"
+    elif not target.is_relative_to(cwd) and target != declared:
+        why = (
+            f"it lies outside the working folder {cwd}; a fetch writes there, or into the folder the config "
+            "declares as the data folder (set flatlandia_root to the same folder)"
+        )
     if why:
         raise FetchError(
             f"{setting} {raw!r} ({target}) is refused: {why}. A fetch replaces its destination, so "
@@ -320,38 +354,117 @@ def check_dest(dest: str | Path, cwd: str | Path | None = None, setting: str = "
     return target
 
 
-def fetched_before(dest: str | Path) -> bool:
-    """Whether ``dest`` is a folder written by an earlier fetch (it holds a valid FETCH_MARKER)."""
-    dest, marker = Path(dest), Path(dest) / FETCH_MARKER
+def _fingerprint(dest: Path) -> dict:
+    """What identifies a fetched folder: its device and inode, and a digest of every entry below it
+    (relative name, kind, size, modification time). Any file added, removed or edited changes it."""
+    st = os.lstat(dest)
+    h = hashlib.sha256()
+    for dirpath, dirnames, filenames in os.walk(dest):
+        dirnames.sort()
+        for name in sorted(dirnames + filenames):
+            p = Path(dirpath, name)
+            e = os.lstat(p)
+            h.update(f"{p.relative_to(dest)}\0{stat.S_IFMT(e.st_mode)}\0{e.st_size}\0{e.st_mtime_ns}\n".encode())
+    return {"device": st.st_dev, "inode": st.st_ino, "files": h.hexdigest()}
+
+
+def _state_path(workdir: Path) -> Path:
+    return workdir / FETCH_STATE
+
+
+def _read_state(workdir: Path) -> dict:
+    """The run's fetch record (empty when there is none, or it is not one: then nothing is replaced)."""
+    from flatlandia import validate
+    from flatlandia.errors import InputError
+
+    path = _state_path(workdir)
+    if not os.path.lexists(path):
+        return {}
     try:
-        if dest.is_symlink() or not dest.is_dir() or marker.is_symlink() or not marker.is_file():
+        state = validate.read_json(path, _MAX_STATE_BYTES)
+    except InputError as e:
+        _LOG.warning("ignoring the fetch record %s: %s", path, e)
+        return {}
+    return state if isinstance(state, dict) else {}
+
+
+class _StateLock:
+    """An exclusive lock on the fetch record while it is read and rewritten (two fetches of one run,
+    the data and a photo folder, may finish at once)."""
+
+    def __init__(self, workdir: Path):
+        self.folder = _state_path(workdir).parent  # the lock is on the record's folder: no lock file left
+
+    def __enter__(self):
+        import fcntl
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.fd = os.open(self.folder, os.O_RDONLY)
+        fcntl.flock(self.fd, fcntl.LOCK_EX)
+        return self
+
+    def __exit__(self, *exc):
+        import fcntl
+
+        fcntl.flock(self.fd, fcntl.LOCK_UN)
+        os.close(self.fd)
+
+
+def _record_fetch(dest: Path, workdir: Path, url: str, subfolder: str, got: str) -> None:
+    """Add ``dest`` (resolved) to the run's fetch record with its fingerprint: this run wrote it."""
+    with _StateLock(workdir):
+        state = _read_state(workdir)
+        state[str(dest.resolve())] = {
+            **_fingerprint(dest),
+            "url": url,
+            "subfolder": subfolder,
+            "sha256": got,
+            "time": datetime.now(UTC).isoformat(timespec="seconds"),
+        }
+        io.write_json(state, _state_path(workdir))
+
+
+def fetched_before(dest: str | Path, workdir: str | Path | None = None) -> bool:
+    """Whether ``dest`` is a folder this run's fetch wrote (recorded in the working folder
+    ``workdir``'s FETCH_STATE) and nothing in it changed since: the only folder a fetch replaces."""
+    workdir = Path(workdir if workdir is not None else os.getcwd()).resolve()
+    dest = (workdir / Path(dest)).absolute()
+    try:
+        if dest.is_symlink() or not dest.is_dir():
             return False
-        if marker.stat().st_size > _MAX_MARKER_BYTES:
+        rec = _read_state(workdir).get(str(dest.resolve()))
+        if not isinstance(rec, dict):
             return False
-        info = json.loads(marker.read_text())
-    except (OSError, ValueError):
+        now = _fingerprint(dest)
+    except OSError:
         return False
-    return isinstance(info, dict) and isinstance(info.get("url"), str)
+    return all(rec.get(k) == v for k, v in now.items())
 
 
-def _check_replaceable(dest: Path, hint: str, setting: str, done: str = "nothing was downloaded or removed") -> None:
-    """Refuse an existing ``dest`` that no fetch wrote: a fetch never deletes a folder it did not create."""
-    if not os.path.lexists(dest) or fetched_before(dest):
+def _check_replaceable(
+    dest: Path, hint: str, setting: str, workdir: Path, done: str = "nothing was downloaded or removed"
+) -> None:
+    """Refuse an existing ``dest`` that this run's fetch did not write, or that changed since: a
+    fetch never deletes a folder or a file it did not create."""
+    if not os.path.lexists(dest) or fetched_before(dest, workdir):
         return
-    kind = "a folder not written by a fetch" if dest.is_dir() else "not a folder"
+    kind = "a folder not written by a fetch of this run" if dest.is_dir() else "not a folder"
+    if dest.is_dir() and not dest.is_symlink() and str(dest.resolve()) in _read_state(workdir):
+        kind = "a folder a fetch wrote but whose files changed since (added, removed or edited)"
     if dest.is_symlink():
         kind = "a symbolic link"
     raise FetchError(
-        f"{setting} {str(dest)!r} ({dest.absolute()}) already exists and is {kind} (no {FETCH_MARKER} "
-        f"marker inside): a fetch never replaces what it did not write, so {done}. {hint}"
+        f"{setting} {str(dest)!r} ({dest.absolute()}) already exists and is {kind} (the run's record of its "
+        f"fetches, {_state_path(workdir)}, is what allows a replacement, not a {FETCH_MARKER} file): a fetch "
+        f"never replaces what it did not write, so {done}. {hint}"
     )
 
 
-def _into_place(unpacked: Path, dest: Path, work: Path, hint: str, setting: str) -> None:
+def _into_place(unpacked: Path, dest: Path, work: Path, hint: str, setting: str, workdir: Path) -> None:
     """Rename the complete ``unpacked`` folder onto ``dest``; an older fetched copy is first moved
     into the temporary folder ``work`` (removed with it), anything else at ``dest`` is refused."""
     # again: something may have appeared there during the download
-    _check_replaceable(dest, hint, setting, "the download was discarded and nothing was removed")
+    _check_replaceable(dest, hint, setting, workdir, "the download was discarded and nothing was removed")
     if not os.path.lexists(dest):
         unpacked.rename(dest)
         return
@@ -374,21 +487,26 @@ def fetch_archive(
     finish: Callable[[Path], None] | None = None,
     setting: str = "fetch.dest",
     hint: str = "Remove it yourself, or choose another `fetch.dest`",
+    workdir: str | Path | None = None,
+    data_folder: str | Path | None = None,
 ) -> Path:
     """Download a zip archive and unpack its ``<top>/<subfolder>/`` files into ``dest``.
 
-    ``dest`` is checked first (:func:`check_dest`; an existing one must hold the FETCH_MARKER of an
-    earlier fetch, else it is refused with ``hint``), then all happens in one temporary folder
-    beside it (download, checksum, unpacking, ``finish(folder)`` for files of the caller, the
-    marker); ``dest`` appears, replacing an older fetched copy, only once complete, and the
-    temporary folder is removed whatever happens (a killed fetch's one, at the next fetch or run).
+    ``dest`` is checked first (:func:`check_dest`: inside the working folder ``workdir``, default the
+    current one, or the declared ``data_folder``; an existing one must be recorded in the run's
+    FETCH_STATE as its own fetch, unchanged since, else it is refused with ``hint``), then all
+    happens in one temporary folder beside it (download, checksum, unpacking, ``finish(folder)`` for
+    files of the caller, the marker); ``dest`` appears, replacing an older fetched copy, only once
+    complete, and is recorded; the temporary folder is removed whatever happens (a killed fetch's
+    one, at the next fetch or run). Returns the destination (absolute).
     """
     limits = limits or Limits()
-    dest = Path(dest)
+    workdir = Path(workdir if workdir is not None else os.getcwd()).resolve()
     check_url(url)
     _subfolder_parts(subfolder, url)
-    check_dest(dest, setting=setting)
-    _check_replaceable(dest, hint, setting)
+    check_dest(dest, workdir, setting=setting, data_folder=data_folder)
+    dest = workdir / Path(dest)  # as given (a link stays a link, refused below), from the working folder
+    _check_replaceable(dest, hint, setting, workdir)
     try:
         dest.parent.mkdir(parents=True, exist_ok=True)
         io.clean_stale_partials(beside=[dest], log=_LOG.info)  # a killed fetch's temporary folder
@@ -405,7 +523,8 @@ def fetch_archive(
                 "time": datetime.now(UTC).isoformat(timespec="seconds"),
             }
             (unpacked / FETCH_MARKER).write_text(json.dumps(marker, indent=2) + "\n")
-            _into_place(unpacked, dest, work, hint, setting)
+            _into_place(unpacked, dest, work, hint, setting, workdir)
+        _record_fetch(dest, workdir, url, subfolder, got)
     except OSError as e:
         raise FetchError(f"could not write the fetch of {url} into {dest}: {e}") from e
     return dest
@@ -418,8 +537,10 @@ def fetch_images(
     timeout_s: float = 30.0,
     sha256: str | None = None,
     limits: Limits | None = None,
+    workdir: str | Path | None = None,
 ) -> Path:
-    """An images scene's folder from a repository archive (e.g. OpenSfM's data/lund/images)."""
+    """An images scene's folder from a repository archive (e.g. OpenSfM's data/lund/images), into
+    ``dest`` inside the working folder ``workdir`` (default: the current one)."""
     try:
         return fetch_archive(
             url,
@@ -430,6 +551,7 @@ def fetch_images(
             limits,
             setting="the images folder",
             hint="Remove it yourself, or, if it holds the scene's images, set the scene sheet's `path` to it",
+            workdir=workdir,
         )
     except DownloadError as e:
         raise FetchError(f"{e}. Point the scene sheet's `path` at a local folder of images instead.") from e
@@ -442,8 +564,11 @@ def fetch_flatlandia(
     timeout_s: float = 30.0,
     sha256: str | None = None,
     limits: Limits | None = None,
+    workdir: str | Path | None = None,
+    data_folder: str | Path | None = None,
 ) -> Path:
-    """Download the upstream repository archive and unpack its ``data/`` folder into ``dest``.
+    """Download the upstream repository archive and unpack its ``data/`` folder into ``dest`` (inside
+    the working folder ``workdir``, default the current one, or the declared ``data_folder``).
 
     Adds ``scenes.tsv`` and ``classes.tsv`` to it (the upstream keeps them in code) before it is
     renamed into place: the folder appears only once complete.
@@ -457,7 +582,9 @@ def fetch_flatlandia(
         )
 
     try:
-        return fetch_archive(url, "data", dest, timeout_s, sha256, limits, finish=sheets)
+        return fetch_archive(
+            url, "data", dest, timeout_s, sha256, limits, finish=sheets, workdir=workdir, data_folder=data_folder
+        )
     except DownloadError as e:
         raise FetchError(f"could not download the Flatlandia data: {e}. {HOW_TO_POINT}") from e
     except FetchError as e:
