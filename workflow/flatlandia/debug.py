@@ -100,7 +100,15 @@ def mock_snakemake(
                 + (f"; missing {missing}" if missing else "")
                 + (f"; unknown {unknown}" if unknown else "")
             )
-        job = Job(r, DAG(workflow, rules=[r]), wildcards)
+        check_wildcards(r, wildcards)
+        try:
+            job = Job(r, DAG(workflow, rules=[r]), wildcards)
+        except Exception as e:  # an input function refusing the job (InputFunctionException, WorkflowError)
+            first = next((ln.strip() for ln in str(e).splitlines() if ln.strip()), type(e).__name__)
+            raise DebugError(f"rule {rule} {_shown(wildcards)}: the job cannot be built: {first[:300]}") from None
+        outside = [str(p) for p in [*job.output, *job.log] if not _inside(workdir, p)]
+        if outside:
+            raise DebugError(f"rule {rule} {_shown(wildcards)} would write outside {workdir}: {', '.join(outside[:3])}")
         smk = Snakemake(
             job.input,
             job.output,
@@ -117,6 +125,49 @@ def mock_snakemake(
     smk.scriptdir = str(smk.script.parent)
     smk.workdir = workdir
     return smk
+
+
+def _shown(wildcards: Mapping) -> str:
+    return " ".join(f"{k}={str(v)[:60]!r}" for k, v in wildcards.items()) or "(no wildcards)"
+
+
+def _inside(workdir: Path, path) -> bool:
+    """Whether ``path`` (relative to the working folder) stays inside it once resolved."""
+    try:
+        return (workdir / str(path)).resolve().is_relative_to(workdir.resolve())
+    except (OSError, RuntimeError):
+        return False
+
+
+def check_wildcards(rule, wildcards: Mapping[str, str]) -> None:
+    """Refuse (DebugError) wildcard values a real run could never give the rule: a value that is not
+    one plain name (:func:`flatlandia.names.name_problem`: ``../../x`` would write elsewhere) or one
+    outside the rule's ``wildcard_constraints`` and the workflow's (an unknown scene, a region the
+    rule does not build), checked as Snakemake matches a target against the rule's outputs."""
+    from flatlandia.names import name_problem
+
+    for key, value in wildcards.items():
+        why = name_problem(value)
+        if why:
+            raise DebugError(f"wildcard {key}={str(value)[:80]!r} is refused: {why} (a wildcard is one plain name)")
+    for f in [*rule.output, *rule.log]:
+        names = f.get_wildcard_names()
+        if not names:
+            continue
+        given = {k: wildcards[k] for k in names if k in wildcards}
+        if set(given) != set(names):
+            continue
+        m = f.match(f.apply_wildcards(given))
+        bad = sorted(k for k in names if m is None or m.group(k) != given[k])
+        if bad:
+            k = bad[0]
+            constraint = f.wildcard_constraints().get(k)
+            allowed = constraint.pattern if constraint is not None else ".+"
+            allowed = allowed if len(allowed) <= 200 else allowed[:197] + "..."
+            raise DebugError(
+                f"wildcard {k}={given[k][:80]!r} is not one rule {rule.name} takes: it must match {allowed!r} "
+                f"(the rule's and the workflow's wildcard_constraints; for a scene, an id of the scene sheet)"
+            )
 
 
 def missing_inputs(smk) -> list[str]:

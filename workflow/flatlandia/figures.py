@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import paper
+from flatlandia import escape, paper
 from flatlandia.io import atomic_path
 
 
@@ -62,7 +62,7 @@ def plot_training_curves(curves: dict[str, pd.DataFrame], path: str | Path) -> N
         ax.plot(h["epoch"], h["train_loss"], c="tab:blue", lw=1)
         ax.set_xlabel("epoch")
         ax.set_ylabel("training loss", color="tab:blue")
-        ax.set_title(label, fontsize=9)
+        ax.set_title(escape.mathtext(label), fontsize=9)
         val = next((c for c in ("val_metric", "val_median_m") if c in h and h[c].notna().any()), None)
         if val:
             ax2 = ax.twinx()
@@ -225,7 +225,7 @@ def _groups(errors: dict[str, pd.DataFrame]) -> dict[tuple[str, str], list[Run]]
 
 
 def _panel_title(run: Run, what: str) -> str:
-    return f"{run.setting}, {MAP_TYPE_LABELS[run.map_type]}s:\n{what}"
+    return escape.mathtext(f"{run.setting}, {MAP_TYPE_LABELS[run.map_type]}s:\n{what}")
 
 
 def _style_legend(fig, runs: list[Run], paper_marks: bool) -> None:
@@ -234,7 +234,7 @@ def _style_legend(fig, runs: list[Run], paper_marks: bool) -> None:
 
     methods = method_order(r.method for r in runs)
     types = [t for t in MAP_TYPE_STYLES if any(r.map_type == t for r in runs)]
-    handles = [Line2D([], [], c=method_colour(m), lw=2, label=method_label(m)) for m in methods]
+    handles = [Line2D([], [], c=method_colour(m), lw=2, label=escape.mathtext(method_label(m))) for m in methods]
     handles += [Line2D([], [], c="0.3", ls=MAP_TYPE_STYLES[t], lw=1.5, label=MAP_TYPE_LABELS[t]) for t in types]
     if paper_marks:
         handles.append(Line2D([], [], c="0.3", marker="*", ms=10, ls="", label="paper's median (Tables 4, 5)"))
@@ -273,7 +273,7 @@ def error_cdf_figure(errors: dict[str, pd.DataFrame], max_m: float = 100.0, max_
             for ax, column in ((a, "error_m"), (b, "error_deg")):
                 x, y = ecdf(e[column])
                 style = {"c": run.colour, "ls": MAP_TYPE_STYLES[run.map_type], "lw": 1.5, "where": "post"}
-                ax.step(np.r_[0.0, x], np.r_[0.0, y], label=run.name, **style)
+                ax.step(np.r_[0.0, x], np.r_[0.0, y], label=escape.mathtext(run.name), **style)
             marked |= _paper_star(a, b, run, e)
         n = max(len(errors[r.name]) for r in runs)
         for ax, lim, unit in ((a, max_m, "position error (m)"), (b, max_deg, "orientation error (deg)")):
@@ -394,11 +394,11 @@ def plot_score_heatmap(
         d = np.array([np.cos(np.radians(theta_deg)), np.sin(np.radians(theta_deg))]) * 15
         ax.annotate("", xy=cam_xy + d, xytext=cam_xy, arrowprops={"arrowstyle": "->", "color": "tab:blue"})
         ax.set_aspect("equal")
-        ax.set_title(label, fontsize=9)
+        ax.set_title(escape.mathtext(label), fontsize=9)
         ax.set_xlabel("x east (m)")
         ax.set_ylabel("y north (m)")
         fig.colorbar(sc, ax=ax, shrink=0.7, label="score rank (1 = best)")
     axes[0, 0].legend(fontsize=7, loc="lower left")
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(escape.mathtext(title), fontsize=10)  # names a scene and a token: '$' would start mathtext
     fig.tight_layout()
     save(fig, path)

@@ -3,7 +3,7 @@
 
 import pandas as pd
 
-from flatlandia import escape, io, runlog, tables
+from flatlandia import io, runlog, tables
 from flatlandia.objects import audit, cloud
 
 
@@ -22,7 +22,7 @@ def main(smk, log):
             radius_m=float(smk.params.radius_m),
         )
         rows.append(row)
-        title = f"scene {escape.mathtext(scene)}: {row['within_0.5m']}/{row['published']} within 0.5 m"
+        title = f"scene {scene}: {row['within_0.5m']}/{row['published']} within 0.5 m"  # escaped where drawn
         panels.append((title, ours[["x_m", "y_m"]].to_numpy(), ref_xy))
         log.info("%s", row)
     df, total, note = audit.reproduction_table(rows, float(smk.params.radius_m))

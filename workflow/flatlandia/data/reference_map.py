@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import figures, geo
+from flatlandia import escape, figures, geo
 from flatlandia.classes import CLASSES
 from flatlandia.io import atomic_path, write_text
 
@@ -172,7 +172,7 @@ def plot_reference_map(
             grp["y_m"],
             s=22,
             color=cmap(k % 20),
-            label=f"{label} ({len(grp)})",
+            label=escape.mathtext(f"{label} ({len(grp)})"),
             edgecolor="k",
             linewidth=0.3,
             zorder=3,
@@ -195,9 +195,9 @@ def plot_reference_map(
         ax.scatter([], [], marker=r"$\rightarrow$", color="0.55", label="query camera (train)")
         ax.scatter([], [], marker=r"$\rightarrow$", color="tab:red", label="query camera (test)")
     ax.set_aspect("equal")
-    ax.set_xlabel(axes[0])
-    ax.set_ylabel(axes[1])
-    ax.set_title(title)
+    ax.set_xlabel(escape.mathtext(axes[0]))  # text from files: '$' would start mathtext
+    ax.set_ylabel(escape.mathtext(axes[1]))
+    ax.set_title(escape.mathtext(title))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()

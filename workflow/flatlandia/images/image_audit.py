@@ -213,7 +213,24 @@ def read_exif_metadata(path: str | Path, max_megapixels: float = _IMAGES["max_me
         for key, field in (("lat", "MAPLatitude"), ("lon", "MAPLongitude"), ("alt", "MAPAltitude")):
             if rec[key] is None:
                 rec[key] = _float(mp.get(field))
+    rec["bad_geotag"] = _impossible_geotag(rec)
     return rec
+
+
+#: what a geotag's values can be (degrees, metres); EXIF allows any rational, so a forged or broken
+#: tag of latitude 1e9 or heading 1e308 is refused by name rather than used or silently ignored
+GEOTAG_RANGES = {"lat": (-90.0, 90.0), "lon": (-180.0, 180.0), "alt": (-1_000.0, 100_000.0), "heading": (-360.0, 360.0)}
+
+
+def _impossible_geotag(rec: dict) -> dict:
+    """The geotag values of ``rec`` outside :data:`GEOTAG_RANGES`, removed from it (field -> value)."""
+    bad = {}
+    for key, (lo, hi) in GEOTAG_RANGES.items():
+        v = rec.get(key)
+        if v is not None and not lo <= v <= hi:
+            bad[key] = v
+            rec[key] = None
+    return bad
 
 
 def _csv_value(csv: Path, line: int, column: str, text: str):
@@ -327,6 +344,8 @@ def read_folder_metadata(
         rec["problem"] = size_problem(rec["width"], rec["height"], min_side_px, max_megapixels)
         recs.append(rec)
     df = pd.DataFrame(recs)
+    bad_geotag = dict(zip(df["name"], df["bad_geotag"])) if "bad_geotag" in df.columns else {}
+    df = df.drop(columns="bad_geotag", errors="ignore")
     for col in (
         "width",
         "height",
@@ -353,6 +372,15 @@ def read_folder_metadata(
         df = df.reset_index()
     for col in ("lat", "lon", "alt", "heading"):
         df[col] = df[col].astype(float)
+    # an impossible EXIF value that metadata.csv does not replace: the photo is dropped, saying why
+    for i, name in enumerate(df["name"]):
+        tagged = bad_geotag.get(name)
+        bad = {k: v for k, v in tagged.items() if pd.isna(df.at[i, k])} if isinstance(tagged, dict) else {}
+        if bad and not (isinstance(df.at[i, "problem"], str) and df.at[i, "problem"]):
+            shown = ", ".join(
+                f"{k} {v:.6g} outside [{GEOTAG_RANGES[k][0]:g}, {GEOTAG_RANGES[k][1]:g}]" for k, v in bad.items()
+            )
+            df.at[i, "problem"] = f"impossible geotag in its EXIF ({shown}): give the values in metadata.csv"
     return df
 
 

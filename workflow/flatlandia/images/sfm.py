@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, figures
+from flatlandia import config, escape, figures
 from flatlandia.errors import InputError
 
 TESTED_PYCOLMAP = "4.2.1"
@@ -252,7 +252,7 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
     ax.set_xlabel("x east (m)")
     ax.set_ylabel("y north (m)")
     ax.set_title("GPS positions and compass headings", fontsize=9)
-    fig.suptitle(title)
+    fig.suptitle(escape.mathtext(title))  # the scene id comes from the scene sheet: '$' would start mathtext
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", bbox_inches="tight")

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, figures, geo, io, tables
+from flatlandia import config, escape, figures, geo, io, tables
 from flatlandia.io import atomic_path
 from flatlandia.objects.cloud import BACKGROUND, macro_of_class, metres_per_unit, read_classified_cloud
 
@@ -97,7 +97,7 @@ def plot_audit(ours_xy: np.ndarray, ref_xy: np.ndarray, path: str | Path, title:
     ax.set_aspect("equal")
     ax.set_xlabel("x east (m)")
     ax.set_ylabel("y north (m)")
-    ax.set_title(title)
+    ax.set_title(escape.mathtext(title))  # titles carry scene ids: '$' would start mathtext
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
     with atomic_path(path) as tmp:
@@ -200,7 +200,7 @@ def plot_audit_grid(panels: list[tuple[str, np.ndarray, np.ndarray]], path: str 
         )
         ax.scatter(ours_xy[:, 0], ours_xy[:, 1], s=5, color="tab:red", label=f"ours ({len(ours_xy)})")
         ax.set_aspect("equal")
-        ax.set_title(title, fontsize=9)
+        ax.set_title(escape.mathtext(title), fontsize=9)
         ax.legend(fontsize=6)
         ax.tick_params(labelsize=6)
     fig.supxlabel("x east (m)")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flatlandia import figures, names
+from flatlandia import escape, figures, names
 from flatlandia.figures import MAP_TYPE_STYLES, TRUTH_COLOUR, Run, method_label
 from flatlandia.viewer.scene import Estimate, QueryView, SceneView, worst_queries
 
@@ -59,7 +59,7 @@ def draw_query(ax, view: SceneView, q: QueryView, runs: tuple[str, ...], legend:
         e = q.estimate(name)
         if e is None:
             continue
-        label = f"{e.run.label}: {e.summary()}"
+        label = escape.mathtext(f"{e.run.label}: {e.summary()}")
         if not e.has_pose:
             ax.plot([], [], c=e.run.colour, ls=MAP_TYPE_STYLES[e.run.map_type], label=label)
             continue
@@ -69,15 +69,15 @@ def draw_query(ax, view: SceneView, q: QueryView, runs: tuple[str, ...], legend:
         _camera(ax, e.x, e.y, e.theta_deg, e.run.colour, 0.12 * span + 2, label)
         pts += [placed, [[e.x, e.y]]]
     _frame(ax, np.vstack(pts))
-    ax.set_xlabel(view.axes[0])
-    ax.set_ylabel(view.axes[1])
+    ax.set_xlabel(escape.mathtext(view.axes[0]))  # scene ids, tokens, units come from files: '$' starts mathtext
+    ax.set_ylabel(escape.mathtext(view.axes[1]))
     ax.grid(alpha=0.3)
     if legend:
-        ax.set_title(f"scene {view.scene}, query {q.token} ({len(truth)} objects)", fontsize=9)
+        ax.set_title(escape.mathtext(f"scene {view.scene}, query {q.token} ({len(truth)} objects)"), fontsize=9)
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), frameon=False)
         return
     errors = [f"{method_label(e.run.method)}: {e.summary()}" for e in map(q.estimate, runs) if e is not None]
-    ax.set_title(f"query {q.token} ({len(truth)} objects)\n" + "\n".join(errors), fontsize=8)
+    ax.set_title(escape.mathtext(f"query {q.token} ({len(truth)} objects)\n" + "\n".join(errors)), fontsize=8)
 
 
 def _gallery_legend(fig, view: SceneView) -> None:
@@ -89,7 +89,9 @@ def _gallery_legend(fig, view: SceneView) -> None:
         Line2D([], [], marker="s", c=TRUTH_COLOUR, label="true pose and local map (its objects ringed)"),
     ]
     for run in (Run.parse(name) for name in view.featured):
-        handles.append(Line2D([], [], marker="x", c=run.colour, ls=":", label=f"{run.label}: estimate"))
+        handles.append(
+            Line2D([], [], marker="x", c=run.colour, ls=":", label=escape.mathtext(f"{run.label}: estimate"))
+        )
     handles.append(Line2D([], [], c=WRONG_COLOUR, label="matched to a wrong object"))
     fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.97), ncol=3, fontsize=9, frameon=False)
 
@@ -123,10 +125,11 @@ def worst_figure(view: SceneView, n: int = 6):
     for ax in axes.ravel()[len(worst) :]:
         ax.axis("off")
     if not worst:
-        axes[0, 0].text(0.5, 0.5, f"scene {view.scene}: no test query localized", ha="center", va="center")
+        note = escape.mathtext(f"scene {view.scene}: no test query localized")
+        axes[0, 0].text(0.5, 0.5, note, ha="center", va="center")
         return fig
     label = Run.parse(view.featured[0]).label
-    fig.suptitle(f"scene {view.scene}: the test queries the {label} run localizes worst", fontsize=12)
+    fig.suptitle(escape.mathtext(f"scene {view.scene}: the test queries the {label} run localizes worst"), fontsize=12)
     _gallery_legend(fig, view)
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.9 / (5.8 * rows + 1.0)), h_pad=2.5)
     return fig
