@@ -172,6 +172,12 @@ def resolve(cfg: dict | None) -> dict:
     values of the wrong type, numbers that are not finite and settings that contradict each other.
     Raises :class:`ConfigError` listing every problem."""
     cfg = dict(cfg or {})
+    from flatlandia import validate
+
+    limit = validate.MAX_CONFIG_DEPTH
+    deep = [k for k, v in cfg.items() if validate.depth(v, limit) > limit]
+    if deep:  # before any of the recursive checks below (a RecursionError is no message)
+        raise ConfigError(f"'{str(deep[0])[:80]}': the value nests deeper than {limit} levels (MAX_CONFIG_DEPTH)")
     unknown = unknown_keys(cfg)
     if unknown:
         raise ConfigError("unknown key " + "; unknown key ".join(unknown))

@@ -105,9 +105,11 @@ def _class_ids(values, source, what: str, ids: bool) -> np.ndarray:
             try:
                 c = int(v)
             except (TypeError, ValueError):
-                raise InputError(source, f"{what} {k}: class_id {v!r} is not an integer") from None
+                raise InputError(source, f"{what} {k}: class_id {validate.shown(v)} is not an integer") from None
             if not 0 <= c < len(CLASSES) or c != v:
-                raise InputError(source, f"{what} {k}: class_id {v!r} is not one of 0..{len(CLASSES) - 1}")
+                raise InputError(
+                    source, f"{what} {k}: class_id {validate.shown(v)} is not one of 0..{len(CLASSES) - 1}"
+                )
             out[k] = c
         else:
             out[k] = class_id(v, source, f"{what} {k}")

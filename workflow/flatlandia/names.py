@@ -41,10 +41,16 @@ def plain_name(name, source: str | Path, what: str = "name") -> str:
     if why:
         raise InputError(
             source,
-            f"{what} {name!r} is refused: {why}; a name must be one plain file name "
+            f"{what} {_shown(name)} is refused: {why}; a name must be one plain file name "
             f"(no folders, no '..', no '/' or '\\', no control characters, at most {MAX_NAME_BYTES} bytes)",
         )
     return name
+
+
+def _shown(name) -> str:
+    from flatlandia.validate import shown
+
+    return shown(name)
 
 
 def child(folder: str | Path, name, suffix: str = "", what: str = "name") -> Path:

@@ -35,6 +35,9 @@ MAX_JSON_BYTES = 64 * MB
 MAX_QUERY_JSON_BYTES = 8 * MB
 #: nesting of any JSON value (a query file needs 4 levels, a provenance record 4, a checkpoint's config 3)
 MAX_JSON_DEPTH = 32
+#: nesting of a config value (the schema's deepest key: 4 levels; Snakemake's own YAML loader
+#: fails on its own past about 250)
+MAX_CONFIG_DEPTH = 16
 #: digits of a JSON integer read as an integer (longer ones are read as floats, so 10**400 is inf)
 MAX_INT_DIGITS = 30
 #: objects of one query (the published local maps hold at most 17)
@@ -186,8 +189,8 @@ def _int_or_float(text: str):
     return int(text) if len(text) <= MAX_INT_DIGITS else float(text)
 
 
-def depth(value: Any) -> int:
-    """How deeply ``value`` (parsed JSON) nests, without recursion."""
+def depth(value: Any, limit: int = MAX_JSON_DEPTH) -> int:
+    """How deeply ``value`` (parsed JSON or YAML) nests, without recursion (counting stops past ``limit``)."""
     deepest, stack = 0, [(value, 1)]
     while stack:
         v, d = stack.pop()
@@ -196,7 +199,7 @@ def depth(value: Any) -> int:
         elif not isinstance(v, list):
             continue
         deepest = max(deepest, d)
-        if d > MAX_JSON_DEPTH:
+        if d > limit:
             return d
         stack.extend((x, d + 1) for x in v if isinstance(x, (dict, list)))
     return deepest
