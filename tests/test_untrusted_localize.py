@@ -170,7 +170,11 @@ def test_queries_sequences_and_maps_are_bounded(tiny, tmp_path, capsys):
     )
     frames = [{"objects": objs}] + [{"objects": objs, "pose": {"x": 1.0, "y": 0.0}}] * validate.MAX_SEQUENCE_FRAMES
     seq = write(tmp_path / "seq.json", {"frames": frames})
-    one_error(*run(capsys, "--map", m, "--sequence", seq, "--map-type", "depth"), "51 frames", "MAX_SEQUENCE_FRAMES")
+    one_error(
+        *run(capsys, "--map", m, "--sequence", seq, "--map-type", "depth"),
+        f"{validate.MAX_SEQUENCE_FRAMES + 1} frames",
+        "MAX_SEQUENCE_FRAMES",
+    )
     qs = {"queries": [{"id": str(k), "objects": objs} for k in range(validate.MAX_QUERIES + 1)]}
     one_error(*run(capsys, "--map", m, "--query", write(tmp_path / "qs.json", qs)), "10,001 queries", "MAX_QUERIES")
     huge = tmp_path / "huge.json"
@@ -188,6 +192,13 @@ def test_queries_sequences_and_maps_are_bounded(tiny, tmp_path, capsys):
     ]
     big_map = write(tmp_path / "big.geojson", {"type": "FeatureCollection", "features": feats})
     one_error(*run(capsys, "--map", big_map, "--query", tiny["dir"] / "q.json"), "20,001 features", "MAX_MAP_OBJECTS")
+    lights = feats[: validate.MAX_CLASS_OBJECTS + 1]  # the solver's candidates grow with one class's objects
+    lights_map = write(tmp_path / "lights.geojson", {"type": "FeatureCollection", "features": lights})
+    one_error(
+        *run(capsys, "--map", lights_map, "--query", tiny["dir"] / "q.json"),
+        "301 objects of class",
+        "MAX_CLASS_OBJECTS",
+    )
 
 
 @pytest.mark.parametrize("what", ["query", "map"])

@@ -122,8 +122,9 @@ def load_checkpoint(path, config_class, build_model: Callable) -> tuple[nn.Modul
     state = ck.get("state_dict")
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise InputError(path, f"the checkpoint's weights are not a mapping of names to tensors: {REBUILD}")
+    meta = _meta(path, ck)
     try:
-        cfg = config_class.from_dict(_meta(path, ck)["config"])
+        cfg = config_class.from_dict(meta["config"])
         with torch.device("meta"):  # shapes only, no memory: a config asking for 10 TB of weights costs nothing
             shell = build_model(cfg)
     except (TypeError, ValueError, KeyError) as e:  # ConfigError is a ValueError

@@ -431,6 +431,7 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
     origin = validate.frame_origin(meta, path)  # metadata that is no object, or a lon0 that is no degree: refused
     meta = meta or {}
     cls = _table_classes(df, path)
+    validate.class_counts(cls, path, CLASSES)  # the solver's candidates grow with the objects of a class
     obj = _numbers(df, ["obj_idx"], path, np.int64)[:, 0] if "obj_idx" in df.columns else np.arange(len(df))
     validate.unique_ids(obj, path)
     lon, lat = _pick(df.columns, LON_KEYS), _pick(df.columns, LAT_KEYS)

@@ -40,12 +40,13 @@ MAX_JSON_DEPTH = 32
 MAX_CONFIG_DEPTH = 16
 #: digits of a JSON integer read as an integer (longer ones are read as floats, so 10**400 is inf)
 MAX_INT_DIGITS = 30
-#: objects of one query (the published local maps hold at most 17)
+#: objects of one query (the published local maps hold at most 17; 10,000 ran past 240 s)
 MAX_QUERY_OBJECTS = 100
 #: queries of one query file (the benchmark's test split: 215)
 MAX_QUERIES = 10_000
-#: frames of one sequence (the benchmark's sequences: 5)
-MAX_SEQUENCE_FRAMES = 50
+#: frames of one sequence (the benchmark's sequences: 5; 20 frames of 17 objects on a map of
+#: MAX_CLASS_OBJECTS street lights: 36 s)
+MAX_SEQUENCE_FRAMES = 20
 #: largest coordinate of a query's local map, any unit (metres of a GT map: a camera sees 100 m)
 MAX_LOCAL_COORD = 1e6
 #: largest odometry step of a sequence frame from the anchor, metres (a scene is under 1 km across)
@@ -54,9 +55,13 @@ MAX_ODOMETRY_M = 10_000.0
 MAX_PRIOR_M = 1_000_000.0
 #: largest compass sigma, degrees (beyond half a turn a compass says nothing)
 MAX_COMPASS_SIGMA_DEG = 180.0
-#: objects of a scene map file (a scene: about 120; the solver searches 20,000 in 4 s, 200,000 in 4 min:
-#: a larger map is a city, searched through its index)
+#: objects of a scene map file (a scene: about 120; the solver searches 20,000 of 42 classes in 4-30 s,
+#: 200,000 in 4 min: a larger map is a city, searched through its index)
 MAX_MAP_OBJECTS = 20_000
+#: objects of one class in a scene map (a published scene: at most 86): the solver's candidates grow
+#: with it (300 street lights in 300 x 200 m and a depth query of 100: 43 s; 1,000: 4 min; 2,000:
+#: over 5 min for a query of 17)
+MAX_CLASS_OBJECTS = 300
 #: objects of a city index (the simulated city: 100,000)
 MAX_INDEX_OBJECTS = 1_000_000
 #: a map file on disk (Parquet, GeoJSON; a scene's: 10-60 kB)
@@ -378,6 +383,18 @@ def frame_matches(lonlat: np.ndarray, xy: np.ndarray, to_xy, origin: tuple[float
             source,
             f"its x_m/y_m are not its lon/lat in the frame its metadata declares (lon0 {origin[0]:g}, lat0 {origin[1]:g}): "
             f"up to {worst:.3g} m apart (at most {FRAME_TOLERANCE_M:g} m)",
+        )
+
+
+def class_counts(cls: np.ndarray, source: str | Path, names: list[str]) -> None:
+    """Refuse a scene map with more than :data:`MAX_CLASS_OBJECTS` objects of one class."""
+    counts = np.bincount(np.asarray(cls, np.int64), minlength=len(names))
+    worst = int(np.argmax(counts)) if len(counts) else 0
+    if len(counts) and counts[worst] > MAX_CLASS_OBJECTS:
+        raise InputError(
+            source,
+            f"{int(counts[worst]):,} objects of class {names[worst]!r}, over the limit of {MAX_CLASS_OBJECTS} "
+            "(MAX_CLASS_OBJECTS): a map that large is searched through a city index (results/city/{n}/index)",
         )
 
 
