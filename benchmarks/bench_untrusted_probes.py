@@ -358,9 +358,14 @@ except fetch.FetchError as e:
             "3",
             "debug solver_priors region=../../../../x/pwn",
             [*FLATLANDIA, "debug", "solver_priors", "region=../../../../x/pwn", "-d", "."],
-            run,
+            p["debug"],
         ),
-        ("3", "debug reference_map scene=999", [*FLATLANDIA, "debug", "reference_map", "scene=999", "-d", "."], run),
+        (
+            "3",
+            "debug reference_map scene=999",
+            [*FLATLANDIA, "debug", "reference_map", "scene=999", "-d", "."],
+            p["debug"],
+        ),
         (
             "4",
             "export: tokens +cmd|calc, =HYPERLINK(...), city =HYPERLINK(...)",
