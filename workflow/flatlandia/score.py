@@ -667,6 +667,9 @@ def _truth(poses: Poses, scenes: dict[str, BenchmarkScene]) -> pd.DataFrame:
     return poses.table.merge(truth, on=["scene", "token"], how="left")
 
 
+#: a pose is suspected of a unit or order mix-up only when it is this far from its truth (metres):
+#: an honest pose a few metres off, near the line x = y, must not read as swapped
+ROW_IMPLAUSIBLE_M = 20.0
 #: a pose this far outside its scene (the box around its map objects and query cameras), metres, is
 #: nowhere a method could have put it from that map
 EXTENT_MARGIN_M = 500.0
@@ -723,11 +726,13 @@ def _readings(t: pd.DataFrame, form: str, scenes: dict[str, BenchmarkScene], pat
 
 
 def row_plausibility(poses: Poses, scenes: dict[str, BenchmarkScene]) -> list[str]:
-    """Pose by pose, against its scene: a pose outside the scene's extent (:func:`scene_extents`), or
-    one that a mixed-up unit or order (kilometres, x/y or lon/lat swapped, lon/lat in radians) would
-    put within :data:`IMPLAUSIBLE_M` of its truth while it is :data:`FAR_SMALLER` times further as
-    given, looks wrong. Some such rows: a warning naming them (returned); most of them (over half):
-    InputError, the file is not scored."""
+    """Pose by pose, against its scene (:func:`scene_extents`): a pose outside the scene's extent looks
+    wrong, and so does one that a mixed-up unit or order (kilometres, x/y or lon/lat swapped, lon/lat
+    in radians, :func:`_readings`) explains: read that way it lies in the scene, closer to its truth
+    than as given, and as given it is outside the scene, or within the scene shrunk 1000 times
+    around its origin (kilometres), or :data:`ROW_IMPLAUSIBLE_M` from its truth while read that way
+    it is within :data:`IMPLAUSIBLE_M` and :data:`FAR_SMALLER` times closer. Some such rows: a warning naming them (returned); most of them
+    (over half): InputError, the file is not scored."""
     t = _truth(poses, scenes)
     if not len(t):
         return []
@@ -737,13 +742,27 @@ def row_plausibility(poses: Poses, scenes: dict[str, BenchmarkScene]) -> list[st
         err = np.hypot(x - gx, y - gy)
     box = scene_extents(scenes)
     ext = np.array([box.get(sc, (-np.inf, -np.inf, np.inf, np.inf)) for sc in t["scene"]], float).reshape(-1, 4)
-    outside = ~((x >= ext[:, 0]) & (y >= ext[:, 1]) & (x <= ext[:, 2]) & (y <= ext[:, 3]))
+
+    def inside(px, py, shrink: float = 1.0):
+        with np.errstate(invalid="ignore"):
+            return (
+                (px >= ext[:, 0] / shrink)
+                & (py >= ext[:, 1] / shrink)
+                & (px <= ext[:, 2] / shrink)
+                & (py <= ext[:, 3] / shrink)
+            )
+
+    outside = ~inside(x, y)
+    at_origin = inside(x, y, 1000.0)  # where a pose in kilometres lands
     reason = np.array(["" for _ in range(len(t))], dtype=object)
     best = np.full(len(t), np.inf)
     for why, (rx, ry) in _readings(t, poses.form, scenes, poses.path).items():
         with np.errstate(invalid="ignore"):
             e = np.hypot(rx - gx, ry - gy)
-            fixes = (e <= IMPLAUSIBLE_M) & (e * FAR_SMALLER < err) & (e < best)
+            telling = outside | ((err > ROW_IMPLAUSIBLE_M) & (e * FAR_SMALLER < err) & (e <= IMPLAUSIBLE_M))
+            if "kilometres" in why:
+                telling |= at_origin
+            fixes = inside(rx, ry) & (e < err) & telling & (e < best)
         reason[fixes], best[fixes] = why, e[fixes]
     far = outside & (reason == "")
     with np.errstate(invalid="ignore"):
