@@ -10,6 +10,7 @@ import pandas as pd
 from snakemake.utils import validate
 
 from flatlandia import config as config_schema
+from flatlandia import device as device_check
 from flatlandia import runlock
 from flatlandia.data.fetch import FetchError, check_dest
 
@@ -30,6 +31,20 @@ except config_schema.ConfigError as err:
     sys.exit(f"ERROR: config: {err}")
 config.clear()
 config.update(RESOLVED_CONFIG)
+
+
+def jobs_run_here():
+    """Whether this Snakemake runs jobs on this machine: a local run, or a cluster job's own
+    Snakemake on its node; not the host that submits a cluster run's jobs (a remote executor's
+    --jobs), which needs no GPU of its own."""
+    return workflow.remote_exec or workflow.resource_settings.nodes is None
+
+
+# config 'device': cuda where the jobs run and torch sees no GPU stops here, before any job (torch is
+# imported only for cuda); a cluster job checks again on its node, where its Snakemake parses this.
+DEVICE_PROBLEM = device_check.workflow_check(config["device"], jobs_run_here())
+if DEVICE_PROBLEM:
+    sys.exit(f"ERROR: {DEVICE_PROBLEM}")
 
 
 def config_path(path):

@@ -33,10 +33,14 @@ def main(smk, log):
         import torch
 
         from flatlandia import checkpoints
+        from flatlandia import device as device_module
         from flatlandia.fine import learned as models
 
         torch.set_num_threads(int(smk.threads))
+        device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
+        log.info("device: %s", device_module.describe(device))
         model, cfg = checkpoints.load_checkpoint(smk.input.checkpoint, models.FineTrainConfig, models.build_model)
+        model.to(device)
         errors = evaluation.model_errors(scenes, model, cfg, p["proposal"], coarse, p["strategy"], float(p["crop_m"]))
     errors["strategy"] = p["strategy_label"]
     meta = {

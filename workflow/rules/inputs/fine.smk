@@ -112,6 +112,12 @@ def fine_train_runtime(wildcards):
     return int(math.ceil(epochs * FINE_EPOCH_S[wildcards.model] * slow * 1.5 / 60)) + 10
 
 
+def fine_eval_gpus(wildcards):
+    """GPUs for a fine_eval job with config device: cuda (rules/resources.yaml): 1 for a learned
+    model's run, none for the solver's (no model)."""
+    return 1 if wildcards.method in FINE_MODELS else 0
+
+
 def fine_train_priority(wildcards):
     return FINE_TRAIN_PRIORITY.get(wildcards.model, 1)
 
