@@ -292,3 +292,134 @@ def test_hard_negatives_ranked_on_the_device_are_the_host_ranking_s(fraction):
         assert rng_host.random() == rng_dev.random()  # the generator advanced alike
     on_meta = coarse_training.triplet_pairs(batch, sizes, rng_dev, META, torch.from_numpy(scores).to(META), 1.0)
     assert {t.device for t in on_meta} == {META}
+
+
+# ----------------------------------------------------------------------------- the GPU benchmark
+
+#: what a GPU image lacks: every package the workflow uses but torch, torch-geometric, numpy, pandas
+NOT_ON_A_GPU_IMAGE = [
+    "snakemake",
+    "pycolmap",
+    "open3d",
+    "kornia",
+    "pyproj",
+    "yaml",
+    "jsonschema",
+    "pyarrow",
+    "fastparquet",
+    "scipy",
+    "numba",
+    "sklearn",
+    "cv2",
+    "transformers",
+    "matplotlib",
+    "PIL",
+]
+
+#: runs a script with those packages shadowed by ones whose import fails
+BARE_RUNNER = """
+import pathlib, runpy, sys
+stubs = pathlib.Path(sys.argv[1])
+for name in {names!r}:
+    (stubs / name).mkdir(parents=True, exist_ok=True)
+    (stubs / name / "__init__.py").write_text(f"raise ImportError('{{name}} is not installed here')")
+sys.path.insert(0, str(stubs))
+sys.argv = sys.argv[2:]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+def _tiny_results(folder):
+    """The tiny committed scene's reference map, queries and coarse target, as rules write them."""
+    from conftest import TINY_ROOT, TINY_SCENE
+
+    from flatlandia import io
+    from flatlandia.classes import CLASSES
+    from flatlandia.coarse import target
+    from flatlandia.data import queries, recover, reference_map
+
+    lonlat, classes = io.read_reference_map(
+        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
+    )
+    frame = geo.frame_for(lonlat)
+    ref = reference_map.reference_table(TINY_SCENE, lonlat, classes, CLASSES, frame)
+    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
+    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
+    q = queries.build_queries(
+        TINY_SCENE, rec, ref, local, frame, queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
+    )
+    for name, table in (
+        ("maps/reference_map", ref),
+        ("queries/queries", q),
+        ("coarse/target", target.scene_similarity(ref, q)),
+    ):
+        (folder / TINY_SCENE / name).parent.mkdir(parents=True, exist_ok=True)
+        io.write_parquet(table, folder / TINY_SCENE / f"{name}.parquet")
+
+
+@pytest.mark.slow  # trains on the CPU in three processes: about 45 s
+def test_the_gpu_benchmark_runs_where_only_torch_torch_geometric_numpy_and_pandas_are(repo, tmp_path):
+    """bench_paper_config.py packs its inputs here, then runs from the pack with the workflow's other
+    packages unimportable (a bare GPU image), on the CPU here: the losses of the CPU reference
+    workers equal the run's, and a cuda it cannot have is one ERROR line."""
+    import subprocess
+    import sys
+
+    bench = repo / "benchmarks" / "bench_paper_config.py"
+    env = {"PYTHONPATH": str(repo / "workflow"), "PATH": "/usr/bin:/bin"}
+    _tiny_results(tmp_path / "results")
+    packed = tmp_path / "inputs.json.gz"
+    run = subprocess.run(
+        [sys.executable, bench, "--results", tmp_path / "results", "--pack", packed],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    assert run.returncode == 0 and packed.exists(), run.stderr[-2000:]
+    runner = tmp_path / "bare.py"
+    runner.write_text(BARE_RUNNER.format(names=NOT_ON_A_GPU_IMAGE))
+    args = [sys.executable, runner, tmp_path / "stubs", bench, "--inputs", packed, "--epochs", "2"]
+    jobs = ["--only", "coarse_simtrip", "fine_gat_att_depth_coarse", "--out", tmp_path / "table.csv"]
+    run = subprocess.run([*args, *jobs, "--compare-cpu"], capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-3000:]
+    assert "largest relative difference 0.00e+00, within the tolerance" in run.stdout
+    table = pd.read_csv(tmp_path / "table.csv")
+    assert table["job"].tolist() == ["simtrip", "gat_att_depth_coarse"] and (table["loss_rel_diff"] == 0).all()
+    assert (table["s_per_epoch"] > 0).all() and table["epochs"].tolist() == [800, 1000]  # the paper's lengths
+    if not HAS_CUDA:
+        run = subprocess.run([*args, *jobs, "--device", "cuda"], capture_output=True, text=True, env=env)
+        assert run.returncode == 2 and run.stderr.strip().startswith("ERROR: config: 'device': cuda asked for")
+        assert len(run.stderr.strip().splitlines()) == 1
+
+
+# ----------------------------------------------------------------------------- learned image backends
+
+
+def test_the_learned_image_backends_run_their_model_and_inputs_on_the_resolved_device(tmp_path):
+    """Mask2Former (segment) and Depth-Anything (depth), tiny and random, with device auto: the model
+    and every image's tensors on the resolved device, the label and depth maps back as arrays."""
+    from PIL import Image
+    from test_learned_backends import VISTAS_V12, save_depth_anything, save_mask2former
+
+    from flatlandia.images import depth, segment
+
+    dev = device.resolve("auto")
+    photo = tmp_path / "photo.png"
+    Image.fromarray(np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8)).save(photo)
+    seen = []
+
+    def record(module, args, kwargs):
+        seen.extend(t.device for t in (*args, *kwargs.values()) if isinstance(t, torch.Tensor))
+
+    seg = segment.make_backend(
+        "transformers", weights=str(save_mask2former(tmp_path / "m2f", VISTAS_V12)), device="auto"
+    )
+    seg.model.register_forward_pre_hook(record, with_kwargs=True)
+    ids, _ = seg.labels(photo)
+    assert ids.shape == (48, 64) and ids.dtype == np.int32
+    mono = depth.MonocularDepth(str(save_depth_anything(tmp_path / "da")), device="auto")
+    mono.model.register_forward_pre_hook(record, with_kwargs=True)
+    pred = mono.predict(photo, (48, 64))
+    assert pred.shape == (48, 64) and pred.dtype == np.float64
+    assert len(seen) >= 2 and set(seen) == {dev}
+    assert {p.device for m in (seg.model, mono.model) for p in m.parameters()} == {dev}
