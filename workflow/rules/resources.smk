@@ -7,8 +7,8 @@
 # An entry that names a function instead of a number is that function of the stage's inputs file
 # (SfM's threads and segment's memory from the config, the trainings' runtimes from their epochs),
 # called now when it takes no argument, else handed to Snakemake, which calls it per job.
-# A row's optional `gpu` is what the rule asks of a GPU partition with config device: cuda (the
-# SLURM plugin's `gpu` resource, sbatch --gpus); with auto or cpu no rule asks for one.
+# A row's optional `gpu` is how many GPUs its jobs ask for when config `device` is cuda (the SLURM
+# plugin's `gpu` resource, sbatch --gpus); with auto or cpu no job asks for one.
 # Sites change a figure for themselves in their profile (set-resources, set-threads), not here.
 import inspect
 

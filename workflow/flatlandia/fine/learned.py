@@ -175,7 +175,7 @@ class DenseMaps:
         q_len, r_len = self._lengths("q")[rows], self._lengths("r")[rows]
         lq = max(int(q_len.max()), 1) if len(rows) else 1
         lr = max(int(r_len.max()), 1) if len(rows) else 1
-        idx = torch.as_tensor(rows, dtype=torch.long, device=self.y.device)
+        idx = torch.from_numpy(rows).to(self.y.device, non_blocking=True)  # the step's one copy to the device
         return DenseMaps(
             self.q_cls[idx, :lq],
             self.q_xy[idx, :lq],
