@@ -24,14 +24,16 @@ import numpy as np
 import pandas as pd
 import torch
 
-#: the fine trainings fingerprinted: (model, map type, training proposals)
+#: the fine trainings fingerprinted: (model, map type, training proposals, settings over the defaults)
 FINE_JOBS = [
-    ("MLP", "gt", "gtbb"),
-    ("MLP", "depth", "coarse"),
-    ("MLP+ATT", "depth", "gtbb"),
-    ("GAT", "gt", "gtbb"),
-    ("GAT", "depth", "coarse"),
-    ("GAT+ATT", "depth", "gtbb"),
+    ("MLP", "gt", "gtbb", {}),
+    ("MLP", "depth", "coarse", {}),
+    ("MLP", "depth", "gtbb", {"augment": True}),
+    ("MLP+ATT", "depth", "gtbb", {}),
+    ("GAT", "gt", "gtbb", {}),
+    ("GAT", "depth", "coarse", {}),
+    ("GAT", "depth", "gtbb", {"augment": True}),
+    ("GAT+ATT", "depth", "gtbb", {}),
 ]
 #: the coarse trainings: (loss, batching)
 COARSE_JOBS = [("sim", "scene"), ("trip", "scene"), ("simtrip", "scene"), ("trip", "mixed")]
@@ -86,13 +88,13 @@ def fingerprint(results: Path, scenes: list[str], epochs: int) -> dict:
     out["coarse_eval"] = {k: _timing_free(v) for k, v in ev.proposals.items()}
     plain = _scenes(results, scenes, target=False)
     fine = cfg_all["fine"]
-    for model, map_type, regime in FINE_JOBS:
+    for model, map_type, regime, over in FINE_JOBS:
         t0 = time.perf_counter()
         slug = {"MLP": "mlp", "MLP+ATT": "mlp_att", "GAT": "gat", "GAT+ATT": "gat_att"}[model]
-        p = {**fine["train"], **fine["train_overrides"][slug], "epochs": epochs}
+        p = {**fine["train"], **fine["train_overrides"][slug], "epochs": epochs, **over}
         cfg = learned.FineTrainConfig.from_dict(p, model=model, map_type=map_type)
         res, history, _ = fine_training.train_model(plain, cfg, regime, dict(fine["coarse_training"]))
-        key = f"fine {model} {map_type} {regime}"
+        key = f"fine {model} {map_type} {regime}" + "".join(f" {k}={v}" for k, v in over.items())
         errors = fine_eval.model_errors(plain, res["model"], cfg, "gtbb")
         out[key] = {"history": history.to_dict("list"), "state_dict": res["state_dict"], "errors": _timing_free(errors)}
         print(f"{key}: {time.perf_counter() - t0:.1f} s", flush=True)
