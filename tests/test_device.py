@@ -268,8 +268,9 @@ def test_a_coarse_step_runs_wholly_on_a_device_without_touching_the_host(loss):
 
 @pytest.mark.parametrize("fraction", [0.0, 0.5, 1.0])
 def test_hard_negatives_ranked_on_the_device_are_the_host_ranking_s(fraction):
-    """triplet_pairs (scores left on the device) = draw_triplets (scores on the host): the same
-    pairs in the same order from the same draws, over ties, unequal scenes and short pools."""
+    """device_triplet_pairs (scores left on the device, a GPU's path, run here on the CPU) =
+    draw_triplets (scores on the host, the CPU's path): the same pairs in the same order from the
+    same draws, over ties, unequal scenes and short pools."""
     ds = _coarse_dataset(n_queries=12, seed=5)
     rng_data = np.random.default_rng(1)
     for trial in range(25):
@@ -285,11 +286,15 @@ def test_hard_negatives_ranked_on_the_device_are_the_host_ranking_s(fraction):
         seed = int(rng_data.integers(1 << 30))
         rng_host, rng_dev = np.random.default_rng(seed), np.random.default_rng(seed)
         want = coarse_training.draw_triplets(batch, sizes, rng_host, scores if fraction else None, fraction)
-        got = coarse_training.triplet_pairs(
+        got = coarse_training.device_triplet_pairs(
             batch, sizes, rng_dev, torch.device("cpu"), torch.from_numpy(scores) if fraction else None, fraction
         )
         assert [g.tolist() for g in got] == [w.tolist() for w in want], trial
         assert rng_host.random() == rng_dev.random()  # the generator advanced alike
+    # the training's call: the host's drawing where the scores are on the CPU, the device's elsewhere
+    on_cpu = coarse_training.triplet_pairs(batch, sizes, np.random.default_rng(3), "cpu", torch.from_numpy(scores), 1.0)
+    want = coarse_training.draw_triplets(batch, sizes, np.random.default_rng(3), scores, 1.0)
+    assert [t.tolist() for t in on_cpu] == [w.tolist() for w in want]
     on_meta = coarse_training.triplet_pairs(batch, sizes, rng_dev, META, torch.from_numpy(scores).to(META), 1.0)
     assert {t.device for t in on_meta} == {META}
 

@@ -107,6 +107,25 @@ def triplet_pairs(
     scores: torch.Tensor | None = None,
     hard_fraction: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The pairs of :func:`draw_triplets` as index tensors on ``device``: on the CPU drawn by it
+    (the scores are readable in place), on another device by :func:`device_triplet_pairs` (the
+    same pairs, nothing read back from the device)."""
+    if torch.device(device).type == "cpu" and (scores is None or scores.device.type == "cpu"):
+        ip, ineg = draw_triplets(
+            batch_samples, sizes, rng, scores.numpy() if scores is not None else None, hard_fraction
+        )
+        return torch.from_numpy(ip), torch.from_numpy(ineg)
+    return device_triplet_pairs(batch_samples, sizes, rng, device, scores, hard_fraction)
+
+
+def device_triplet_pairs(
+    batch_samples: list[retrieval.Sample],
+    sizes: list[int],
+    rng: np.random.Generator,
+    device,
+    scores: torch.Tensor | None = None,
+    hard_fraction: float = 0.0,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`draw_triplets` with the scores left where they are (a GPU): the same pairs in the same
     order from the same draws of ``rng``, as index tensors on ``device``, nothing read back.
 
