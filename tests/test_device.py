@@ -89,6 +89,18 @@ def test_the_workflow_stops_at_its_parse_when_cuda_is_asked_for_without_a_gpu(re
     assert ok.returncode == 0, ok.stderr[-2000:]
 
 
+@pytest.mark.skipif(HAS_CUDA, reason="this machine has a GPU: cuda is honoured")
+def test_flatlandia_debug_of_a_training_stops_with_the_same_line(repo, tmp_path):
+    """The command line's way into a rule (`flatlandia debug`) parses the workflow: the same one line."""
+    from flatlandia import cli
+
+    tiny = ["--configfile", str(repo / "config" / "test" / "tiny.yaml"), "--config", "device=cuda"]
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["debug", "coarse_train", "loss=sim", "-d", str(tmp_path), *tiny, "--show"])
+    line = str(stop.value.code)
+    assert line.startswith("ERROR: config: 'device': cuda asked for") and "\n" not in line
+
+
 # ----------------------------------------------------------------------------- fine: placement
 
 
