@@ -101,6 +101,30 @@ def test_flatlandia_debug_of_a_training_stops_with_the_same_line(repo, tmp_path)
     assert line.startswith("ERROR: config: 'device': cuda asked for") and "\n" not in line
 
 
+class _Named(dict):
+    """A Snakemake namedlist as a rule script reads it: by attribute or ``.get``."""
+
+    __getattr__ = dict.__getitem__
+
+
+@pytest.mark.parametrize("rule", ["coarse_train", "coarse_eval", "fine_train", "fine_eval"])
+def test_a_rule_script_on_a_node_without_a_gpu_stops_with_one_line_before_its_work(rule, repo, no_gpu, capsys):
+    """On a cluster the parse of the submitting host does not check (it needs no GPU); the job's
+    script does, first: one ERROR line naming the setting, exit 1, nothing read or written."""
+    import runpy
+
+    job = type("Job", (), {})()
+    job.config, job.threads, job.log = {"device": "cuda"}, 1, []
+    job.input, job.output = _Named(reference_maps=[], queries=[]), _Named()
+    job.wildcards = _Named(map_type="gt", method="mlp", proposal="gtbb", loss="sim")
+    job.params = _Named(p={"method": "mlp"}, solver={})
+    with pytest.raises(SystemExit) as stop:
+        runpy.run_path(str(repo / "workflow" / "scripts" / f"{rule}.py"), init_globals={"snakemake": job})
+    assert stop.value.code == 1
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("ERROR")]
+    assert len(err) == 1 and err[0].startswith("ERROR: config: 'device': cuda asked for, but torch"), err
+
+
 # ----------------------------------------------------------------------------- fine: placement
 
 
