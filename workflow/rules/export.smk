@@ -18,6 +18,7 @@ rule export_scene:
         local_maps="results/export/{scene}/local_maps.csv",
         proposals="results/export/{scene}/proposals.csv",
         ground_truth="results/export/{scene}/ground_truth.csv",
+        query_cameras="results/export/{scene}/query_cameras.geojson",
     log:
         "logs/export_scene/{scene}.log",
     conda:
