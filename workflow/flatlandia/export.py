@@ -112,7 +112,9 @@ digits that read back to the same double, so the files hold the workflow's value
 
 **Scoring**: fill `poses_template.csv` (columns `scene`, `token` and either `x_m`, `y_m`,
 `theta_deg` as above or `lon`, `lat`, `heading_deg`; optional `map_type`, `proposal`, `seconds`)
-and run `flatlandia score POSES --name NAME --out DIR`.
+and run `flatlandia score POSES --name NAME --out DIR`. `flatlandia localize --batch EXPORT --out
+POSES.csv` writes the geometric solver's poses of the test split in this shape (a baseline, and a
+check of the format end to end).
 """
 
 
