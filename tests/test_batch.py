@@ -134,6 +134,34 @@ def test_export_batch_score_gives_the_solvers_table_row(tiny_run, tmp_path, caps
     assert np.allclose(errors["error_deg"], solver["error_deg"], atol=1e-9, rtol=0)
     md = (tmp_path / "scores" / "scores.md").read_text()
     assert "| batch (yours) |" in md and "| geometric solver |" in md
+    # scores.md carries % within (5 m, 5°) (the README's headline) and the fine table's recall columns
+    head = next(line for line in md.splitlines() if line.startswith("| method |"))
+    cells = [c.strip() for c in head.strip("|").split("|")]
+    assert cells[4:9] == ["0.5 m & 2°", "1 m & 5°", "5 m & 5°", "5 m & 10°", "10 m & 20°"]
+    assert cells[9:15] == ["recall 1 m", "recall 3 m", "recall 5 m", "recall 1°", "recall 3°", "recall 5°"]
+    for label in ("batch (yours)", "geometric solver"):
+        row = next(line for line in md.splitlines() if line.startswith(f"| {label} |"))
+        assert row.split("|")[7].strip() == f"{theirs[evaluation.WITHIN_COLUMN].iloc[0]:.1f}"
+    assert f"{theirs[evaluation.WITHIN_COLUMN].iloc[0]:.1f} % within (5 m, 5 deg)" in out
+
+
+def test_tokens_read_as_floats_get_a_one_line_hint(tiny_run, tmp_path, capsys):
+    """A template filled after reading it without dtype=str: tokens '...0' or in scientific notation
+    are refused in one line that says they look like floats and how to read them."""
+    template = pd.read_csv(tiny_run / "export" / "poses_template.csv", dtype=TEXT)
+    q = pd.read_parquet(tiny_run / TINY_SCENE / "queries" / "queries.parquet")
+    for spoil in (lambda t: f"{int(t)}.0", lambda t: f"{float(t):.14e}"):
+        poses = q[q["split"] == SPLIT][["scene", "token", "x_m", "y_m", "theta_deg"]].copy()
+        poses["token"] = [spoil(t) for t in poses["token"]]
+        poses.to_csv(tmp_path / "floats.csv", index=False)
+        status, out, _ = _cli(
+            capsys,
+            *("score", tmp_path / "floats.csv", "--name", "f", "--out", tmp_path / "s", "--results", tiny_run),
+            *("--split", SPLIT),
+        )
+        assert status == 1 and len(out.strip().splitlines()) == 1 and len(out) < 700, out
+        assert "look like numbers read as floats" in out and "dtype=str" in out
+    assert len(template)  # the template itself holds the tokens as text
 
 
 def test_the_export_and_the_results_folder_give_the_same_poses(tiny_run, tmp_path):
