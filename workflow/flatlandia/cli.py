@@ -80,6 +80,9 @@ def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -
             f"{rec.get('wall_seconds', float('nan')):.1f} s wall, {rec.get('cpu_seconds', float('nan')):.1f} s CPU"
         )
     lines.append("inputs" + (" (back to the files no rule produced: the sources)" if tree else "") + ":")
+    if tree:  # each subtree once, shared ones referred back to
+        lines += ["  " * depth + text for depth, text in provenance.lineage_tree(artifact, df)]
+        return "\n".join(lines)
     for inp in provenance.lineage(artifact, df, tree):
         pad = "  " * inp["depth"]
         made = f"<- {inp['rule']}" if inp["rule"] else "(source)"

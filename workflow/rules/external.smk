@@ -25,6 +25,6 @@ rule external_eval:
     resources:
         **rule_resources("external_eval"),
     params:
-        p=fine_eval_params,
+        p=external_eval_params,
     script:
         "../scripts/external_eval.py"

@@ -57,7 +57,7 @@ rule fine_eval:
         **rule_resources("fine_eval"),
     params:
         p=fine_eval_params,
-        solver=config["solver"],
+        solver=fine_eval_solver,
     script:
         "../scripts/fine_eval.py"
 
