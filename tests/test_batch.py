@@ -7,6 +7,7 @@ solver rows reproduced."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 
@@ -70,12 +71,13 @@ def tiny_run(tmp_path_factory):
     ref = pd.read_parquet(results / TINY_SCENE / "maps" / "reference_map.parquet")
     summaries = []
     for map_type in ("gt", "depth"):
-        e = evaluation.solver_errors([(ref, q)], map_type, "whole", config.section_defaults("solver"), split=SPLIT)
-        e["strategy"] = "whole map"
-        folder = results / "fine" / f"solver_{map_type}_whole"
-        io.write_parquet(e, folder / "errors.parquet")
-        summaries.append(_summary(e, "solver", map_type, "whole", "whole map", ref))
-        io.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
+        for proposal, label in (("whole", "whole map"), ("gtbb", "GT-BB")):
+            e = evaluation.solver_errors([(ref, q)], map_type, proposal, config.section_defaults("solver"), split=SPLIT)
+            e["strategy"] = label
+            folder = results / "fine" / f"solver_{map_type}_{proposal}"
+            io.write_parquet(e, folder / "errors.parquet")
+            summaries.append(_summary(e, "solver", map_type, proposal, label, ref))
+            io.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
     io.write_parquet(fine_table.table_rows(summaries), results / "tables" / "fine_localization.parquet")
     ex = results / "export"
     out = export.scene_export(TINY_SCENE, ref, meta, q)
@@ -95,41 +97,48 @@ def _cli(capsys, *args) -> tuple[int, str, str]:
     return status, out.out, out.err
 
 
+#: positions come back bit for bit; headings go through degrees in the poses file (the solver's
+#: radians, written as degrees, read back as radians): errors equal to 1e-13 deg
+ATOL = 1e-9
+
+
 def _row_differences(mine: pd.DataFrame, theirs: pd.DataFrame) -> list[str]:
-    """Columns of two fine-table rows that differ, timings and the run's name aside (floats exact)."""
+    """Columns of two fine-table rows that differ, timings and the run's name aside (floats to ATOL)."""
     skip = NAME_COLUMNS | set(compare_tables.timing_columns(mine.columns))
     assert list(mine.columns) == list(theirs.columns)
-    return [c for c in mine.columns if c not in skip and not compare_tables._equal(mine[c], theirs[c], 0.0)]
+    return [c for c in mine.columns if c not in skip and not compare_tables._equal(mine[c], theirs[c], ATOL)]
 
 
-@pytest.mark.parametrize("map_type", ["gt", "depth"])
-def test_export_batch_score_gives_the_solvers_table_row(tiny_run, tmp_path, capsys, map_type):
+@pytest.mark.parametrize("map_type, proposal", [("gt", "whole"), ("depth", "whole"), ("depth", "gtbb")])
+def test_export_batch_score_gives_the_solvers_table_row(tiny_run, tmp_path, capsys, map_type, proposal):
     """A new user's flow on the tiny scene: the export -> `flatlandia localize --batch` -> `flatlandia
-    score` -> scores.md and a fine-table row equal to the solver's whole-map row in every column but
-    the run's name and its timings."""
+    score` -> scores.md and a fine-table row equal to the solver's row of that setting (the whole map,
+    or each query's GT-BB box from the export's proposals.csv) in every column but the run's name and
+    its timings."""
     poses = tmp_path / "poses.csv"
     status, out, err = _cli(
         capsys,
         *("localize", "--batch", tiny_run / "export", "--split", SPLIT, "--map-type", map_type, "--out", poses),
+        *("--proposal", proposal),
     )
     assert status == 0, out + err
     assert f"wrote {poses}" in out and "10 queries, 10 localized" in out
     written = pd.read_csv(poses, dtype=TEXT)
     assert list(written.columns) == batch.POSE_COLUMNS + batch.EXTRA_COLUMNS
-    assert (written["proposal"] == "whole").all() and (written["map_type"] == map_type).all()
+    assert (written["proposal"] == proposal).all() and (written["map_type"] == map_type).all()
     status, out, err = _cli(
         capsys,
         *("score", poses, "--name", "batch", "--out", tmp_path / "scores", "--results", tiny_run, "--split", SPLIT),
     )
     assert status == 0, out + err
-    run = f"batch_{map_type}_whole"
+    run = f"batch_{map_type}_{proposal}"
     summary = json.loads((tmp_path / "scores" / run / "summary.json").read_text())
     mine = fine_table.table_rows([summary])
     builtin = pd.read_parquet(tiny_run / "tables" / "fine_localization.parquet")
-    theirs = builtin[builtin["run"] == f"solver_{map_type}_whole"].reset_index(drop=True)
+    theirs = builtin[builtin["run"] == f"solver_{map_type}_{proposal}"].reset_index(drop=True)
     assert not _row_differences(mine, theirs)
     errors = pd.read_parquet(tmp_path / "scores" / run / "errors.parquet")
-    solver = pd.read_parquet(tiny_run / "fine" / f"solver_{map_type}_whole" / "errors.parquet")
+    solver = pd.read_parquet(tiny_run / "fine" / f"solver_{map_type}_{proposal}" / "errors.parquet")
     assert errors["x"].tolist() == solver["x"].tolist() and errors["y"].tolist() == solver["y"].tolist()
     assert np.allclose(errors["error_deg"], solver["error_deg"], atol=1e-9, rtol=0)
     md = (tmp_path / "scores" / "scores.md").read_text()
@@ -165,13 +174,14 @@ def test_tokens_read_as_floats_get_a_one_line_hint(tiny_run, tmp_path, capsys):
 
 
 def test_the_export_and_the_results_folder_give_the_same_poses(tiny_run, tmp_path):
-    """The export's files (reference_map.geojson, local_maps.csv, ground_truth.csv's train cameras)
-    hold the workflow's values exactly: the batch from either source gives the same poses."""
-    for map_type in ("gt", "depth"):
-        a = batch.localize_batch(tiny_run / "export", SPLIT, map_type, progress=False).poses
-        b = batch.localize_batch(tiny_run, SPLIT, map_type, progress=False).poses
+    """The export's files (reference_map.geojson, local_maps.csv, proposals.csv, ground_truth.csv's
+    train cameras) hold the workflow's values exactly: the batch from either source gives the same
+    poses, on the whole map and on the GT-BB boxes."""
+    for map_type, proposal in itertools.product(("gt", "depth"), ("whole", "gtbb")):
+        a = batch.localize_batch(tiny_run / "export", SPLIT, map_type, progress=False, proposal=proposal).poses
+        b = batch.localize_batch(tiny_run, SPLIT, map_type, progress=False, proposal=proposal).poses
         for c in ("scene", "token", "x_m", "y_m", "theta_deg", "found", "located_scene"):
-            assert a[c].tolist() == b[c].tolist(), (map_type, c)
+            assert a[c].tolist() == b[c].tolist(), (map_type, proposal, c)
     assert set(a["located_scene"]) == {TINY_SCENE}
 
 
@@ -242,6 +252,11 @@ def test_fixes_per_query(tiny_run, tmp_path, capsys):
         (["--batch", "{run}", "--out", "{tmp}/p.csv", "--map", "{run}/0/maps/reference_map.parquet"], "city index"),
         (["--batch", "{run}", "--out", "{tmp}/p.csv", "--fixes", "{tmp}/none.csv"], "none.csv: missing"),
         (["--map", "{run}/0/maps/reference_map.parquet", "--query", "q.json", "--fixes", "f.csv"], "for --batch"),
+        (["--batch", "{run}", "--out", "{tmp}/p.csv", "--proposal", "box"], "'box' is not one of whole, gtbb"),
+        (
+            ["--batch", "{run}", "--out", "{tmp}/p.csv", "--proposal", "coarse-sim"],
+            "coarse/sim/proposals.parquet: missing",
+        ),
     ],
 )
 def test_bad_input_is_one_error_line_and_nothing_written(tiny_run, tmp_path, capsys, args, says):
@@ -294,23 +309,27 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
         for s in cities
     ]
     summaries = []
-    for map_type in ("depth", "gt"):
-        e = evaluation.solver_errors(read, map_type, "whole", settings, learned)
-        e["strategy"] = "whole map"
-        summaries.append(_summary(e, "solver", map_type, "whole", "whole map", read[0][0]))
+    settings_runs = [("depth", "whole"), ("gt", "whole"), ("depth", "gtbb")]
+    for map_type, proposal in settings_runs:
+        e = evaluation.solver_errors(read, map_type, proposal, settings, learned)
+        e["strategy"] = {"whole": "whole map", "gtbb": "GT-BB"}[proposal]
+        summaries.append(_summary(e, "solver", map_type, proposal, e["strategy"].iloc[0], read[0][0]))
         summaries[-1]["ref_map_kb"] = float(np.mean([evaluation.ref_map_kb(r) for r, _ in read]))
     builtin = fine_table.table_rows(summaries)
-    for map_type in ("depth", "gt"):
-        poses = tmp_path / f"{map_type}.csv"
-        status, out, err = _cli(capsys, "localize", "--batch", results, "--map-type", map_type, "--out", poses)
-        assert status == 0, out + err
+    for map_type, proposal in settings_runs:
+        poses = tmp_path / f"{map_type}_{proposal}.csv"
         status, out, err = _cli(
-            capsys, "score", poses, "--name", "batch", "--out", tmp_path / map_type, "--results", results
+            capsys, "localize", "--batch", results, "--map-type", map_type, "--proposal", proposal, "--out", poses
         )
         assert status == 0, out + err
-        summary = json.loads((tmp_path / map_type / f"batch_{map_type}_whole" / "summary.json").read_text())
-        theirs = builtin[builtin["run"] == f"solver_{map_type}_whole"].reset_index(drop=True)
-        assert not _row_differences(fine_table.table_rows([summary]), theirs), map_type
+        out_dir = tmp_path / f"{map_type}_{proposal}"
+        status, out, err = _cli(capsys, "score", poses, "--name", "batch", "--out", out_dir, "--results", results)
+        assert status == 0, out + err
+        summary = json.loads((out_dir / f"batch_{map_type}_{proposal}" / "summary.json").read_text())
+        theirs = builtin[builtin["run"] == f"solver_{map_type}_{proposal}"].reset_index(drop=True)
+        assert not _row_differences(fine_table.table_rows([summary]), theirs), (map_type, proposal)
+        if proposal != "whole":
+            continue
         exported = batch.localize_batch(
             results / "export", "test", map_type, learned=results / "solver" / "priors" / "whole.json", progress=False
         ).poses

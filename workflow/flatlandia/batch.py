@@ -35,8 +35,11 @@ from flatlandia.errors import InputError
 #: query got no pose
 POSE_COLUMNS = ["scene", "token", "x_m", "y_m", "theta_deg", "map_type", "proposal", "seconds"]
 EXTRA_COLUMNS = ["found", "confidence", "located_scene", "reason"]
-#: the proposal a batch searches: the whole map (the score's setting ``whole``)
+#: the proposal a batch searches by default: the whole map (the score's setting ``whole``); the
+#: others are the map regions of rule fine_eval (``gtbb``, the oracle box; ``coarse-*``, a coarse
+#: stage's proposals), searched row for row as it searches them
 PROPOSAL = "whole"
+PROPOSALS = ("whole", "gtbb", "coarse-sim", "coarse-trip", "coarse-simtrip", "coarse-solver")
 #: the columns of a fixes file (a phone's fix per query); the compass pair is optional
 FIX_COLUMNS = ["scene", "token", "lon", "lat", "sigma_m"]
 COMPASS_COLUMNS = ["compass_deg", "compass_sigma_deg"]
@@ -60,6 +63,39 @@ class Source:
         if self.kind == "results":
             return _results_queries(self.root, scene, split, map_type)
         return _export_queries(self.root, scene, split, map_type)
+
+    def proposals(self, scene: str, split: str, map_type: str, proposal: str) -> tuple[dict, str | None]:
+        """(token -> the proposed objects' obj_idx in proposed order, the coarse strategy used) of a
+        scene's ``split`` queries: a run's proposals through rule fine_eval's function
+        (:func:`flatlandia.proposals.for_queries`), an export's from its proposals.csv. The coarse
+        strategy is the fine table's (else the default config's), as ``flatlandia score`` takes it."""
+        from flatlandia import score
+
+        strategy = None
+        if proposal in score.COARSE_LABELS:
+            table = self.root / "tables" / "fine_localization.parquet" if self.kind == "results" else None
+            builtin = pd.read_parquet(table) if table is not None and table.is_file() else None
+            strategy = score.builtin_setting(builtin, proposal) or score.default_strategy(proposal)
+        if self.kind == "results":
+            return _results_proposals(self.root, scene, split, map_type, proposal, strategy), strategy
+        path = self.root / scene / "proposals.csv"
+        props = _read_csv(path, ["token", "map_type", "source", "strategy", "obj_idx"])
+        props = props[
+            (props["source"] == proposal)
+            & (props["map_type"] == map_type)
+            & (props["strategy"] == (strategy or "GT-BB"))
+        ]
+        if proposal != "gtbb" and not len(props):
+            raise InputError(
+                path, f"no {proposal} proposals ({strategy}, {map_type}): the export was written without them"
+            )
+        out: dict[str, list[int]] = {}
+        try:
+            for t, o in zip(props["token"], props["obj_idx"].astype(np.int64), strict=True):
+                out.setdefault(t, []).append(int(o))
+        except ValueError as e:
+            raise InputError(path, f"obj_idx must be integers ({e})") from None
+        return out, strategy
 
     def scene_map(self, scene: str, learned, settings=None) -> localize.ObjectMap:
         """The scene's map with what the source gives the solver: a run's reference_map.parquet with
@@ -123,6 +159,23 @@ def _results_queries(results: Path, scene: str, split: str, map_type: str) -> li
         localize.Query(str(r.token), localmaps.local_map(r, map_type), np.asarray(r.classes, np.int64), str(path))
         for r in q.itertuples(index=False)
     ]
+
+
+def _results_proposals(
+    results: Path, scene: str, split: str, map_type: str, proposal: str, strategy: str | None
+) -> dict[str, list[int]]:
+    from flatlandia import proposals
+
+    ref = pd.read_parquet(results / scene / "maps" / "reference_map.parquet")
+    q = pd.read_parquet(results / scene / "queries" / "queries.parquet")
+    coarse = None
+    if proposal not in ("gtbb", "whole"):
+        path = results / "coarse" / proposal.split("-", 1)[1] / "proposals.parquet"
+        if not path.is_file():
+            raise InputError(path, f"missing: the {proposal} proposals (`snakemake --cores 2 {path}`)")
+        coarse = pd.read_parquet(path)
+    props = proposals.for_queries(ref, q[q["split"] == split], proposal, map_type, coarse, strategy)
+    return {str(t): [int(o) for o in p] for t, p in zip(props["token"], props["proposal"])}
 
 
 def _export_queries(export: Path, scene: str, split: str, map_type: str) -> list[localize.Query]:
@@ -246,14 +299,21 @@ def localize_batch(
     learned: str | Path | None = "auto",
     settings=None,
     progress: bool = True,
+    proposal: str = PROPOSAL,
 ) -> Batch:
     """Every ``split`` query of ``source`` (:func:`open_source`) localized by
     :func:`flatlandia.localize.localize` on its scene's map (or on the ``city`` index), with a fix
-    where ``fixes`` (:func:`read_fixes`) has one; the poses in each query's own scene frame."""
+    where ``fixes`` (:func:`read_fixes`) has one; the poses in each query's own scene frame.
+    ``proposal``: the whole map, or each query's proposed map region (``gtbb``, ``coarse-*``; a
+    scene map, no fixes), searched as rule fine_eval searches it."""
     if split not in SPLITS:
         raise InputError("--split", f"{split!r} is not one of {', '.join(SPLITS)}")
     if map_type not in localize.MAP_TYPES:
         raise InputError("--map-type", f"{map_type!r} is not one of {', '.join(localize.MAP_TYPES)}")
+    if proposal not in PROPOSALS:
+        raise InputError("--proposal", f"{proposal!r} is not one of {', '.join(PROPOSALS)}")
+    if proposal != PROPOSAL and (city is not None or fixes):
+        raise InputError("--proposal", "a proposal is searched on each scene's map: not with a city index or fixes")
     src = source if isinstance(source, Source) else open_source(source)
     fixes = fixes or {}
     work = [(s, src.queries(s, split, map_type)) for s in src.scenes]  # every file read before any solve
@@ -264,7 +324,11 @@ def localize_batch(
     cmap = localize.load_map(city, settings, learned) if city is not None else None
     if cmap is not None and cmap.kind != "city":
         raise InputError(city, "--city takes a city index (results/city/{n}/index), not a scene map")
+    regions = {s: src.proposals(s, split, map_type, proposal) for s, _ in work} if proposal != PROPOSAL else {}
     notes = [f"source: {src.kind} folder {src.root}, {sum(len(q) for _, q in work)} {split} queries ({map_type})"]
+    if regions:
+        strategy = next(iter(regions.values()))[1]
+        notes.append(f"each query searched on its {proposal} proposal" + (f" ({strategy})" if strategy else ""))
     if src.kind == "export" and learned == "auto":
         notes.append(
             "an export holds no learned priors: depth maps are solved without the scale prior and verifier of the "
@@ -278,11 +342,15 @@ def localize_batch(
         if not queries:
             continue
         m = cmap if cmap is not None else src.scene_map(scene, learned, settings)
+        pos = {int(o): k for k, o in enumerate(m.obj_idx)}
         for q in bar(queries) if bar else queries:
             gps, compass = fixes.get((scene, q.id), (None, None))
-            answer = localize.localize(m, q, map_type, alternatives=0, gps=gps, compass=compass)
+            region = None
+            if regions:  # the proposal's objects, in proposed order (a query without one: none)
+                region = np.array([pos[o] for o in regions[scene][0].get(q.id, []) if o in pos], np.int64)
+            answer = localize.localize(m, q, map_type, alternatives=0, gps=gps, compass=compass, rows=region)
             warnings += answer.get("warnings", [])
-            rows.append(_row(m, scene, q.id, map_type, answer))
+            rows.append(_row(m, scene, q.id, map_type, answer, proposal))
     if bar:
         bar.close()
     notes.append(f"localized in {time.perf_counter() - t0:.1f} s wall (maps loaded per scene)")
@@ -290,7 +358,7 @@ def localize_batch(
     return Batch(poses, notes, list(dict.fromkeys(warnings)))
 
 
-def _row(m: localize.ObjectMap, scene: str, token: str, map_type: str, answer: dict) -> dict:
+def _row(m: localize.ObjectMap, scene: str, token: str, map_type: str, answer: dict, proposal: str) -> dict:
     """One query's row of the poses file: its pose in its own scene's frame (a city's pose moved out
     of the tiled frame by its scene's tile), empty where it has none."""
     x = y = theta = None
@@ -306,7 +374,7 @@ def _row(m: localize.ObjectMap, scene: str, token: str, map_type: str, answer: d
         "y_m": y,
         "theta_deg": theta,
         "map_type": map_type,
-        "proposal": PROPOSAL,
+        "proposal": proposal,
         "seconds": answer["seconds"],
         "found": bool(answer["found"]),
         "confidence": answer["confidence"],

@@ -258,7 +258,14 @@ def localize_batch(args) -> int:
         fixes = batch.read_fixes(args.fixes) if args.fixes else None
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
         result = batch.localize_batch(
-            args.batch, args.split, args.map_type or "depth", args.map, fixes, learned, progress=True
+            args.batch,
+            args.split,
+            args.map_type or "depth",
+            args.map,
+            fixes,
+            learned,
+            progress=True,
+            proposal=args.proposal,
         )
         batch.write_poses(result, args.out)
     except InputError as e:
@@ -416,6 +423,12 @@ def main(argv: list[str] | None = None) -> int:
         "score reads (map type default depth)",
     )
     lq.add_argument("--split", default="test", choices=["train", "val", "test"], help="with --batch (default: test)")
+    lq.add_argument(
+        "--proposal",
+        default="whole",
+        help="with --batch: the map region each query searches: whole (default), gtbb (the oracle box) or "
+        "coarse-sim, coarse-trip, coarse-simtrip, coarse-solver (a coarse stage's proposals), as rule fine_eval",
+    )
     lq.add_argument(
         "--fixes",
         metavar="FILE.csv",

@@ -832,6 +832,7 @@ def localize(
     alternatives: int = ALTERNATIVES,
     gps: tuple[float, float, float] | None = None,
     compass: tuple[float, float] | None = None,
+    rows: np.ndarray | None = None,
 ) -> dict:
     """One query's pose on a loaded map (:func:`load_map`), as a dict of JSON values.
 
@@ -847,7 +848,8 @@ def localize(
     solver knew beyond the query and the map), ``searched`` (map objects searched) and ``seconds``
     (the solver's time); ``reason`` when nothing was found. ``gps`` (lon, lat, sigma_m) and
     ``compass`` (heading_deg clockwise from north, sigma_deg): a phone's fix, weighed as a likelihood
-    (:func:`fixes`; not with ``near``)."""
+    (:func:`fixes`; not with ``near``). ``rows``: search only these rows of a scene map, in this order
+    (a proposal: the objects a coarse stage, or the oracle box, proposes; as rule fine_eval does)."""
     from flatlandia.city import search as city_search
 
     if map_type not in MAP_TYPES:
@@ -864,6 +866,8 @@ def localize(
     _check_prior(gps, compass)
     if gps is not None and near is not None:
         raise InputError("--gps", "give either a GPS fix (--gps) or a search radius (--near), not both")
+    if rows is not None and (m.kind != "scene" or near is not None or gps is not None):
+        raise InputError("--proposal", "a proposal (map rows) is searched on a scene map, without --near or --gps")
     xy, unit = _solver_units(q.xy, map_type)
     metric = map_type == "gt"
     priors_used = m.priors_used(map_type)
@@ -881,7 +885,8 @@ def localize(
         )
         best, alts, rows = found.solution, found.alternatives, found.rows
     else:
-        rows = np.arange(len(m.xy)) if near is None else _near_rows(m, near, radius_m)[0]
+        if rows is None:
+            rows = np.arange(len(m.xy)) if near is None else _near_rows(m, near, radius_m)[0]
         found = _solve_rows(m, xy, q.cls, rows, metric, map_type, alternatives)
         best, alts = found.best, found.alternatives
     seconds = time.perf_counter() - t0
