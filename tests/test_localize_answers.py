@@ -65,9 +65,9 @@ def test_a_fix_that_rules_out_every_place_says_so(tiny, tmp_path, capsys):
     )
     answer = json.loads(out)
     assert status == 0 and not answer["found"]
-    assert answer["reason"].startswith(f"no pose: no map object within 4 sigma (100 m) of the fix at {far[0]:g}, ")
+    assert answer["reason"].startswith(f"no pose: no map object within 4 sigma (100 m) of the fix at {far[0]}, ")
     assert "(the nearest is " in answer["reason"] and answer["reason"].endswith("is the fix right? lon/lat swapped?")
-    assert err.startswith(f"WARNING: --gps {far[0]:g},{far[1]:g} is ") and "beyond its reach (250 m" in err
+    assert err.startswith(f"WARNING: --gps {far[0]},{far[1]} is ") and "beyond its reach (250 m" in err
     assert answer["warnings"] and answer["warnings"][0] in err
     status, out, err = _cli(
         capsys, "--map", path, "--query", _query(tmp_path, r), "--gps", f"{r.lon},{r.lat}", "--gps-sigma-m", 25
@@ -86,7 +86,7 @@ def test_swapped_coordinates_are_a_warning(tiny, tmp_path, capsys):
     )
     answer = json.loads(out)
     assert status == 0 and not answer["found"] and "lon/lat swapped?" in answer["reason"]
-    assert err.startswith(f"WARNING: --gps {r.lat:g},{r.lon:g}: lon and lat look swapped: read as {r.lon:g},{r.lat:g}")
+    assert err.startswith(f"WARNING: --gps {r.lat},{r.lon}: lon and lat look swapped: read as {r.lon},{r.lat}")
     status, out, err = _cli(
         capsys, "--map", path, "--query", _query(tmp_path, r), "--near", f"{r.lat},{r.lon}", "--radius-m", 200
     )

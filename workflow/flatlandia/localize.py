@@ -746,13 +746,13 @@ def prior_warnings(m: ObjectMap, gps=None, near=None, radius_m=None) -> list[str
         swapped = _metres_to_map(m, lat, lon)
         if swapped is not None and swapped * SWAP_NEARER < d and swapped <= max(reach, 1000.0):
             out.append(
-                f"{flag} {lon:g},{lat:g}: lon and lat look swapped: read as {lat:g},{lon:g} it lies {_far(swapped)} "
+                f"{flag} {lon},{lat}: lon and lat look swapped: read as {lat},{lon} it lies {_far(swapped)} "
                 f"from the map's nearest object instead of {_far(d)} (give LON,LAT: longitude first)"
             )
         else:
             lo, hi = m.lonlat.min(axis=0), m.lonlat.max(axis=0)
             out.append(
-                f"{flag} {lon:g},{lat:g} is {_far(d)} from the map's nearest object, beyond its reach ({reach:g} m: "
+                f"{flag} {lon},{lat} is {_far(d)} from the map's nearest object, beyond its reach ({reach:g} m: "
                 f"{what.format(view=view)}): outside the map's area (lon {lo[0]:.5f} to {hi[0]:.5f}, lat "
                 f"{lo[1]:.5f} to {hi[1]:.5f})? No pose can lie near it"
             )
@@ -771,7 +771,7 @@ def no_pose_reason(m: ObjectMap, cls, rows: np.ndarray, gps=None) -> str:
         return "no pose explains the query's objects on the map objects searched"
     lon, lat, sigma = (float(v) for v in gps[:3])
     gate = 4.0 * sigma
-    where = f"of the fix at {lon:g}, {lat:g}"
+    where = f"of the fix at {lon}, {lat}"
     ask = "is the fix right? lon/lat swapped?"
     d = _metres_to_map(m, lon, lat)
     if d is not None and d > gate:
