@@ -284,9 +284,10 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
     cities = {"7": "Lisbon", "12": "Paris", "16": "Paris"}
     scenes = [published_scene(flat_root, s) for s in cities]
     settings = config.section_defaults("solver")
-    learned = solver.learned.fit(scenes, settings)
-    learned.write(results / "solver" / "priors" / "whole.json")
-    learned = solver.LearnedPriors.read(results / "solver" / "priors" / "whole.json")  # as rule fine_eval reads it
+    learned = {}
+    for region in ("whole", "gtbb"):  # rule solver_priors: a verifier per region
+        solver.learned.fit(scenes, settings, region).write(results / batch.priors_file(region))
+        learned[region] = solver.LearnedPriors.read(results / batch.priors_file(region))  # as rule fine_eval reads it
     stats = []
     for ref, q in scenes:
         s = str(ref["scene"].iloc[0])
@@ -311,7 +312,7 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
     summaries = []
     settings_runs = [("depth", "whole"), ("gt", "whole"), ("depth", "gtbb")]
     for map_type, proposal in settings_runs:
-        e = evaluation.solver_errors(read, map_type, proposal, settings, learned)
+        e = evaluation.solver_errors(read, map_type, proposal, settings, learned[proposal])
         e["strategy"] = {"whole": "whole map", "gtbb": "GT-BB"}[proposal]
         summaries.append(_summary(e, "solver", map_type, proposal, e["strategy"].iloc[0], read[0][0]))
         summaries[-1]["ref_map_kb"] = float(np.mean([evaluation.ref_map_kb(r) for r, _ in read]))
@@ -334,3 +335,15 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
             results / "export", "test", map_type, learned=results / "solver" / "priors" / "whole.json", progress=False
         ).poses
         assert exported[["x_m", "y_m"]].equals(pd.read_csv(poses, dtype=TEXT)[["x_m", "y_m"]].astype(float))
+
+
+def test_the_learned_priors_are_those_rule_fine_eval_reads():
+    """batch.priors_file is rules/inputs/solver.smk's solver_priors_file (read from the rule file)."""
+    from conftest import REPO
+
+    text = (REPO / "workflow" / "rules" / "inputs" / "solver.smk").read_text()
+    source = text[text.index("def solver_priors_file(") :]
+    namespace: dict = {}
+    exec(source.split("\n\n\n")[0], namespace)  # the function alone, as the rule file defines it
+    for proposal in batch.PROPOSALS:
+        assert namespace["solver_priors_file"](proposal) == f"results/{batch.priors_file(proposal)}", proposal

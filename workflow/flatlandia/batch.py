@@ -40,6 +40,16 @@ EXTRA_COLUMNS = ["found", "confidence", "located_scene", "reason"]
 #: stage's proposals), searched row for row as it searches them
 PROPOSAL = "whole"
 PROPOSALS = ("whole", "gtbb", "coarse-sim", "coarse-trip", "coarse-simtrip", "coarse-solver")
+
+
+def priors_file(proposal: str) -> str:
+    """The learned priors (rule solver_priors) a depth-map run on ``proposal`` reads, relative to the
+    results folder, as rule fine_eval reads them (rules/inputs/solver.smk, solver_priors_file): a
+    verifier learned on the whole map or the GT-BB box, the scale prior alone on coarse proposals."""
+    region = proposal if proposal in ("whole", "gtbb") else "scale"
+    return f"solver/priors/{region}.json"
+
+
 #: the columns of a fixes file (a phone's fix per query); the compass pair is optional
 FIX_COLUMNS = ["scene", "token", "lon", "lat", "sigma_m"]
 COMPASS_COLUMNS = ["compass_deg", "compass_sigma_deg"]
@@ -97,12 +107,15 @@ class Source:
             raise InputError(path, f"obj_idx must be integers ({e})") from None
         return out, strategy
 
-    def scene_map(self, scene: str, learned, settings=None) -> localize.ObjectMap:
+    def scene_map(self, scene: str, learned, settings=None, proposal: str = PROPOSAL) -> localize.ObjectMap:
         """The scene's map with what the source gives the solver: a run's reference_map.parquet with
-        its training cameras and learned priors (``learned`` "auto"); an export's
-        reference_map.geojson with the cameras of its ground_truth.csv's train split (learned priors
-        only where ``learned`` names a file)."""
+        its training cameras and learned priors (``learned`` "auto": those rule fine_eval reads for
+        ``proposal``, :func:`priors_file`); an export's reference_map.geojson with the cameras of its
+        ground_truth.csv's train split (learned priors only where ``learned`` names a file)."""
         if self.kind == "results":
+            if learned == "auto":
+                learned = self.root / priors_file(proposal)
+                learned = learned if learned.is_file() else None
             return localize.load_map(self.root / scene / "maps" / "reference_map.parquet", settings, learned)
         folder = self.root / scene
         m = localize.load_map(folder / "reference_map.geojson", settings, None if learned == "auto" else learned)
@@ -329,10 +342,10 @@ def localize_batch(
     if regions:
         strategy = next(iter(regions.values()))[1]
         notes.append(f"each query searched on its {proposal} proposal" + (f" ({strategy})" if strategy else ""))
-    if src.kind == "export" and learned == "auto":
+    if src.kind == "export" and learned == "auto" and map_type == "depth":
         notes.append(
             "an export holds no learned priors: depth maps are solved without the scale prior and verifier of the "
-            "workflow's run (give --priors results/solver/priors/whole.json for the benchmark's solver)"
+            f"workflow's run (give --priors results/{priors_file(proposal)} for the benchmark's solver)"
         )
     total = sum(len(q) for _, q in work)
     bar = _terminal_progress(total, "localize") if progress else None
@@ -341,7 +354,7 @@ def localize_batch(
     for scene, queries in work:
         if not queries:
             continue
-        m = cmap if cmap is not None else src.scene_map(scene, learned, settings)
+        m = cmap if cmap is not None else src.scene_map(scene, learned, settings, proposal)
         pos = {int(o): k for k, o in enumerate(m.obj_idx)}
         for q in bar(queries) if bar else queries:
             gps, compass = fixes.get((scene, q.id), (None, None))
