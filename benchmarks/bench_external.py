@@ -64,7 +64,7 @@ def main(argv=None) -> int:
         sys.exit(f"ERROR: the run failed (rc {rc}); its log: {folder / 'bench_external.log'}")
     done = re.findall(r"(\d+) of (\d+) steps \(100%\) done", text)
     jobs = int(done[-1][1]) if done else 0
-    per_rule = pd.Series(re.findall(r"^rule (\w+):", text, flags=re.M)).value_counts()
+    per_rule = pd.Series(re.findall(r"^(?:local)?rule (\w+):", text, flags=re.M)).value_counts()
     state = (
         "quiet" if max(load0, load1) < 1.5 else "busy: other work on the machine, wall time longer than a quiet one's"
     )
