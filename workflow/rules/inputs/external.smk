@@ -31,7 +31,7 @@ def external_eval_inputs(wildcards):
 
 
 def external_eval_params(wildcards):
-    """What rule external_eval reads: the method's name and proposal, and the coarse table's strategy
+    """What external_eval reads, and only that: the method's name and proposal, the coarse table's strategy
     for coarse proposals (an external method is not trained and runs no solver)."""
     out = {"method": wildcards.method, "proposal": wildcards.proposal}
     if wildcards.proposal in FINE_COARSE:
