@@ -14,7 +14,7 @@ if FLAT_FETCH:
         conda:
             "../../envs/flatlandia.yaml"
         params:
-            dest=config["fetch"]["dest"],
+            dest=fetch_dest,
             url=config["fetch"]["url"],
             sha256=config["fetch"]["sha256"],
             timeout_s=config["fetch"]["timeout_s"],
