@@ -13,8 +13,6 @@ import tomllib
 from importlib import metadata
 from pathlib import Path
 
-#: the report's landing page (a yte template: the release), named by the default profile
-REPORT_METADATA = Path(__file__).resolve().parent / "report_metadata.yaml"
 #: pyproject.toml of the clone this package sits in (workflow/flatlandia/ -> the repository root)
 PYPROJECT = Path(__file__).resolve().parents[2] / "pyproject.toml"
 
