@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import config, io, provenance
+from flatlandia import __version__, config, io, provenance, release
 from flatlandia.errors import InputError
 
 
@@ -136,6 +136,9 @@ def audit(args) -> int:
 
 def config_files(args) -> int:
     """Rewrite (``--write``) or check config/config.yaml and config/README.md against the schema."""
+    if release.pyproject_version(Path(args.repo) / "pyproject.toml") is None:
+        print(f"ERROR: {args.repo} is not a clone of the workflow (no flatlandia pyproject.toml): give --repo")
+        return 1
     stale = []
     for path, text in config.generated_files(Path(args.repo)).items():
         if path.exists() and path.read_text() == text:
@@ -366,6 +369,7 @@ def score_poses(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="flatlandia", description=__doc__)
+    ap.add_argument("--version", action="version", version=f"flatlandia {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     a = sub.add_parser("audit", help="print which rule, inputs, settings and commit produced each artifact")
     a.add_argument("artifact", nargs="?", help="one artifact: its rule, settings by value, inputs and their rules")
@@ -378,7 +382,9 @@ def main(argv: list[str] | None = None) -> int:
     a.set_defaults(func=audit)
     c = sub.add_parser("config", help="check (or --write) the config files generated from the schema")
     c.add_argument("--write", action="store_true", help="rewrite them instead of checking")
-    c.add_argument("--repo", default=str(config.SCHEMA_PATH.parents[2]), help="repository root")
+    c.add_argument(
+        "--repo", default=str(release.PYPROJECT.parent), help="repository root (default: this package's clone)"
+    )
     c.set_defaults(func=config_files)
     d = sub.add_parser(
         "debug",

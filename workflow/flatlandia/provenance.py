@@ -144,15 +144,31 @@ def started() -> None:
 
 def _workflow_folder(smk) -> str:
     """The workflow folder that ran (``workflow/``, the parent of its scripts' folder), not the
-    checkout the package was installed from."""
+    checkout the package was installed from; for a module from a remote source, the address of its
+    scripts (with the tag, e.g. ``https://raw.githubusercontent.com/OWNER/REPO/v0.1.0/workflow/scripts``)."""
     scriptdir = getattr(smk, "scriptdir", None)
+    if scriptdir and _remote(str(scriptdir)):
+        return str(scriptdir)
     return str(Path(scriptdir).resolve().parent if scriptdir else Path(__file__).resolve().parents[1])
 
 
+def _remote(folder: str) -> bool:
+    return "://" in folder
+
+
+def _workflow_record(folder: str) -> dict:
+    """The commit of a workflow folder; for a remote source its address, which names the tag (the
+    commit is not known here)."""
+    if _remote(folder):
+        return {"source": folder, "commit": folder, "dirty": None, "modified": []}
+    return workflow_state(folder)
+
+
 def _scene_sheet(config: dict, workflow_folder: str) -> Path:
-    """The scene sheet the run read: as the workflow resolves it (the working folder, else the repository)."""
+    """The scene sheet the run read: as the workflow resolves it (the working folder, else the
+    repository of a workflow run from a folder)."""
     p = Path(str(config.get("scenes", ""))).expanduser()
-    if p.is_absolute() or p.exists():
+    if p.is_absolute() or p.exists() or _remote(workflow_folder):
         return p
     return Path(workflow_folder).parent / p
 
@@ -163,7 +179,7 @@ def record(smk) -> dict:
     settings = rule_settings(smk)
     config = dict(smk.config)
     folder = _workflow_folder(smk)
-    state = workflow_state(folder)
+    state = _workflow_record(folder)
     usage = resource.getrusage(resource.RUSAGE_SELF)
     now = time.time()
     sheet = _scene_sheet(config, folder)

@@ -22,7 +22,7 @@ rule export_scene:
     log:
         "logs/export_scene/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("export_scene")
     resources:
         **rule_resources("export_scene"),
@@ -43,7 +43,7 @@ rule export_index:
     log:
         "logs/export_index/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("export_index")
     resources:
         **rule_resources("export_index"),

@@ -20,7 +20,7 @@ rule external_eval:
         map_type="gt|depth",
         proposal="gtbb|whole|" + "|".join(FINE_COARSE),
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("external_eval")
     resources:
         **rule_resources("external_eval"),
