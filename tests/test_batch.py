@@ -347,3 +347,19 @@ def test_the_learned_priors_are_those_rule_fine_eval_reads():
     exec(source.split("\n\n\n")[0], namespace)  # the function alone, as the rule file defines it
     for proposal in batch.PROPOSALS:
         assert namespace["solver_priors_file"](proposal) == f"results/{batch.priors_file(proposal)}", proposal
+
+
+def test_a_progress_bar_on_a_terminal_only_and_none_without_tqdm(tiny_run, monkeypatch, capsys):
+    """The batch draws tqdm's bar on stderr when stderr is a terminal, nothing when it is not (a log),
+    and runs without one where tqdm is not installed (the localizer alone needs no workflow extras)."""
+    import sys
+
+    batch.localize_batch(tiny_run, SPLIT, "gt")
+    assert capsys.readouterr().err == ""  # not a terminal
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    batch.localize_batch(tiny_run, SPLIT, "gt")
+    err = capsys.readouterr().err
+    assert "localize: 100%" in err and "10/10" in err, err
+    monkeypatch.setitem(sys.modules, "tqdm", None)  # import tqdm raises ImportError
+    poses = batch.localize_batch(tiny_run, SPLIT, "gt").poses
+    assert poses["found"].all() and capsys.readouterr().err == ""

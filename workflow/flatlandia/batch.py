@@ -287,10 +287,13 @@ class Batch:
         return line + (f"; median {1000 * np.median(sec):.1f} ms per query" if len(sec) else "")
 
 
-def _terminal_progress(total: int, desc: str) -> Callable[[Iterable], Iterable]:
-    """A tqdm bar on stderr when it is a terminal; nothing otherwise (a log stays clean)."""
-    from tqdm import tqdm
-
+def _terminal_progress(total: int, desc: str) -> Callable[[Iterable], Iterable] | None:
+    """A tqdm bar on stderr when it is a terminal; nothing otherwise (a log stays clean), nor where
+    tqdm is not installed (it comes with the workflow's extras, not with the localizer alone)."""
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return None
     bar = tqdm(total=total, desc=desc, file=sys.stderr, disable=not sys.stderr.isatty(), unit="query")
 
     def wrap(items):
