@@ -20,7 +20,12 @@ import operator
 import textwrap
 from pathlib import Path
 
-SCHEMA_PATH = Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
+#: the workflow's config schema: flatlandia/schemas/ in an installed wheel (pyproject.toml), else
+#: workflow/schemas/ of the clone this package sits in
+_IN_WHEEL = Path(__file__).resolve().parent / "schemas" / "config.schema.yaml"
+SCHEMA_PATH = (
+    _IN_WHEEL if _IN_WHEEL.is_file() else Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
+)
 
 
 class ConfigError(ValueError):

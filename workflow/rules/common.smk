@@ -48,9 +48,11 @@ if DEVICE_PROBLEM:
 
 
 def config_path(path):
-    """A path from the config: relative to the working directory if it exists there, else to the repo."""
+    """A path from the config: relative to the working directory if it exists there, else to the
+    repository when the workflow runs from a folder (a module from a remote source: the working
+    directory only)."""
     p = Path(path).expanduser()
-    if p.is_absolute() or p.exists():
+    if p.is_absolute() or p.exists() or REPO_DIR is None:
         return p
     beside_repo = Path(REPO_DIR) / p
     return beside_repo if beside_repo.exists() else p
@@ -172,7 +174,10 @@ wildcard_constraints:
 
 # ---------------------------------------------------------------- data root
 def _resolve_root():
-    root = os.environ.get("FLATLANDIA_ROOT") or config["flatlandia_root"]
+    """The data folder: flatlandia_root when given explicitly (--configfile, --config, a module's
+    config), else the environment variable FLATLANDIA_ROOT, else the default config's."""
+    env = os.environ.get("FLATLANDIA_ROOT")
+    root = env if env and "flatlandia_root" not in CONFIG_GIVEN else config["flatlandia_root"]
     return config_path(root).resolve()
 
 
