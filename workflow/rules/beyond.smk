@@ -21,7 +21,7 @@ rule beyond_scene:
     wildcard_constraints:
         prior="on|off",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("beyond_scene")
     resources:
         **rule_resources("beyond_scene"),
@@ -47,7 +47,7 @@ rule beyond_city:
     wildcard_constraints:
         map="city-[0-9]+|simulated-[0-9]+",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("beyond_city")
     resources:
         **rule_resources("beyond_city"),
@@ -74,7 +74,7 @@ rule beyond_table:
     wildcard_constraints:
         part="one_frame|one_frame_city",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("beyond_table")
     resources:
         **rule_resources("beyond_table"),

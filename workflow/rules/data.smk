@@ -12,9 +12,9 @@ if FLAT_FETCH:
         log:
             "logs/fetch_flatlandia/fetch.log",
         conda:
-            "../../envs/flatlandia.yaml"
+            "../envs/flatlandia.yaml"
         params:
-            dest=config["fetch"]["dest"],
+            dest=fetch_dest,
             data_folder=str(FLAT_ROOT_GIVEN),
             url=config["fetch"]["url"],
             sha256=config["fetch"]["sha256"],
@@ -33,7 +33,7 @@ rule ingest:
     log:
         "logs/ingest/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("ingest")
     resources:
         **rule_resources("ingest"),
@@ -53,7 +53,7 @@ rule reference_map:
     log:
         "logs/reference_map/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("reference_map")
     resources:
         **rule_resources("reference_map"),
