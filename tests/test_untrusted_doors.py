@@ -378,3 +378,32 @@ def test_an_impossible_exif_geotag_is_a_drop_reason(tmp_path):
     assert not isinstance(df.loc["lat.jpg", "problem"], str) and df.loc["lat.jpg", "lat"] == 55.7
     table = image_audit.audit_table(tmp_path, dedup_threshold=0.0)
     assert table.set_index("name").loc["heading.jpg", "drop_reason"].startswith("impossible geotag")
+
+
+# ----------------------------------------------------------------------------- 5. the batch's export CSVs
+
+
+def test_the_batch_reads_an_exports_csvs_within_bounds(tmp_path):
+    """`localize --batch` (issue 36) reads a user's export: regular files within MAX_CSV_BYTES, local
+    maps of finite coordinates, at most MAX_QUERY_OBJECTS objects."""
+    from flatlandia import batch, validate
+
+    scene = tmp_path / "0"
+    scene.mkdir()
+    os.mkfifo(scene / "queries.csv")
+    with pytest.raises(InputError, match="is not a regular file"):
+        batch._export_queries(tmp_path, "0", "test", "gt")
+    (scene / "queries.csv").unlink()
+    with open(scene / "queries.csv", "wb") as f:
+        f.truncate(validate.MAX_CSV_BYTES + 1)
+    with pytest.raises(InputError, match="MAX_CSV_BYTES"):
+        batch._export_queries(tmp_path, "0", "test", "gt")
+    (scene / "queries.csv").write_text("token,split,n_objects\nq1,test,3\n")
+    rows = [f"q1,test,gt,{k},24,object--street-light,{x},1.0" for k, x in enumerate(["1.0", "2.0", "nan"])]
+    (scene / "local_maps.csv").write_text("token,split,map_type,k,class_id,class,x,y\n" + "\n".join(rows) + "\n")
+    with pytest.raises(InputError, match="query 'q1': x, y must be finite numbers"):
+        batch._export_queries(tmp_path, "0", "test", "gt")
+    many = [f"q1,test,gt,{k},24,object--street-light,{1.0 + k},1.0" for k in range(validate.MAX_QUERY_OBJECTS + 1)]
+    (scene / "local_maps.csv").write_text("token,split,map_type,k,class_id,class,x,y\n" + "\n".join(many) + "\n")
+    with pytest.raises(InputError, match="101 objects in query 'q1'"):
+        batch._export_queries(tmp_path, "0", "test", "gt")

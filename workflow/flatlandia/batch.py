@@ -21,12 +21,14 @@ import sys
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from io import BytesIO
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from flatlandia import localize
+from flatlandia import localize, validate
+from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
 #: the poses file's columns: what ``flatlandia score`` reads (scene, token, the metric pose, the
@@ -148,10 +150,11 @@ def open_source(path: str | Path) -> Source:
 
 def _read_csv(path: Path, columns: list[str]) -> pd.DataFrame:
     """A CSV of the export (every cell as text), with ``columns`` checked."""
-    if not path.is_file():
+    if not path.exists():
         raise InputError(path, "missing: the export is incomplete (`snakemake --cores 2 export` writes it again)")
+    data = validate.read_bytes(path, validate.MAX_CSV_BYTES, "MAX_CSV_BYTES")  # a regular file, bounded
     try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False)
+        df = pd.read_csv(BytesIO(data), dtype=str, keep_default_na=False)
     except Exception as e:
         raise InputError(path, f"cannot be read as CSV ({type(e).__name__})") from None
     missing = [c for c in columns if c not in df.columns]
@@ -211,6 +214,7 @@ def _export_queries(export: Path, scene: str, split: str, map_type: str) -> list
         if len(idx) == 0:
             raise InputError(path, f"query {t} ({split} in queries.csv) has no {map_type} local map")
         idx = idx[np.argsort(k[idx], kind="stable")]
+        validate.local_map(xy[idx], cls[idx], path, f"query {validate.shown(t)}", len(CLASSES))
         out.append(localize.Query(t, xy[idx], cls[idx], str(path)))
     return out
 

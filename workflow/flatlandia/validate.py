@@ -72,6 +72,9 @@ MAX_INDEX_BYTES = 256 * MB
 MAX_POSES_BYTES = 64 * MB
 #: rows of a poses file (every query of 20 scenes in 12 settings: 26,000)
 MAX_POSES_ROWS = 200_000
+#: a CSV of an export read back (``localize --batch``; the export's largest, proposals.csv: 12 MB for
+#: every scene, a scene's under 2 MB)
+MAX_CSV_BYTES = 64 * MB
 #: a checkpoint file (the default run's largest: 0.6 MB; the paper's GAT: 3 MB)
 MAX_CHECKPOINT_BYTES = 256 * MB
 #: a provenance record (the default run's largest: 40 kB)
@@ -273,6 +276,17 @@ def count(n: int, bound: int, source: str | Path, what: str, limit_name: str) ->
     if n > bound:
         raise InputError(source, f"{n:,} {what}, over the limit of {bound:,} ({limit_name})")
     return n
+
+
+def local_map(xy: np.ndarray, cls: np.ndarray, source: str | Path, where: str, n_classes: int) -> None:
+    """A query's local map read from a table (not through a query file's checks): at most
+    :data:`MAX_QUERY_OBJECTS` objects, coordinates finite and within :data:`MAX_LOCAL_COORD`, class
+    ids in range."""
+    count(len(xy), MAX_QUERY_OBJECTS, source, f"objects in {where}", "MAX_QUERY_OBJECTS")
+    if not (np.isfinite(xy).all() and (np.abs(xy) <= MAX_LOCAL_COORD).all()):
+        raise InputError(source, f"{where}: x, y must be finite numbers within {MAX_LOCAL_COORD:g} (MAX_LOCAL_COORD)")
+    if len(cls) and (cls.min() < 0 or cls.max() >= n_classes):
+        raise InputError(source, f"{where}: class_id outside 0..{n_classes - 1}")
 
 
 # ----------------------------------------------------------------------------- city index
