@@ -9,7 +9,7 @@ checkpoints, priors and transforms, a city of ``$\\input{secret.tex}$``, impossi
 then runs each probe's command (``flatlandia localize``, ``flatlandia score``, ``flatlandia audit``,
 ``flatlandia debug``, ``snakemake -n``, or a few lines of Python calling the rule's entry) under
 ``/usr/bin/time -v`` with a time limit. Prints one row per probe (finding, probe, what it ended
-in: its first ERROR/WARNING line or what it wrote, exit status, peak RSS, wall time) as a Markdown
+in: its first ERROR/WARNING line or what it wrote, exit status, peak RSS, wall and CPU time) as a Markdown
 table, also written to ``OUT/probes.md``. Besides the probes, the worst inputs the bounds let
 through (a depth query of MAX_QUERY_OBJECTS street lights on a map of MAX_CLASS_OBJECTS of them, a
 sequence of MAX_SEQUENCE_FRAMES such frames, a map with every class at its bound, a file of
@@ -630,11 +630,13 @@ def measure(cmd: list[str], cwd: Path | None, timeout: int) -> dict:
         result = next((ln for ln in res.stdout.splitlines() if ln.strip().startswith(("wrote", '"found"', "all "))), "")
         result = result or (res.stdout.strip().splitlines() or [""])[0]
     status = re.search(r"Exit status: (\d+)", res.stderr)
+    cpu = sum(float(v) for v in re.findall(r"(?:User|System) time \(seconds\): ([0-9.]+)", res.stderr))
     return {
         "rc": int(status.group(1)) if status else res.returncode,
         "result": result,
         "rss_mb": int(rss.group(1)) / 1000 if rss else float("nan"),
         "wall_s": wall,
+        "cpu_s": cpu,
     }
 
 
@@ -654,9 +656,14 @@ def main() -> None:
         m = measure(cmd, cwd, args.timeout)
         result = m["result"].replace("|", "\\|")
         result = result if len(result) <= 160 else result[:157] + "..."
-        rows.append(f"| {finding} | {name} | {result} | {m['rc']} | {m['rss_mb']:.0f} | {m['wall_s']:.1f} |")
+        rows.append(
+            f"| {finding} | {name} | {result} | {m['rc']} | {m['rss_mb']:.0f} | {m['wall_s']:.1f} | {m['cpu_s']:.1f} |"
+        )
         print(rows[-1], flush=True)
-    table = "| finding | probe | result | rc | peak RSS MB | wall s |\n|---|---|---|---|---|---|\n" + "\n".join(rows)
+    table = (
+        "| finding | probe | result | rc | peak RSS MB | wall s | CPU s |\n|---|---|---|---|---|---|---|\n"
+        + "\n".join(rows)
+    )
     (out / "probes.md").write_text(table + "\n")
     print(f"\n{table}\n\nwritten to {out / 'probes.md'}")
 
