@@ -49,7 +49,15 @@ def tiny(tmp_path_factory) -> dict:
     r = q[q["split"] == "test"].iloc[0]
     query = localize.query_json(localmaps.local_map(r, "gt"), r.classes)
     (d / "q.json").write_text(json.dumps(query))
-    return {"dir": d, "arrays": arrays, "query": query, "objects": query["objects"], "ref": ref, "meta": meta}
+    return {
+        "dir": d,
+        "arrays": arrays,
+        "query": query,
+        "objects": query["objects"],
+        "ref": ref,
+        "meta": meta,
+        "queries": q,
+    }
 
 
 def run(capsys, *args) -> tuple[int, list[str]]:
@@ -155,6 +163,23 @@ def test_an_index_that_unpacks_past_its_bound_is_refused_before_anything_is_infl
     t0 = time.process_time()
     one_error(*run(capsys, "--map", path, "--query", tiny["dir"] / "q.json"), "over the limit", "MAX_INDEX_BYTES")
     assert time.process_time() - t0 < 5
+
+
+def test_a_city_map_beside_the_index_with_nan_lon_lat_is_refused(tiny, tmp_path, capsys):
+    """The city's map.parquet gives each tile its lon/lat: NaN there would reach pyproj."""
+    from flatlandia.city import tiling
+
+    ref, q = tiny["ref"], tiny["queries"]
+    city = tmp_path / "results" / "city" / "1"
+    cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
+    (city / "index").mkdir(parents=True)
+    cref = cref.assign(city=0)
+    cref.loc[cref.index[0], "lon"] = np.nan
+    io.write_parquet(cref, city / "map.parquet")
+    index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
+    one_error(
+        *run(capsys, "--map", city / "index", "--query", tiny["dir"] / "q.json"), "map.parquet", "lon/lat holds NaN"
+    )
 
 
 # ----------------------------------------------------------------------------- 5. sizes, pipes, devices

@@ -552,13 +552,24 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
         import pandas as pd
 
         try:
+            validate.parquet_size(
+                table,
+                validate.MAX_INDEX_OBJECTS,
+                validate.MAX_INDEX_BYTES,
+                "objects",
+                ("MAX_INDEX_OBJECTS", "MAX_INDEX_BYTES"),
+            )
             t = pd.read_parquet(table, columns=["city", "scene", "obj_idx", "scene_obj_idx", "lon", "lat"])
+        except InputError:
+            raise
         except Exception as e:
             raise InputError(table, f"not the city's map ({type(e).__name__}: {e})") from None
         t = t[t["city"].astype(str) == path.stem].set_index("obj_idx")
         if set(t.index) >= set(ix.obj_id.tolist()):
             t = t.loc[ix.obj_id]
-            m.lonlat = t[["lon", "lat"]].to_numpy(float)
+            m.lonlat = validate.finite_array(t[["lon", "lat"]].to_numpy(float), table, "lon/lat")
+            if (np.abs(m.lonlat[:, 0]) > 180).any() or (np.abs(m.lonlat[:, 1]) > 90).any():
+                raise InputError(table, "lon/lat must be degrees (lon in [-180, 180], lat in [-90, 90])")
             m.obj_scene = t["scene"].astype(str).to_numpy()
             m.obj_scene_idx = t["scene_obj_idx"].to_numpy(np.int64)
     m.cities = scene_cities(city_dir.parent.parent)
