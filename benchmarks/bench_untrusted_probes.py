@@ -399,7 +399,7 @@ except fetch.FetchError as e:
 """),
             None,
         ),
-        ("5", "score a 4 MB .csv.gz of 2 GB of rows", [*score, str(p["bomb.csv.gz"])], None),
+        ("5", "score a 15 MB .csv.gz of 2 GB of rows", [*score, str(p["bomb.csv.gz"])], None),
         ("5", "score a 2 GB sparse CSV", [*score, str(p["sparse.csv"])], None),
         ("5, 8", "audit --check: records naming /, a 40 GB file, broken ones", [*FLATLANDIA, "audit", "--check"], run),
         (
