@@ -11,12 +11,14 @@ from snakemake.utils import validate
 
 from flatlandia import config as config_schema
 from flatlandia import device as device_check
-from flatlandia import runlock
+from flatlandia import runlock, scheduler
 from flatlandia.data.fetch import FetchError, check_dest
 
 # A lock of this folder left by a killed run is removed before this run locks, when provably stale
 # (flatlandia.runlock); otherwise Snakemake refuses after one line saying whose lock it is.
 runlock.install(workflow)
+# Snakemake's scheduler wakes once a second, not once a second per finished job (flatlandia.scheduler).
+scheduler.install(workflow)
 
 
 # Every rule's threads, memory and runtime, from one table: rules/resources.yaml.
