@@ -146,6 +146,40 @@ def test_one_frame_cannot_tell_two_places_and_two_frames_can():
     assert np.allclose(single[0], single[1])  # the same answer for either truth: wrong for one of them
 
 
+@pytest.mark.parametrize("with_model", [False, True])
+def test_two_identical_places_are_ambiguous_until_a_fix_or_a_second_frame(with_model):
+    """One frame of the repeated constellation: the best pose and its first alternative are the two
+    places, each with a probability of about 0.5, so the answer is `ambiguous` with both; a GPS fix
+    or the companion frame leaves one place, `ok` at a probability near 1. With and without the
+    likelihood ratio against chance (a flat model: p_d 0.3 everywhere)."""
+    from test_likelihood import flat_model
+
+    priors = solver.TrainingPriors(likelihood=flat_model()) if with_model else None
+    threshold = config.section_defaults("solver")["answer_probability"]
+    ref_xy, ref_cls, anchor, companion = twin_places(IDENTITY, SEQ_B)
+    f0, f1 = frames_of(IDENTITY)
+    one = solver.localize(*f0, ref_xy, ref_cls, metric=False, priors=priors, alternatives=3)
+    best, runner = one.best, one.alternatives[0]
+    places = sorted(
+        min(pose_error(s.x, s.y, s.theta, p)[0] for s in (best, runner)) for p in (ANCHOR, SEQ_B.pose(ANCHOR))
+    )
+    assert places[1] < 0.01  # the two answers are the two places
+    assert best.probability == pytest.approx(0.5, abs=0.05) and runner.probability == pytest.approx(0.5, abs=0.05)
+    status = localize.answer_status(best, threshold)
+    assert status["status"] == "ambiguous" and status["probability"] == pytest.approx(best.probability)
+
+    fix = solver.Fix(anchor[0] + 15.0, anchor[1] - 10.0, 25.0)
+    fixed = solver.localize(*f0, ref_xy, ref_cls, metric=False, priors=priors, alternatives=3, fix=fix)
+    assert max(pose_error(fixed.best.x, fixed.best.y, fixed.best.theta, anchor)) < 1.0
+    assert fixed.best.probability > 0.95 and localize.answer_status(fixed.best, threshold)["status"] == "ok"
+
+    rel = np.array([np.zeros(3), relative_pose(anchor, companion)])
+    sigma = np.array([[0.0, 0.0], [0.05, math.radians(0.5)]])
+    seq = solver.localize_sequence([f0, f1], rel, ref_xy, ref_cls, None, priors, None, sigma, None, 2)
+    assert max(pose_error(seq.best.x, seq.best.y, seq.best.theta, anchor)) < 1.0
+    assert seq.best.probability > 0.95 and localize.answer_status(seq.best, threshold)["status"] == "ok"
+
+
 def test_a_sequence_tolerates_odometry_noise():
     """The companion's relative pose off by 10 cm and 1 deg (its sigma saying so): still the
     true place, within 1 m / 2 deg."""

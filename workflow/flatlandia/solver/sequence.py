@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flatlandia import config, geo
-from flatlandia.solver import hypotheses, pipeline, scoring, verify
+from flatlandia.solver import calibration, hypotheses, likelihood, pipeline, scoring, verify
 from flatlandia.solver import sequence_kernels as sk
 from flatlandia.solver.pipeline import DISTINCT_DEG, DISTINCT_M, Solution
 from flatlandia.solver.priors import Fix, Priors, TrainingPriors
@@ -278,6 +278,26 @@ class _Sequence:
             float(np.radians(fix.heading_sigma_deg)) if fix is not None and fix.heading is not None else 0.0,
         )
 
+    def likelihood_ratio(self, terms) -> np.ndarray:
+        """(C,) the sum over frames of each frame's likelihood ratio against chance at its pose and
+        scale (:func:`flatlandia.solver.likelihood.pose_llr`): what every frame saw and did not see
+        counts; nan without the model or with ``likelihood_weight`` 0."""
+        c = len(terms[0][0])
+        if self.priors.likelihood is None or self.cfg.likelihood_weight <= 0:
+            return np.full(c, np.nan)
+        total = np.zeros(c)
+        for f, (poses, s, *_) in enumerate(terms):
+            total += likelihood.pose_llr(
+                self.problems[f],
+                self.priors,
+                self.priors.likelihood,
+                self.cfg.density_radius_m,
+                poses[:, :2],
+                poses[:, 2],
+                s,
+            )[0]
+        return total
+
     def verifier_scores(self, terms) -> np.ndarray:
         """(C,) the sum over frames of the single-frame verifier's score at each frame's pose."""
         total = 0.0
@@ -347,9 +367,14 @@ def localize_sequence(
             key = key + sq.fix.cost(anchor[:, :2], anchor[:, 2]) / 2.0
     else:
         key = cost / 2.0
+    llr = sq.likelihood_ratio(terms)
+    if np.isfinite(llr).all():
+        key = key - float(cfg.likelihood_weight) * llr
     order = [int(k) for k in np.argsort(np.where(ok, key, np.inf), kind="stable") if ok[k]]
     best = order[0]
     m_total = sum(pb.m for pb in sq.problems)
+    share = calibration.pose_masses(anchor[:, :2], anchor[:, 2], key, ok)
+    prob = calibration.probability(sq.priors.calibration, share, sq.problems[0].m, sq.n)
 
     def solution(k: int) -> Solution:
         inl0, match0 = terms[0][4], terms[0][5]
@@ -365,6 +390,8 @@ def localize_sequence(
             float(cost[k]),
             n_scored,
             float(key[k]) - float(key[best]),
+            float(prob[k]),
+            float(llr[k]) if np.isfinite(llr[k]) else None,
         )
 
     chosen = [best]
