@@ -193,7 +193,7 @@ def synthetic_answers(rng, n: int) -> pd.DataFrame:
     objects = rng.integers(3, 12, n)
     z = 0.4 * np.log(share / (1 - share)) - 0.5 + 0.6 * np.log(objects / 4)
     right = rng.random(n) < 1 / (1 + np.exp(-z))
-    return pd.DataFrame({"frames": 1, "objects": objects, "pool_share": share, "right": right})
+    return pd.DataFrame({"frames": 1, "objects": objects, "pool_share": share, "agreement": 1.0, "right": right})
 
 
 def test_the_calibration_is_calibrated_on_another_draw():
@@ -244,7 +244,7 @@ def test_the_learned_priors_carry_the_model_and_the_calibration(tmp_path, fitted
     doc["likelihood"]["bearing_sigma_deg"][0] = 1.0
     doc["calibration"]["frame"]["weights"] = [1.0]
     path.write_text(json.dumps(doc))
-    with pytest.raises(InputError, match="calibration needs 3 finite weights"):
+    with pytest.raises(InputError, match="calibration needs 4 finite weights"):
         learned.LearnedPriors.read(path)
 
 

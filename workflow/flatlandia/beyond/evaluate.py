@@ -145,7 +145,9 @@ def _row(a: Anchor, s: Setting, k: int, found, cpu: float, wall: float, bound, m
         "cpu_seconds": float(cpu),
         "seconds": float(wall),
         "solvable": True,
+        "confidence": float(b.confidence) if b is not None else 0.0,
         "probability": float(b.probability) if b is not None else 0.0,
+        "agreement": float(b.agreement) if b is not None and b.agreement is not None else float("nan"),
         "answered": bool(b is not None and not b.probability < threshold),
     }
 

@@ -23,7 +23,7 @@ import numpy as np
 #: an answer within this of the truth is right (the headline's (5 m, 5 deg))
 RIGHT_M, RIGHT_DEG = 5.0, 5.0
 #: the features of the calibration, in order
-FEATURES = ("log_odds", "log_objects", "log_frames")
+FEATURES = ("log_odds", "log_objects", "log_frames", "agreement")
 #: log-odds of a share are clipped to this (a pool of one pose is sure of itself, not infinitely)
 MAX_LOG_ODDS = 20.0
 #: the answer kinds calibrated apart: one frame, and a sequence of several
@@ -50,15 +50,18 @@ def pose_masses(t, theta, key, ok=None) -> np.ndarray:
     return np.clip(out, 0.0, 1.0)
 
 
-def features(mass, objects, frames=1) -> np.ndarray:
-    """(N, 3) the calibration's features (:data:`FEATURES`) of answers with pool shares ``mass``,
-    ``objects`` objects seen by the anchor frame, of ``frames`` frames."""
+def features(mass, objects, frames=1, agreement=1.0) -> np.ndarray:
+    """(N, 4) the calibration's features (:data:`FEATURES`) of answers with pool shares ``mass``,
+    ``objects`` objects seen by the anchor frame, of ``frames`` frames of which a share
+    ``agreement`` answered alone the same place (1 for a single frame)."""
     mass = np.clip(np.asarray(mass, float).ravel(), 0.0, 1.0)
     with np.errstate(divide="ignore"):
         lo = np.log(mass) - np.log1p(-mass)
     lo = np.clip(np.nan_to_num(lo, nan=-MAX_LOG_ODDS), -MAX_LOG_ODDS, MAX_LOG_ODDS)
-    frames = np.broadcast_to(np.asarray(frames, float), mass.shape)
-    return np.column_stack([lo, np.log(np.maximum(np.asarray(objects, float).ravel(), 1.0)), np.log(frames)])
+    objects = np.broadcast_to(np.asarray(objects, float).ravel(), mass.shape)
+    frames = np.broadcast_to(np.asarray(frames, float).ravel(), mass.shape)
+    agreement = np.broadcast_to(np.asarray(agreement, float).ravel(), mass.shape)
+    return np.column_stack([lo, np.log(np.maximum(objects, 1.0)), np.log(frames), agreement])
 
 
 @dataclass(frozen=True)
@@ -86,12 +89,12 @@ class Calibration:
     frame: Logistic | None = None
     sequence: Logistic | None = None
 
-    def probability(self, mass, objects, frames: int = 1) -> np.ndarray:
+    def probability(self, mass, objects, frames: int = 1, agreement=1.0) -> np.ndarray:
         """(N,) P(within (5 m, 5 deg)) of answers with pool shares ``mass`` and ``objects`` seen, of
-        ``frames`` frames."""
+        ``frames`` frames of which a share ``agreement`` answered alone the same place."""
         fit = self.frame if frames <= 1 else self.sequence
         mass = np.clip(np.asarray(mass, float).ravel(), 0.0, 1.0)
-        return mass if fit is None else fit(features(mass, objects, frames))
+        return mass if fit is None else fit(features(mass, objects, frames, agreement))
 
     def to_dict(self) -> dict:
         out = {"features": list(FEATURES)}
@@ -115,22 +118,23 @@ class Calibration:
         return cls(**parts)
 
 
-def probability(calibration: Calibration | None, mass, objects, frames: int = 1) -> np.ndarray:
+def probability(calibration: Calibration | None, mass, objects, frames: int = 1, agreement=1.0) -> np.ndarray:
     """:meth:`Calibration.probability`, or the share itself without a calibration."""
     if calibration is None:
         return np.clip(np.asarray(mass, float).ravel(), 0.0, 1.0)
-    return calibration.probability(mass, objects, frames)
+    return calibration.probability(mass, objects, frames, agreement)
 
 
-def fit_logistic(mass, objects, frames, right) -> Logistic | None:
-    """The logistic map of answers (pool share, objects the anchor saw, frames, right or not); None
-    with fewer than 20 answers or a single outcome. scikit-learn's lbfgs, L2 (C = 1): deterministic."""
+def fit_logistic(mass, objects, frames, agreement, right) -> Logistic | None:
+    """The logistic map of answers (pool share, objects the anchor saw, frames, the frames' agreement,
+    right or not); None with fewer than 20 answers or a single outcome. scikit-learn's lbfgs, L2
+    (C = 1): deterministic."""
     from sklearn.linear_model import LogisticRegression
 
     y = np.asarray(right, bool).ravel()
     if len(y) < 20 or y.all() or not y.any():
         return None
-    lr = LogisticRegression(C=1.0, max_iter=5000).fit(features(mass, objects, frames), y)
+    lr = LogisticRegression(C=1.0, max_iter=5000).fit(features(mass, objects, frames, agreement), y)
     return Logistic(float(lr.intercept_[0]), tuple(float(w) for w in lr.coef_.ravel()), int(len(y)))
 
 

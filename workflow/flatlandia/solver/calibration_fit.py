@@ -31,7 +31,8 @@ def validation_answers(
     """The solver's answers to the ``split`` queries of ``scenes`` (reference map, queries) with
     ``learned`` (no calibration: each answer's probability is its pool share): one frame on
     ``region`` and, given the protocol ``beyond`` (config section ``beyond``), the whole map's
-    sequences. Columns ``frames`` (used), ``objects`` (the anchor's), ``pool_share``, ``right``."""
+    sequences. Columns ``frames`` (used), ``objects`` (the anchor's), ``pool_share``, ``agreement``
+    (the share of a sequence's frames whose own answer is its place; 1 for one frame), ``right``."""
     from flatlandia.beyond import evaluate as beyond_evaluate
     from flatlandia.fine import evaluation
 
@@ -57,6 +58,7 @@ def _answers(errors: pd.DataFrame, frames: np.ndarray) -> pd.DataFrame:
             "frames": frames,
             "objects": errors["n_objects"].to_numpy(int),
             "pool_share": errors["probability"].to_numpy(float),
+            "agreement": errors["agreement"].fillna(1.0).to_numpy(float) if "agreement" in errors else 1.0,
             "right": (em < RIGHT_M) & (ed < RIGHT_DEG),
         }
     )[posed].reset_index(drop=True)

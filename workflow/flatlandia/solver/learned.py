@@ -102,12 +102,13 @@ def fit(
 
 def with_calibration(learned: LearnedPriors, answers: pd.DataFrame) -> LearnedPriors:
     """``learned`` with the answers' calibration fitted on ``answers`` (validation answers of the
-    solver run with ``learned``: columns ``pool_share``, ``objects``, ``frames``, ``right``), one
+    solver run with ``learned``: columns ``pool_share``, ``objects``, ``frames``, ``agreement``,
+    ``right``), one
     logistic map for single frames and one for sequences (:func:`calibration.fit_logistic`)."""
     one = answers[answers["frames"] <= 1]
     seq = answers[answers["frames"] > 1]
     cal = Calibration(
-        calibration.fit_logistic(one["pool_share"], one["objects"], one["frames"], one["right"]),
-        calibration.fit_logistic(seq["pool_share"], seq["objects"], seq["frames"], seq["right"]),
+        calibration.fit_logistic(one["pool_share"], one["objects"], one["frames"], one["agreement"], one["right"]),
+        calibration.fit_logistic(seq["pool_share"], seq["objects"], seq["frames"], seq["agreement"], seq["right"]),
     )
     return replace(learned, calibration=cal)

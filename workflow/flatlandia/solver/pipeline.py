@@ -69,6 +69,8 @@ class Solution:
     behind: float = 0.0  # how far the ranking puts it behind the best (0 for the best), a log-likelihood ratio
     probability: float = float("nan")  # P(within (5 m, 5 deg)): the pool's share of this place, calibrated
     llr: float | None = None  # the likelihood ratio against chance (None: no model)
+    share: float | None = None  # the pool's share of its place, before the calibration
+    agreement: float | None = None  # a sequence's: the share of frames whose own answer is this place
 
 
 #: alternatives are poses at least this far (metres) or this many degrees from the best and from
@@ -235,6 +237,7 @@ def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Loc
             float(key[k]) - float(key[best]),
             float(prob[k]),
             float(llr[k]) if np.isfinite(llr[k]) else None,
+            float(share[k]),
         )
 
     conf = len(inliers(best)) / problem.m

@@ -101,6 +101,7 @@ class _Sequence:
 
     def __init__(self, frames, rel_poses, ref_xy, ref_cls, cfg, seq, priors, odometry_sigma, fix):
         self.cfg, self.seq, self.fix = cfg, seq, fix
+        self.frames, self.ref_xy, self.ref_cls = list(frames), ref_xy, ref_cls
         self.problems = [Problem(xy, cls, ref_xy, ref_cls, False, cfg) for xy, cls in frames]
         #: the joint cost's view of the frames: ranges weighed by ``seq.log_range_sigma``
         self.joint = self.problems
@@ -127,6 +128,49 @@ class _Sequence:
     def frame_poses(self, anchor: np.ndarray, f: int) -> np.ndarray:
         return compose(anchor, self.rel[f])
 
+    # ---------------------------------------------------------------- step 0
+    def frame_fix(self, f: int) -> Fix | None:
+        """The fix as frame ``f`` sees it: the anchor's, widened for a companion by its distance."""
+        if self.fix is None or f == 0:
+            return self.fix
+        return self.fix.widened(float(np.hypot(*self.rel[f, :2])))
+
+    def single_answers(self) -> list[list[Solution]]:
+        """Per frame, its own answer as the single-frame solver gives it (:func:`pipeline.localize`:
+        its verifier and likelihood ratio too), best first, with up to ``frame_answers - 1``
+        alternatives; empty where it has none. They join the joint candidates and say how many
+        frames agree with the joint answer (its probability's ``agreement``)."""
+        k = int(self.seq.frame_answers)
+        if k <= 0:
+            return [[] for _ in range(self.n)]
+        out = []
+        for f, (xy, cls) in enumerate(self.frames):
+            found = pipeline.localize(
+                xy, cls, self.ref_xy, self.ref_cls, False, self.cfg, self.given, k - 1, fix=self.frame_fix(f)
+            )
+            out.append([] if found.best is None else [found.best, *found.alternatives])
+        return out
+
+    def agreement(self, single: list[list[Solution]], poses: list[np.ndarray]) -> np.ndarray:
+        """(C,) the share of frames whose own best answer lies within (5 m, 5 deg) of the frame's
+        pose in each joint hypothesis (``poses[f]`` (C, 3)); nan without the frames' answers."""
+        if int(self.seq.frame_answers) <= 0:
+            return np.full(len(poses[0]), np.nan)
+        agree = np.zeros(len(poses[0]))
+        for f, answers in enumerate(single):
+            if not answers:
+                continue
+            b = answers[0]
+            near = np.hypot(poses[f][:, 0] - b.x, poses[f][:, 1] - b.y) < calibration.RIGHT_M
+            near &= np.abs(geo.wrap_angle(poses[f][:, 2] - b.theta)) < np.radians(calibration.RIGHT_DEG)
+            agree += near
+        return agree / self.n
+
+    def single_candidates(self, single: list[list[Solution]]) -> np.ndarray:
+        """(H, 3) the frames' own answers mapped to the anchor."""
+        out = [anchor_of(np.array([[a.x, a.y, a.theta]]), self.rel[f]) for f, ans in enumerate(single) for a in ans]
+        return np.vstack(out) if out else np.zeros((0, 3))
+
     # ---------------------------------------------------------------- step 1
     def frame_hypotheses(self) -> tuple[np.ndarray, int]:
         """(H, 3) anchor poses of every frame's ``frame_hypotheses`` cheapest distinct hypotheses and
@@ -138,7 +182,7 @@ class _Sequence:
             pr = self.priors
             if self.fix is not None:
                 pr = copy.copy(self.priors)
-                pr.fix = self.fix if f == 0 else self.fix.widened(float(np.hypot(*self.rel[f, :2])))
+                pr.fix = self.frame_fix(f)
             scored = hypotheses.score_hypotheses(self.capped[f], pr, self.seq.frame_hypotheses)
             n_scored += scored.n_hypotheses
             kept = scored.arrays()
@@ -342,7 +386,9 @@ def localize_sequence(
         poses = [FramePose(b.x, b.y, b.theta, b.scale)] if b is not None else []
         return SequenceLocalization(b, found.alternatives, poses)
     sq = _Sequence(frames, rel_poses, ref_xy, ref_cls, cfg, seq, priors, odometry_sigma, fix)
+    single = sq.single_answers()
     anchor, n_scored = sq.frame_hypotheses()
+    anchor = np.vstack([anchor, sq.single_candidates(single)])
     if not len(anchor):
         return SequenceLocalization(None)
     keep = sq.fix.near(anchor[:, :2]) if sq.fix is not None else np.ones(len(anchor), bool)
@@ -374,7 +420,10 @@ def localize_sequence(
     best = order[0]
     m_total = sum(pb.m for pb in sq.problems)
     share = calibration.pose_masses(anchor[:, :2], anchor[:, 2], key, ok)
-    prob = calibration.probability(sq.priors.calibration, share, sq.problems[0].m, sq.n)
+    agree = sq.agreement(single, poses)
+    prob = calibration.probability(
+        sq.priors.calibration, share, sq.problems[0].m, sq.n, np.where(np.isfinite(agree), agree, 1.0)
+    )
 
     def solution(k: int) -> Solution:
         inl0, match0 = terms[0][4], terms[0][5]
@@ -392,6 +441,8 @@ def localize_sequence(
             float(key[k]) - float(key[best]),
             float(prob[k]),
             float(llr[k]) if np.isfinite(llr[k]) else None,
+            float(share[k]),
+            float(agree[k]) if np.isfinite(agree[k]) else None,
         )
 
     chosen = [best]
