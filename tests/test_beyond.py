@@ -603,6 +603,45 @@ def test_the_markdown_escapes_and_quotes_orienternet_as_another_task():
     assert "30 m" in text and "2 %" in text  # the protocol in the note, from the config
 
 
+def test_the_risk_coverage_and_reliability_figures_draw_each_map_and_frame_count():
+    """Synthetic anchors of two maps at 1 and 5 frames (and rows the figures leave out: a fix, the
+    camera prior off): one line per (map, frames) on each risk panel and on the reliability diagram,
+    the threshold's dot where anchors are answered, labels from the data escaped for mathtext."""
+    from flatlandia.beyond import figures as beyond_figures
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for m in ("scene", "city-$20"):
+        for k, gps, cam in ((1, None, "on"), (5, None, "on"), (1, 25.0, "on"), (5, None, "off")):
+            p = rng.random(50)
+            right = rng.random(50) < p
+            rows.append(
+                pd.DataFrame(
+                    {
+                        "map": m,
+                        "frames": k,
+                        "gps_sigma_m": np.nan if gps is None else gps,
+                        "camera_prior": cam,
+                        "probability": p,
+                        "error_m": np.where(right, 1.0, np.where(rng.random(50) < 0.5, 800.0, 20.0)),
+                        "error_deg": np.where(right, 1.0, 30.0),
+                    }
+                )
+            )
+    errors = pd.concat(rows, ignore_index=True)
+    assert len(beyond_figures.curves(errors)) == 4
+    fig = beyond_figures.risk_coverage_figure(errors, 0.7)
+    for ax in fig.axes:
+        solid = [ln for ln in ax.lines if ln.get_marker() in ("None", None, "")]
+        assert len(solid) == 4 and len([ln for ln in ax.lines if ln.get_marker() == "o"]) == 4
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "city-\\$20, 5 frames" in labels and "scene, 1 frame" in labels
+    rel = beyond_figures.reliability_figure(errors)
+    assert len(rel.axes[0].lines) == 5  # the diagonal and four curves
+    assert all("ECE" in t.get_text() for t in rel.axes[0].get_legend().get_texts())
+    beyond_figures.figures.pyplot().close("all")
+
+
 # ---------------------------------------------------------------- the published data (slow)
 def test_scene_rows_on_a_published_scene(flat_root):
     """Rule beyond_scene's rows on a few anchors of scene 7 (25 test queries): one frame is the single-frame solver
