@@ -416,11 +416,13 @@ def localize_sequence(
     llr = sq.likelihood_ratio(terms)
     if np.isfinite(llr).all():
         key = key - float(cfg.likelihood_weight) * llr
+    agree = sq.agreement(single, poses)
+    if np.isfinite(agree).all():  # each frame whose own answer is this place: independent evidence for it
+        key = key - float(seq.agreement_weight) * agree * sq.n
     order = [int(k) for k in np.argsort(np.where(ok, key, np.inf), kind="stable") if ok[k]]
     best = order[0]
     m_total = sum(pb.m for pb in sq.problems)
     share = calibration.pose_masses(anchor[:, :2], anchor[:, 2], key, ok)
-    agree = sq.agreement(single, poses)
     prob = calibration.probability(
         sq.priors.calibration, share, sq.problems[0].m, sq.n, np.where(np.isfinite(agree), agree, 1.0)
     )
