@@ -636,6 +636,8 @@ def test_the_risk_coverage_and_reliability_figures_draw_each_map_and_frame_count
         assert len(solid) == 4 and len([ln for ln in ax.lines if ln.get_marker() == "o"]) == 4
     labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert "city-\\$20, 5 frames" in labels and "scene, 1 frame" in labels
+    scene_only = beyond_figures.risk_coverage_figure(errors[errors["map"] == "scene"], 0.7)
+    assert len(scene_only.axes) == 1 and len(scene_only.axes[0].get_legend().get_texts()) == 2  # no other scene
     rel = beyond_figures.reliability_figure(errors)
     assert len(rel.axes[0].lines) == 5  # the diagonal and four curves
     assert all("ECE" in t.get_text() for t in rel.axes[0].get_legend().get_texts())

@@ -56,11 +56,15 @@ def _label(m: str, k: int) -> str:
 
 
 def risk_coverage_figure(errors: pd.DataFrame, threshold: float):
-    """Two panels: % of the answered not within (5 m, 5 deg), and % in the wrong scene, against %
-    answered; the point at ``threshold`` marked on each line."""
+    """Two panels: % of the answered not within (5 m, 5 deg), and % in the wrong scene (only with a
+    city among the maps: a scene map has no other scene), against % answered; the point at
+    ``threshold`` marked on each line."""
     plt = figures.pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for (m, k), e in curves(errors).items():
+    drawn = curves(errors)
+    cities = any(not m.startswith("scene") for m, _ in drawn)
+    fig, axes = plt.subplots(1, 2 if cities else 1, figsize=(11, 4.2) if cities else (6, 4.2), squeeze=False)
+    axes = axes[0]
+    for (m, k), e in drawn.items():
         p, within, wrong = _flags(e)
         colour = COLOURS.get(m.split("-")[0], "tab:grey")
         at = int((p >= threshold).sum())
@@ -76,7 +80,8 @@ def risk_coverage_figure(errors: pd.DataFrame, threshold: float):
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
     axes[0].set_title(escape.mathtext(f"Risk against coverage (dots: answered at probability >= {threshold:g})"))
-    axes[1].set_title("Wrong scene against coverage")
+    if cities:
+        axes[1].set_title("Wrong scene against coverage")
     if axes[0].lines:
         axes[0].legend(fontsize=8, loc="upper left")
     fig.tight_layout()

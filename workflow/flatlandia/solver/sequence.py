@@ -137,16 +137,20 @@ class _Sequence:
 
     def single_answers(self) -> list[list[Solution]]:
         """Per frame, its own answer as the single-frame solver gives it (:func:`pipeline.localize`:
-        its verifier and likelihood ratio too), best first, with up to ``frame_answers - 1``
-        alternatives; empty where it has none. They join the joint candidates and say how many
+        its verifier and likelihood ratio too, at most ``frame_max_hyp`` hypotheses), best first,
+        with up to ``frame_answers - 1`` alternatives; empty where it has none. They join the joint candidates and say how many
         frames agree with the joint answer (its probability's ``agreement``)."""
         k = int(self.seq.frame_answers)
         if k <= 0:
             return [[] for _ in range(self.n)]
+        # capped as each frame's own search of the joint candidates (matters without the camera gate)
+        cfg = self.cfg
+        if int(self.seq.frame_max_hyp) < int(cfg.max_hyp):
+            cfg = SolverConfig(**{**cfg.to_dict(), "max_hyp": int(self.seq.frame_max_hyp)})
         out = []
         for f, (xy, cls) in enumerate(self.frames):
             found = pipeline.localize(
-                xy, cls, self.ref_xy, self.ref_cls, False, self.cfg, self.given, k - 1, fix=self.frame_fix(f)
+                xy, cls, self.ref_xy, self.ref_cls, False, cfg, self.given, k - 1, fix=self.frame_fix(f)
             )
             out.append([] if found.best is None else [found.best, *found.alternatives])
         return out
