@@ -135,25 +135,25 @@ class _Sequence:
             return self.fix
         return self.fix.widened(float(np.hypot(*self.rel[f, :2])))
 
-    def single_answers(self) -> list[list[Solution]]:
-        """Per frame, its own answer as the single-frame solver gives it (:func:`pipeline.localize`:
-        its verifier and likelihood ratio too, at most ``frame_max_hyp`` hypotheses), best first,
-        with up to ``frame_answers - 1`` alternatives; empty where it has none. They join the joint candidates and say how many
-        frames agree with the joint answer (its probability's ``agreement``)."""
+    def single_answer(self, f: int, scored, pr) -> list[Solution]:
+        """Frame ``f``'s own answer as the single-frame solver gives it (:func:`pipeline.localize`:
+        its verifier and likelihood ratio too), from the frame's search ``scored`` (its priors
+        ``pr``): best first, with up to ``frame_answers - 1`` alternatives; empty where it has none.
+        They join the joint candidates and say how many frames agree with the joint answer (its
+        probability's ``agreement``)."""
         k = int(self.seq.frame_answers)
-        if k <= 0:
-            return [[] for _ in range(self.n)]
-        # capped as each frame's own search of the joint candidates (matters without the camera gate)
-        cfg = self.cfg
-        if int(self.seq.frame_max_hyp) < int(cfg.max_hyp):
-            cfg = SolverConfig(**{**cfg.to_dict(), "max_hyp": int(self.seq.frame_max_hyp)})
-        out = []
-        for f, (xy, cls) in enumerate(self.frames):
-            found = pipeline.localize(
-                xy, cls, self.ref_xy, self.ref_cls, False, cfg, self.given, k - 1, fix=self.frame_fix(f)
-            )
-            out.append([] if found.best is None else [found.best, *found.alternatives])
-        return out
+        problem = self.capped[f]
+        verified = self.verifier is not None and verify.usable(problem, pr)
+        keep = self.cfg.verify_top_k if verified else self.cfg.top_k
+        kept = scored.arrays(keep) if k > 0 else None
+        if kept is None:
+            return []
+        cost, t, theta, s = kept
+        chosen = hypotheses.distinct_best(cost, t, theta, keep)
+        t, theta, s = scoring.refine(problem, pr, t[chosen], theta[chosen], s[chosen])
+        pool = pipeline.Pool(problem, pr, t, theta, s, scored.n_hypotheses, verified)
+        found = pipeline._ranked(pool, self.verifier if verified else None, k - 1)
+        return [] if found.best is None else [found.best, *found.alternatives]
 
     def agreement(self, single: list[list[Solution]], poses: list[np.ndarray]) -> np.ndarray:
         """(C,) the share of frames whose own best answer lies within (5 m, 5 deg) of the frame's
@@ -176,20 +176,24 @@ class _Sequence:
         return np.vstack(out) if out else np.zeros((0, 3))
 
     # ---------------------------------------------------------------- step 1
-    def frame_hypotheses(self) -> tuple[np.ndarray, int]:
-        """(H, 3) anchor poses of every frame's ``frame_hypotheses`` cheapest distinct hypotheses and
-        the number of hypotheses scored."""
-        out, n_scored = [], 0
+    def frame_hypotheses(self) -> tuple[np.ndarray, int, list[list[Solution]]]:
+        """(H, 3) anchor poses of every frame's ``frame_hypotheses`` cheapest distinct hypotheses, the
+        number of hypotheses scored, and every frame's own answer (:meth:`single_answer`, from the
+        same search: each frame's hypotheses are generated and scored once)."""
+        out, n_scored, single = [], 0, []
+        keep = max(int(self.seq.frame_hypotheses), int(self.cfg.verify_top_k), int(self.cfg.top_k))
         for f, problem in enumerate(self.problems):
             if not problem.solvable():
+                single.append([])
                 continue
             pr = self.priors
             if self.fix is not None:
                 pr = copy.copy(self.priors)
                 pr.fix = self.frame_fix(f)
-            scored = hypotheses.score_hypotheses(self.capped[f], pr, self.seq.frame_hypotheses)
+            scored = hypotheses.score_hypotheses(self.capped[f], pr, keep)
             n_scored += scored.n_hypotheses
-            kept = scored.arrays()
+            single.append(self.single_answer(f, scored, pr))
+            kept = scored.arrays(self.seq.frame_hypotheses)
             if kept is None:
                 continue
             cost, t, theta, s = kept
@@ -198,7 +202,7 @@ class _Sequence:
             if self.seq.refine_frames:
                 t, theta, s = scoring.refine(problem, pr, t, theta, s)
             out.append(anchor_of(np.column_stack([t, theta]), self.rel[f]))
-        return (np.vstack(out) if out else np.zeros((0, 3))), n_scored
+        return (np.vstack(out) if out else np.zeros((0, 3))), n_scored, single
 
     # ---------------------------------------------------------------- step 2
     def scales(self, f: int, poses: np.ndarray) -> np.ndarray:
@@ -390,8 +394,7 @@ def localize_sequence(
         poses = [FramePose(b.x, b.y, b.theta, b.scale)] if b is not None else []
         return SequenceLocalization(b, found.alternatives, poses)
     sq = _Sequence(frames, rel_poses, ref_xy, ref_cls, cfg, seq, priors, odometry_sigma, fix)
-    single = sq.single_answers()
-    anchor, n_scored = sq.frame_hypotheses()
+    anchor, n_scored, single = sq.frame_hypotheses()
     anchor = np.vstack([anchor, sq.single_candidates(single)])
     if not len(anchor):
         return SequenceLocalization(None)
