@@ -58,10 +58,13 @@ system-deps:
 	  fi; \
 	fi
 
-$(STAMP): envs/requirements.txt envs/constraints.txt pyproject.toml
+# the workflow's pins and the development tools, then this clone's package, editable (the workflow
+# needs no install from a clone: it puts its own folder on the rules' path; the install gives the
+# `flatlandia` command and `import flatlandia` outside the workflow)
+$(STAMP): envs/requirements.txt envs/requirements-dev.txt envs/constraints.txt pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -r envs/requirements.txt -c envs/constraints.txt
+	$(BIN)/python -m pip install -q -r envs/requirements.txt -r envs/requirements-dev.txt -c envs/constraints.txt
 	$(BIN)/python -m pip install -q --no-deps -e .
 	touch $(STAMP)
 

@@ -504,7 +504,7 @@ def bad_values(tmp: Path, twins: Path, q: Path, seq: Path) -> dict:
         "gps and near": ([*m, *g, *fix, "--near", "2.37,48.89", "--radius-m", "50"], ["--gps", "not both"]),
         "radius not a number": ([*m, *g, "--near", "2.37,48.89", "--radius-m", "far"], ["--radius-m", "'far'"]),
         "alternatives not a number": ([*m, *g, "--alternatives", "many"], ["--alternatives", "'many'"]),
-        "sequence on gt": ([*m, "--sequence", seq], ["--map-type", "depth"]),
+        "sequence on gt": ([*m, "--sequence", seq, "--map-type", "gt"], ["--map-type", "depth"]),
         "query and sequence": ([*m, *g, "--sequence", seq, "--map-type", "depth"], ["--query", "one of them"]),
         "neither": ([*m, "--map-type", "depth"], ["--query", "--sequence"]),
         "sequence and near": (

@@ -22,7 +22,12 @@ from packaging.version import Version
 
 REPO = Path(__file__).resolve().parents[1]
 CATALOG = REPO / ".snakemake-workflow-catalog.yml"
-ENV_FILE = REPO / "envs" / "flatlandia.yaml"
+ENV_FILE = REPO / "workflow" / "envs" / "flatlandia.yaml"
+#: pinned in envs/requirements.txt to run the workflow, but not imported by the rule scripts: the
+#: host's tools, outside the rules' conda env
+HOST_TOOLS = {"snakemake", "snakemake-executor-plugin-slurm"}
+#: the CPU build of torch, named in the conda env (PyPI's torch for Linux is the CUDA build)
+CPU_TORCH_INDEX = "https://download.pytorch.org/whl/cpu"
 REPORT_DIR = REPO / "workflow" / "report"
 FIGURE_SUFFIXES = (".png", ".svg", ".pdf", ".html")
 # the deployment methods the catalog knows (it reads singularity as apptainer)
@@ -147,12 +152,22 @@ def _exact(req: Requirement) -> Version:
     return Version(spec.version)
 
 
-def test_requirements_agree_with_the_full_freeze():
-    requirements = _pins((REPO / "envs" / "requirements.txt").read_text().splitlines())
+@pytest.mark.parametrize("pins", ["requirements.txt", "requirements-dev.txt"])
+def test_requirements_agree_with_the_full_freeze(pins):
+    requirements = _pins((REPO / "envs" / pins).read_text().splitlines())
     freeze = _pins((REPO / "envs" / "constraints.txt").read_text().splitlines())
+    assert requirements
     for name, req in requirements.items():
-        assert name in freeze, f"{name} is pinned in requirements.txt but missing from constraints.txt"
+        assert name in freeze, f"{name} is pinned in {pins} but missing from constraints.txt"
         assert _exact(req).public == _exact(freeze[name]).public, (req, freeze[name])
+
+
+def test_development_tools_stay_out_of_the_workflows_requirements():
+    run = _pins((REPO / "envs" / "requirements.txt").read_text().splitlines())
+    dev = _pins((REPO / "envs" / "requirements-dev.txt").read_text().splitlines())
+    assert {"pytest", "pytest-xdist", "selenium", "ruff", "snakefmt"} <= set(dev)
+    assert not set(run) & set(dev), set(run) & set(dev)
+    assert HOST_TOOLS <= set(run)
 
 
 def test_conda_env_is_self_contained_and_pins_the_requirements():
@@ -170,9 +185,23 @@ def test_conda_env_is_self_contained_and_pins_the_requirements():
 
     in_env = _pins(e for e in pip if not file_option.match(e.strip()))
     requirements = _pins((REPO / "envs" / "requirements.txt").read_text().splitlines())
-    assert sorted(in_env) == sorted(requirements), set(in_env) ^ set(requirements)
-    for name, req in requirements.items():
-        assert _exact(in_env[name]).public == _exact(req).public, (in_env[name], req)
+    runtime = {name: req for name, req in requirements.items() if name not in HOST_TOOLS}
+    assert sorted(in_env) == sorted(runtime), set(in_env) ^ set(runtime)
+    freeze = _pins((REPO / "envs" / "constraints.txt").read_text().splitlines())
+    for name, req in runtime.items():  # the versions the test suite runs with
+        assert _exact(in_env[name]).public == _exact(req).public == _exact(freeze[name]).public, (in_env[name], req)
+    # the CPU build of torch, from PyTorch's CPU index (the suite's torch is that build too)
+    assert _exact(in_env["torch"]).local == "cpu", in_env["torch"]
+    assert f"--extra-index-url {CPU_TORCH_INDEX}" in [e.strip() for e in pip], pip
+
+
+def test_the_rules_conda_env_holds_no_development_tool():
+    env = yaml.safe_load(ENV_FILE.read_text())
+    pip = next(d["pip"] for d in env["dependencies"] if isinstance(d, dict) and "pip" in d)
+    names = set(_pins(pip))
+    dev = set(_pins((REPO / "envs" / "requirements-dev.txt").read_text().splitlines()))
+    assert not names & (dev | HOST_TOOLS), names & (dev | HOST_TOOLS)
+    assert ENV_FILE.parent == REPO / "workflow" / "envs" and not (REPO / "envs" / "flatlandia.yaml").exists()
 
 
 def test_every_figure_is_in_the_report_with_a_caption(rules):

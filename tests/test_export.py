@@ -91,6 +91,7 @@ def written(tiny_parquet, coarse, tmp_path_factory) -> dict:
         io.write_text(export.csv_text(out[name]), d / fname)
     io.write_json(out["frame"], d / "frame.json")
     io.write_text(json.dumps(out["reference_geojson"]) + "\n", d / "reference_map.geojson")
+    io.write_text(json.dumps(out["query_cameras"], indent=1) + "\n", d / "query_cameras.geojson")
     back = {name: pd.read_csv(d / fname, dtype=TEXT, keep_default_na=False) for name, fname in SCENE_FILES.items()}
     return {"out": out, "back": back, "dir": d}
 
@@ -161,6 +162,29 @@ def test_ground_truth_reads_back_and_places_each_gt_map_on_its_matches(tiny_parq
             == lm[(lm["token"] == r.token) & (lm["map_type"] == "gt")]["class_id"].tolist()
         )
     assert worst < 1e-6
+
+
+def test_query_cameras_load_in_a_gis_as_a_point_layer(tiny_parquet, written):
+    """query_cameras.geojson: valid GeoJSON that GDAL (pyogrio, what QGIS reads with) opens as a point
+    layer in WGS 84, one camera per query with its token (as text), split and compass heading."""
+    import geopandas as gpd
+    import pyogrio
+
+    path = written["dir"] / "query_cameras.geojson"
+    q = tiny_parquet["queries"]
+    info = pyogrio.read_info(path)
+    assert info["geometry_type"] == "Point" and info["features"] == len(q)
+    layer = gpd.read_file(path, engine="pyogrio")
+    assert layer.crs.to_epsg() == 4326
+    assert layer["token"].tolist() == q["token"].astype(str).tolist()
+    assert pd.api.types.is_string_dtype(layer["token"])  # text, as GDAL read it: not a number
+    assert layer["split"].tolist() == q["split"].tolist() and set(layer["split"]) == {"train", "val", "test"}
+    assert np.array_equal(layer.geometry.x.to_numpy(), q["lon"].to_numpy(float))
+    assert np.array_equal(layer.geometry.y.to_numpy(), q["lat"].to_numpy(float))
+    assert np.array_equal(layer["heading_deg"].to_numpy(), export.heading_deg(q["theta_deg"]))
+    doc = json.loads(path.read_text())  # RFC 7946: a FeatureCollection of Features, [lon, lat] positions
+    assert doc["type"] == "FeatureCollection" and "crs" not in doc
+    assert all(f["type"] == "Feature" and len(f["geometry"]["coordinates"]) == 2 for f in doc["features"])
 
 
 def test_heading_is_the_compass_form_of_theta(written):
@@ -350,6 +374,8 @@ def test_export_two_scenes(repo, flat_root, tmp_path):
         gt = pd.read_csv(ex / f"{s}/ground_truth.csv", dtype=TEXT)
         assert np.array_equal(gt[["x_m", "y_m", "theta_deg"]].to_numpy(), q[["x_m", "y_m", "theta_deg"]].to_numpy())
         assert set(pd.read_csv(ex / f"{s}/proposals.csv", dtype=TEXT)["source"]) == {"gtbb"}
+        cams = json.loads((ex / f"{s}/query_cameras.geojson").read_text())["features"]
+        assert [f["properties"]["token"] for f in cams] == q["token"].astype(str).tolist()
         assert len(pd.read_csv(ex / f"{s}/local_maps.csv", dtype=TEXT)) == 2 * q["n_objects"].sum()
         assert template.loc[template["scene"] == s, "token"].tolist() == q.loc[q["split"] == "test", "token"].tolist()
         assert (

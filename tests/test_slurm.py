@@ -66,7 +66,8 @@ def test_resource_figures_cover_the_measured_peaks_and_fit_a_small_node():
     cores, mem_mb = SMALL_NODE
     computed = {"sfm_threads", "segment_mem_mb", "coarse_train_runtime", "fine_train_runtime"}
     for name, row in _resource_table().items():
-        assert set(row) == {"threads", "mem_mb", "runtime", "measured"}, name
+        assert set(row) - {"gpu"} == {"threads", "mem_mb", "runtime", "measured"}, name
+        assert row.get("gpu", 1) == 1 or row["gpu"] in {"segment_gpus", "queries_gpus", "fine_eval_gpus"}, name
         for key in ("threads", "mem_mb", "runtime"):
             assert isinstance(row[key], int) or row[key] in computed, (name, key, row[key])
         if isinstance(row["threads"], int):
@@ -92,7 +93,15 @@ def test_slurm_profile_needs_no_accounting_and_hard_codes_no_site():
     # site's (the header lists them, commented out)
     assert not {"default-resources", "set-resources", "set-threads"} & set(profile)
     header = text.split("\nexecutor:")[0]
-    for setting in ("slurm_partition", "slurm_account", "slurm-no-account", "set-resources", "gpu", "resources.yaml"):
+    for setting in (
+        "slurm_partition",
+        "slurm_account",
+        "slurm-no-account",
+        "set-resources",
+        "gpu",
+        "device: cuda",
+        "resources.yaml",
+    ):
         assert setting in header, setting
 
 
@@ -125,6 +134,56 @@ def test_slurm_profile_dry_run_of_all_scenes_asks_what_the_table_says(repo, flat
     assert re.search(r"runtime=(1\d|2\d), mem_mb=2500", resources["fine_train"])  # from the epochs: 11-24 min
     assert "slurm_partition" not in out and "cpus_per_task" not in out
     assert "Group job scene_prep" in out  # light per-scene steps travel as one cluster job
+
+
+#: the rules that run a torch model, and so ask for a GPU with config device: cuda
+GPU_RULES = {"coarse_train", "coarse_eval", "fine_train", "fine_eval", "segment", "queries"}
+
+
+class _Resources(dict):
+    """A job's resources as the SLURM plugin reads them (``.get`` and attributes)."""
+
+    __getattr__ = dict.__getitem__
+
+
+def _planned_resources(output: str) -> list[tuple[str, str, dict]]:
+    """(rule, wildcards, resources) of every job a dry run plans."""
+    jobs = []
+    for rule, block in re.findall(r"^\s*rule (\w+):\n((?:\s+\w+: .*\n)+)", output, flags=re.M):
+        found = re.search(r"resources: (.*)", block)
+        if found:
+            pairs = (item.split("=", 1) for item in found.group(1).split(", ") if "=" in item)
+            wildcards = re.search(r"wildcards: (.*)", block)
+            values = {k: int(v) if v.isdigit() else v for k, v in pairs}  # Snakemake's ints stay ints
+            jobs.append((rule, wildcards.group(1) if wildcards else "", values))
+    return jobs
+
+
+def test_with_device_cuda_the_model_rules_ask_slurm_for_a_gpu_and_the_others_do_not(repo, tmp_path):
+    """The resources Snakemake computes for each job of a SLURM dry run (the host that submits
+    needs no GPU of its own), turned into sbatch arguments by the plugin's own function: --gpus=1
+    for the jobs that run a model (a learned fine_eval, not the solver's), nothing for the others,
+    and nothing for any job with the default device."""
+    from snakemake_executor_plugin_slurm.utils import set_gres_string
+
+    tiny = ["--configfile", str(TEST_CONFIGS / "tiny.yaml")]
+    res = smk_dry_run(repo, tmp_path, "--profile", str(PROFILE), "all", *tiny, "--config", "device=cuda")
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    jobs = [job for job in _planned_resources(res.stdout) if job[0] in _rule_blocks()]
+    asks = {}
+    for rule, wildcards, resources in jobs:
+        sbatch = set_gres_string(type("Job", (), {"resources": _Resources(resources)})())
+        asks.setdefault(rule, set()).add(sbatch.strip())
+        learned = rule != "fine_eval" or not wildcards.startswith("method=solver")
+        if rule in {"coarse_train", "coarse_eval", "fine_train", "fine_eval"} and learned:
+            assert resources["gpu"] == 1 and sbatch.strip() == "--gpus=1", (rule, wildcards, resources)
+        else:
+            assert resources.get("gpu", 0) == 0 and sbatch == "", (rule, wildcards, resources)
+    assert {"coarse_train", "fine_train", "fine_eval", "coarse_eval"} <= set(asks)
+    assert asks["fine_eval"] == {"--gpus=1", ""}  # the learned models' runs, and the solver's
+    assert len(set(asks) - GPU_RULES) > 15  # every other rule planned, none asking
+    plain = smk_dry_run(repo, tmp_path, "--profile", str(PROFILE), "all", *tiny)
+    assert plain.returncode == 0 and "gpu=" not in plain.stdout
 
 
 # ---------------------------------------------------------------- the one-node cluster (slow)

@@ -1,3 +1,6 @@
 """Flatlandia: regenerate the object-map localization benchmark end to end."""
 
-__version__ = "0.1.0"
+from flatlandia.release import package_version
+
+#: pyproject.toml's version (flatlandia.release)
+__version__ = package_version()

@@ -142,6 +142,17 @@ def checkpoint_info(path) -> dict:
     return _meta(path, _read(path))
 
 
+def on_cpu(state: dict) -> dict:
+    """A state dict with its tensors on the CPU (what a checkpoint stores, whatever trained it):
+    the same dict when they are there already, else a copy (keeping torch's ``_metadata``)."""
+    if all(t.device.type == "cpu" for t in state.values()):
+        return state
+    out = type(state)((k, t.detach().cpu()) for k, t in state.items())
+    if hasattr(state, "_metadata"):
+        out._metadata = state._metadata
+    return out
+
+
 def n_parameters(model: nn.Module) -> int:
     """Number of weights of a model, for the tables' model sizes."""
     return int(sum(p.numel() for p in model.parameters()))

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import config, io, provenance
+from flatlandia import __version__, config, io, provenance, release
 from flatlandia.errors import InputError
 
 
@@ -80,6 +80,9 @@ def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -
             f"{rec.get('wall_seconds', float('nan')):.1f} s wall, {rec.get('cpu_seconds', float('nan')):.1f} s CPU"
         )
     lines.append("inputs" + (" (back to the files no rule produced: the sources)" if tree else "") + ":")
+    if tree:  # each subtree once, shared ones referred back to
+        lines += ["  " * depth + text for depth, text in provenance.lineage_tree(artifact, df)]
+        return "\n".join(lines)
     for inp in provenance.lineage(artifact, df, tree):
         pad = "  " * inp["depth"]
         made = f"<- {inp['rule']}" if inp["rule"] else "(source)"
@@ -133,6 +136,9 @@ def audit(args) -> int:
 
 def config_files(args) -> int:
     """Rewrite (``--write``) or check config/config.yaml and config/README.md against the schema."""
+    if release.pyproject_version(Path(args.repo) / "pyproject.toml") is None:
+        print(f"ERROR: {args.repo} is not a clone of the workflow (no flatlandia pyproject.toml): give --repo")
+        return 1
     stale = []
     for path, text in config.generated_files(Path(args.repo)).items():
         if path.exists() and path.read_text() == text:
@@ -235,11 +241,59 @@ def _prior_args(args) -> tuple[tuple | None, tuple | None]:
     return gps, compass
 
 
+def localize_batch(args) -> int:
+    """Localize every query of a split of an export or a results folder (--batch) and write the
+    poses file that `flatlandia score` reads."""
+    import sys
+
+    from flatlandia import batch
+
+    try:
+        if args.query or args.sequence or args.near or args.gps or args.compass:
+            raise InputError(
+                "--batch",
+                "localizes a whole split: give no --query, --sequence, --near, --gps or --compass "
+                "(a fix per query: --fixes FILE.csv)",
+            )
+        if not args.out:
+            raise InputError("--batch", "needs --out POSES.csv (or .parquet): the poses file flatlandia score reads")
+        batch.check_out(args.out)
+        fixes = batch.read_fixes(args.fixes) if args.fixes else None
+        learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
+        result = batch.localize_batch(
+            args.batch,
+            args.split,
+            args.map_type or "depth",
+            args.map,
+            fixes,
+            learned,
+            progress=True,
+            proposal=args.proposal,
+        )
+        batch.write_poses(result, args.out)
+    except InputError as e:
+        print(f"ERROR: {e}")
+        return 1
+    for note in result.notes:
+        print(f"note: {note}")
+    for w in result.warnings:
+        print(f"WARNING: {w}", file=sys.stderr)
+    print(result.describe())
+    print(f"wrote {args.out}: score it with `flatlandia score {args.out} --name NAME --out DIR`")
+    return 0
+
+
 def localize_query(args) -> int:
     """Localize the query (or queries, or a sequence) of a JSON file on a map; print the answer as JSON."""
     from flatlandia import localize
 
+    if args.batch:
+        return localize_batch(args)
     try:
+        if args.fixes:
+            raise InputError("--fixes", "a fix per query is for --batch; one query takes --gps and --gps-sigma-m")
+        if not args.map:
+            raise InputError("--map", "which map: a reference map (.parquet, .geojson) or a city index (folder, .npz)")
         near = None
         if args.near is not None:
             near = _numbers_of("--near", args.near, 2, "LON,LAT (degrees, e.g. 2.3704,48.8981)")
@@ -271,11 +325,22 @@ def localize_query(args) -> int:
     except InputError as e:
         print(f"ERROR: {e}")
         return 1
+    _print_warnings(result)
     text = localize.dumps(result)
     if args.out:
         io.write_text(text + "\n", args.out)
     print(text)
     return 0
+
+
+def _print_warnings(result: dict) -> None:
+    """The answers' warnings (a fix that looks swapped or off the map) as WARNING lines on stderr,
+    each once: stdout carries the JSON."""
+    import sys
+
+    answers = result["results"] if "results" in result else [result]
+    for w in dict.fromkeys(w for a in answers for w in a.get("warnings", [])):
+        print(f"WARNING: {w}", file=sys.stderr)
 
 
 def score_poses(args) -> int:
@@ -304,6 +369,7 @@ def score_poses(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="flatlandia", description=__doc__)
+    ap.add_argument("--version", action="version", version=f"flatlandia {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
     a = sub.add_parser("audit", help="print which rule, inputs, settings and commit produced each artifact")
     a.add_argument("artifact", nargs="?", help="one artifact: its rule, settings by value, inputs and their rules")
@@ -316,7 +382,9 @@ def main(argv: list[str] | None = None) -> int:
     a.set_defaults(func=audit)
     c = sub.add_parser("config", help="check (or --write) the config files generated from the schema")
     c.add_argument("--write", action="store_true", help="rewrite them instead of checking")
-    c.add_argument("--repo", default=str(config.SCHEMA_PATH.parents[2]), help="repository root")
+    c.add_argument(
+        "--repo", default=str(release.PYPROJECT.parent), help="repository root (default: this package's clone)"
+    )
     c.set_defaults(func=config_files)
     d = sub.add_parser(
         "debug",
@@ -348,14 +416,43 @@ def main(argv: list[str] | None = None) -> int:
         '"pose": {"x": forward m, "y": left m, "theta_deg": turn}}, ...]}: each later frame\'s pose in the first '
         "frame's camera frame, from odometry) localized together: the first frame's pose and every frame's.",
     )
-    lq.add_argument("--map", required=True, help="reference map (.parquet, .geojson) or city index (folder, .npz)")
+    lq.add_argument(
+        "--map",
+        help="reference map (.parquet, .geojson) or city index (folder, .npz); with --batch: a city index (default: "
+        "each query's scene map)",
+    )
+    lq.add_argument(
+        "--batch",
+        metavar="SOURCE",
+        help="localize every query of a split of an export (results/export) or a finished run (results) on its "
+        "scene's map (or on the city index of --map) and write the poses file of --out, in the shape flatlandia "
+        "score reads (map type default depth)",
+    )
+    lq.add_argument("--split", default="test", choices=["train", "val", "test"], help="with --batch (default: test)")
+    lq.add_argument(
+        "--proposal",
+        default="whole",
+        help="with --batch: the map region each query searches: whole (default), gtbb (the oracle box) or "
+        "coarse-sim, coarse-trip, coarse-simtrip, coarse-solver (a coarse stage's proposals), as rule fine_eval",
+    )
+    lq.add_argument(
+        "--fixes",
+        metavar="FILE.csv",
+        help="with --batch: a GPS fix per query (columns scene, token, lon, lat, sigma_m; optional compass_deg, "
+        "compass_sigma_deg); queries without a row get none",
+    )
     lq.add_argument("--query", help='query JSON: one query, or {"queries": [...]} (or give --sequence)')
     lq.add_argument(
         "--sequence",
         metavar="FILE.json",
-        help='instead of --query: frames localized together, {"frames": [...]} (needs --map-type depth)',
+        help='instead of --query: frames localized together, {"frames": [...]} (depth local maps)',
     )
-    lq.add_argument("--map-type", default="gt", help="gt: x/y in metres (default); depth: any unit, scale unknown")
+    lq.add_argument(
+        "--map-type",
+        default=None,
+        help="gt: x/y in metres (the default for --query); depth: any unit, scale unknown (the default, and the "
+        "only type, for --sequence)",
+    )
     lq.add_argument("--near", metavar="LON,LAT", help="a prior position: search only the map objects near it")
     lq.add_argument("--radius-m", metavar="R", help="with --near: the radius searched, metres")
     lq.add_argument(
@@ -375,7 +472,9 @@ def main(argv: list[str] | None = None) -> int:
         help="depth maps' learned priors: auto (the workflow's results/solver/priors/whole.json for its maps), "
         "none, or a priors JSON",
     )
-    lq.add_argument("--out", metavar="OUT.json", help="also write the JSON here")
+    lq.add_argument(
+        "--out", metavar="OUT.json", help="also write the JSON here; with --batch: the poses file (.csv, .parquet)"
+    )
     lq.set_defaults(func=localize_query)
     sc = sub.add_parser(
         "score",

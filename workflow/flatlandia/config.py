@@ -20,9 +20,12 @@ import operator
 import textwrap
 from pathlib import Path
 
-import yaml
-
-SCHEMA_PATH = Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
+#: the workflow's config schema: flatlandia/schemas/ in an installed wheel (pyproject.toml), else
+#: workflow/schemas/ of the clone this package sits in
+_IN_WHEEL = Path(__file__).resolve().parent / "schemas" / "config.schema.yaml"
+SCHEMA_PATH = (
+    _IN_WHEEL if _IN_WHEEL.is_file() else Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
+)
 
 
 class ConfigError(ValueError):
@@ -31,6 +34,8 @@ class ConfigError(ValueError):
 
 @functools.cache
 def schema() -> dict:
+    import yaml  # here, not at the top: a bundle of the benchmark's inputs carries the schema (no YAML reader)
+
     return yaml.safe_load(SCHEMA_PATH.read_text())
 
 
@@ -122,6 +127,8 @@ def _coerce(value, node: dict):
     if isinstance(value, list) and isinstance(node.get("items"), dict):
         return [_coerce(v, node["items"]) for v in value]
     if isinstance(value, str) and _types(node) and "string" not in _types(node):
+        import yaml
+
         try:
             parsed = yaml.safe_load(value)
         except yaml.YAMLError:
@@ -302,6 +309,8 @@ def _leaves(node: dict, prefix: str = ""):
 
 def _yaml_value(value) -> str:
     """One value as YAML on one line (strings quoted only where YAML needs it)."""
+    import yaml
+
     text = yaml.safe_dump(value, default_flow_style=True, width=10_000).strip()
     return text.removesuffix("...").strip()
 

@@ -74,6 +74,8 @@ def mock_snakemake(
 
     workdir = Path(workdir).resolve()
     snakefile = Path(snakefile or SNAKEFILE).resolve()
+    if not snakefile.is_file():
+        raise DebugError(f"no workflow at {snakefile} (an installed package has none beside it): give --snakefile")
     wildcards = {k: str(v) for k, v in wildcards.items()}
     output = OutputSettings(enable_file_logging=False, quiet={Quietness.ALL})
     config_settings = ConfigSettings(config=dict(config or {}), configfiles=[Path(f) for f in configfiles])

@@ -66,6 +66,7 @@ FILES_MARKDOWN = """\
 | `{scene}/local_maps.csv` | object of a query's local map | `token`, `split`, `map_type` (`gt` or `depth`), `k` (object index in the local map, from 0), `class_id`, `class`, `x` (forward), `y` (left) |
 | `{scene}/proposals.csv` | object of a proposed map region | `token`, `map_type`, `source`, `strategy`, `obj_idx` |
 | `{scene}/ground_truth.csv` | query | `token`, `split`, `x_m`, `y_m`, `theta_deg`, `lon`, `lat`, `heading_deg`, `matched_obj_idx` |
+| `{scene}/query_cameras.geojson` | query (its camera, a point at lon, lat) | `token`, `split`, `heading_deg`, `theta_deg`, `x_m`, `y_m`, `n_objects`: the cameras as a GIS point layer (every split; ground truth, as `ground_truth.csv`) |
 
 **A query** is the objects one photo sees, as a local map: the camera at the origin looking along
 **+x**, **+y to its left**. Each query has two local maps of the same objects in the same order
@@ -111,7 +112,9 @@ digits that read back to the same double, so the files hold the workflow's value
 
 **Scoring**: fill `poses_template.csv` (columns `scene`, `token` and either `x_m`, `y_m`,
 `theta_deg` as above or `lon`, `lat`, `heading_deg`; optional `map_type`, `proposal`, `seconds`)
-and run `flatlandia score POSES --name NAME --out DIR`.
+and run `flatlandia score POSES --name NAME --out DIR`. `flatlandia localize --batch EXPORT --out
+POSES.csv` writes the geometric solver's poses of the test split in this shape (a baseline, and a
+check of the format end to end).
 """
 
 
@@ -196,6 +199,37 @@ def reference_geojson(scene: str, table: pd.DataFrame, frame: dict) -> dict:
         for r in table[REFERENCE_COLUMNS].itertuples(index=False)
     ]
     return {"type": "FeatureCollection", "name": f"flatlandia_scene_{scene}", "flatlandia": frame, "features": feats}
+
+
+def query_cameras_geojson(scene: str, queries: pd.DataFrame, frame: dict) -> dict:
+    """query_cameras.geojson: every query's camera as a point (lon, lat) with its ``token``, ``split``,
+    ``heading_deg`` (compass, clockwise from north: a GIS rotates a marker by it), ``theta_deg``,
+    ``x_m``, ``y_m`` and ``n_objects``, in the queries' order: a point layer to see beside the
+    reference map. It is ground truth, as ground_truth.csv: a method never reads its test rows."""
+    theta = queries["theta_deg"].to_numpy(float)
+    heading = heading_deg(theta)
+    feats = [
+        {
+            "type": "Feature",
+            "geometry": {"type": "Point", "coordinates": [float(r.lon), float(r.lat)]},
+            "properties": {
+                "token": str(r.token),
+                "split": str(r.split),
+                "heading_deg": float(h),
+                "theta_deg": float(r.theta_deg),
+                "x_m": float(r.x_m),
+                "y_m": float(r.y_m),
+                "n_objects": int(r.n_objects),
+            },
+        }
+        for r, h in zip(queries.itertuples(index=False), heading, strict=True)
+    ]
+    return {
+        "type": "FeatureCollection",
+        "name": f"flatlandia_query_cameras_{scene}",
+        "flatlandia": frame,
+        "features": feats,
+    }
 
 
 def queries_table(queries: pd.DataFrame) -> pd.DataFrame:
@@ -314,7 +348,7 @@ def scene_export(
     scene: str, ref: pd.DataFrame, meta: dict, queries: pd.DataFrame, coarse: dict[str, pd.DataFrame] | None = None
 ) -> dict:
     """Rule export_scene: a benchmark scene's files, by name (``reference_map``, ``reference_geojson``,
-    ``frame``, ``queries``, ``local_maps``, ``proposals``, ``ground_truth``): tables for
+    ``frame``, ``queries``, ``local_maps``, ``proposals``, ``ground_truth``, ``query_cameras``): tables for
     :func:`csv_text`, dicts for JSON. ``ref``/``meta``: reference_map.parquet and its metadata;
     ``queries``: queries.parquet; ``coarse``: the coarse proposal tables present, by source."""
     scene = str(scene)
@@ -328,6 +362,7 @@ def scene_export(
         "local_maps": local_maps_table(queries),
         "proposals": proposals_table(ref, queries, coarse or {}),
         "ground_truth": ground_truth_table(queries),
+        "query_cameras": query_cameras_geojson(scene, queries, frame),
     }
 
 

@@ -315,33 +315,40 @@ CONTENT_PANELS = [
 
 
 def error_vs_objects_figure(errors: dict[str, pd.DataFrame], min_queries: int = 3):
-    """The paper's Fig. 8: median error against the number of objects and of distinct classes,
-    a row per (proposal setting, local-map type), styled as the CDFs; counts on integer axes."""
+    """The paper's Fig. 8: median error against the number of objects and of distinct classes. A row
+    per proposal setting, in the CDF figure's order; GT and depth local maps in the same panel (solid
+    and dashed, as the CDFs), a colour per method; counts on integer axes. Why this layout: a row per
+    (setting, map type) made 8 rows of small panels whose text could not be read at the saved size."""
     from matplotlib.ticker import MaxNLocator
 
     plt = pyplot()
     groups = _groups(errors)
-    fig, axes = plt.subplots(len(groups), 4, figsize=(16, 2.9 * len(groups)), squeeze=False)
-    for runs, row in zip(groups.values(), axes):
+    proposals = list(dict.fromkeys(p for p, _ in groups))  # the CDF figure's rows
+    fig, axes = plt.subplots(len(proposals), 4, figsize=(17, 3.7 * len(proposals)), squeeze=False)
+    for (proposal, _), runs in groups.items():
+        row = axes[proposals.index(proposal)]
         for run in runs:
             for ax, (col, _, med, _) in zip(row, CONTENT_PANELS):
                 if col not in errors[run.name]:
                     continue
                 t = errors_by(errors[run.name], col)
                 t = t[t["queries"] >= min_queries]
-                ax.plot(t[col], t[med], marker="o", ms=3, lw=1.3, c=run.colour, ls=MAP_TYPE_STYLES[run.map_type])
+                ax.plot(t[col], t[med], marker="o", ms=3.5, lw=1.5, c=run.colour, ls=MAP_TYPE_STYLES[run.map_type])
+    for proposal, row in zip(proposals, axes):
+        setting = PROPOSAL_LABELS.get(proposal, proposal)
         for ax, (_, xl, _, yl) in zip(row, CONTENT_PANELS):
-            ax.set_xlabel(xl)
-            ax.set_ylabel(yl, fontsize=8)
+            ax.set_xlabel(xl, fontsize=10)
+            ax.set_ylabel(yl, fontsize=10)
+            ax.tick_params(labelsize=9)
             _error_axis(ax)
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-            ax.set_title(_panel_title(runs[0], yl.split(" (")[0]), fontsize=9)
+            ax.set_title(f"{setting}:\n{yl.split(' (')[0]}", fontsize=10)
             ax.grid(alpha=0.3)
     _style_legend(fig, [r for g in groups.values() for r in g], False)
     fig.suptitle(
-        f"Median error vs local-map content, test split (values shared by >= {min_queries} queries)", fontsize=11
+        f"Median error vs local-map content, test split (values shared by >= {min_queries} queries)", fontsize=12
     )
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / fig.get_figheight()))  # the title above the first row's titles
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.5 / fig.get_figheight()))  # the title above the first row's titles
     return fig
 
 

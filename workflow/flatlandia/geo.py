@@ -11,11 +11,14 @@ Conventions (measured on the data, see docs/conventions.md):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from pyproj import CRS, Transformer
 
 from flatlandia.errors import InputError
+
+if TYPE_CHECKING:  # pyproj loads when a frame projects: the learned models' code needs none of it
+    from pyproj import Transformer
 
 #: Published Flatlandia constant: one local-map unit is TO_FLATLANDIA / 2 degrees.
 TO_FLATLANDIA = 0.0033780547666424354
@@ -38,9 +41,13 @@ class MetricFrame:
         )
 
     def _forward(self) -> Transformer:
+        from pyproj import CRS, Transformer
+
         return Transformer.from_crs(CRS.from_epsg(4326), CRS.from_proj4(self.proj4), always_xy=True)
 
     def _inverse(self) -> Transformer:
+        from pyproj import CRS, Transformer
+
         return Transformer.from_crs(CRS.from_proj4(self.proj4), CRS.from_epsg(4326), always_xy=True)
 
     def to_xy(self, lonlat: np.ndarray) -> np.ndarray:

@@ -282,6 +282,7 @@ class ObjectMap:
     tiles: dict = field(default_factory=dict)  # city: scene -> Tile (lazily)
     obj_scene: np.ndarray | None = None  # city: scene of each row
     obj_scene_idx: np.ndarray | None = None  # city: each row's obj_idx in its scene
+    cities: dict = field(default_factory=dict)  # scene -> its city's name, where the results folder says
 
     def priors_used(self, map_type: str) -> dict:
         """What the solver knew beyond the query and the map, for one map type."""
@@ -450,17 +451,42 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
             training = pd.read_parquet(queries_path)
         except Exception as e:
             raise InputError(queries_path, f"not a readable Parquet file ({type(e).__name__}: {e})") from None
-        m.queries_path = queries_path
-    ref = pd_frame(obj)
+    set_training_priors(m, training, queries_path)
+    if scene is not None:
+        m.cities = scene_cities(path.parent.parent.parent)
+    return m
+
+
+def scene_cities(results: Path) -> dict:
+    """scene -> its city's name, from a results folder's ``tables/dataset_stats_per_scene.parquet``
+    (rule dataset_stats; empty where it is missing or unreadable: the answers then give no city)."""
+    import pandas as pd
+
+    table = Path(results) / "tables" / "dataset_stats_per_scene.parquet"
+    try:
+        t = pd.read_parquet(table, columns=["scene", "city"])
+    except Exception:  # missing, or not the table: a city name is a courtesy, not needed for a pose
+        return {}
+    return dict(zip(t["scene"].astype(str), t["city"].astype(str)))
+
+
+def set_training_priors(m: ObjectMap, training: pd.DataFrame | None, source: Path | None = None) -> None:
+    """A scene map's priors per map type, as rule fine_eval gives them: the cameras of ``training``'s
+    train split and what they saw (columns ``split``, ``x_m``, ``y_m``, ``theta_deg``, ``ref_idx``:
+    the workflow's queries.parquet, or an export's ground_truth.csv read so), for depth maps with
+    the map's learned priors; None: the learned scale prior alone. ``source``: where they came from."""
+    from flatlandia import solver
+
+    ref = pd_frame(m.obj_idx)
     for map_type in MAP_TYPES:  # as rule fine_eval: cameras and co-visibility; depth maps the learned priors
         lp = m.learned if map_type == "depth" else None
         if training is not None:
-            m.priors[map_type] = solver.scene_priors(ref, training, settings, lp)
+            m.priors[map_type] = solver.scene_priors(ref, training, m.settings, lp)
         else:
             m.priors[map_type] = solver.TrainingPriors().with_learned(lp) if lp is not None else None
     cams = m.priors["gt"].cameras if m.priors["gt"] is not None else None
     m.cameras = 0 if cams is None else len(cams)
-    return m
+    m.queries_path = source if training is not None else None
 
 
 def pd_frame(obj_idx) -> pd.DataFrame:
@@ -505,6 +531,7 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
             m.lonlat = t[["lon", "lat"]].to_numpy(float)
             m.obj_scene = t["scene"].astype(str).to_numpy()
             m.obj_scene_idx = t["scene_obj_idx"].to_numpy(np.int64)
+    m.cities = scene_cities(city_dir.parent.parent)
     return m
 
 
@@ -636,8 +663,126 @@ def _pose(m: ObjectMap, sol, unit: float, rows: np.ndarray, q: Query) -> dict:
         "heading_deg": float((90.0 - theta) % 360.0) if lon is not None else None,  # north: the frame's +y
         "theta_deg": float(theta),
         "scale": float(sol.scale) / unit,
+        **place(m, sol.x, sol.y),
         "matches": matches,
     }
+
+
+def place(m: ObjectMap, x: float, y: float) -> dict:
+    """Which scene (and city) a pose at (x, y) of the map's frame lies in, as JSON values: on a scene
+    map the map's own (``scene`` None for a map outside the workflow); on a city index the scene of
+    the tile whose objects are nearest, with the pose in that scene's own frame (``scene_x_m``,
+    ``scene_y_m``: the tile's translation taken off; headings are the same in both frames). Why: a
+    city's metres are its tiled frame (x 2,074 m in scene 12 means nothing to a user), and an
+    alternative can lie in another scene, or another city, than the pose."""
+    if m.kind != "city":
+        return {"scene": m.scene, "city": m.cities.get(m.scene) if m.scene is not None else None}
+    tile = _tile_at(m, np.array([x, y], float))
+    if tile is None:
+        return {"scene": None, "city": None, "scene_x_m": None, "scene_y_m": None}
+    return {
+        "scene": tile.scene,
+        "city": m.cities.get(tile.scene),
+        "scene_x_m": float(x - tile.offset[0]),
+        "scene_y_m": float(y - tile.offset[1]),
+    }
+
+
+def scene_xy(m: ObjectMap, scene: str, x: float, y: float) -> tuple[float, float] | None:
+    """A position of a city's tiled frame in ``scene``'s own frame (its tile's translation taken
+    off), whichever tile the position lies in; None when the city has no such tile. On a scene map,
+    the position as given."""
+    if m.kind != "city":
+        return float(x), float(y)
+    if m.obj_scene is None or str(scene) not in set(m.obj_scene.tolist()):
+        return None
+    tile = _tile(m, str(scene))
+    return None if tile is None else (float(x - tile.offset[0]), float(y - tile.offset[1]))
+
+
+#: what a prior position is checked against: a fix (or --near) this many times nearer the map read
+#: the other way round is reported as lon/lat swapped (as flatlandia score's FAR_SMALLER)
+SWAP_NEARER = 5.0
+
+
+def _metres_to_map(m: ObjectMap, lon: float, lat: float) -> float | None:
+    """Great-circle metres from (lon, lat) to the map's nearest object (None without lon/lat)."""
+    if m.lonlat is None or not (abs(lon) <= 180 and abs(lat) <= 90):
+        return None
+    lam, phi = np.radians(m.lonlat[:, 0]), np.radians(m.lonlat[:, 1])
+    lam0, phi0 = math.radians(lon), math.radians(lat)
+    h = np.sin((phi - phi0) / 2) ** 2 + math.cos(phi0) * np.cos(phi) * np.sin((lam - lam0) / 2) ** 2
+    return float(2 * 6371008.8 * np.arcsin(np.sqrt(np.clip(h, 0.0, 1.0))).min())
+
+
+def _far(d: float) -> str:
+    return f"{d / 1000:,.0f} km" if d >= 10_000 else f"{d:,.0f} m"
+
+
+def prior_warnings(m: ObjectMap, gps=None, near=None, radius_m=None) -> list[str]:
+    """Warnings (not errors: the answer is still computed) where a prior position cannot be right
+    for this map, as ``flatlandia score`` warns on a convention mixed up: lon and lat that look
+    swapped (read the other way round, the position lies near the map), or a position farther
+    from every map object than its reach (a fix: its 4 sigma plus what a camera sees, the map
+    objects the solver searches; ``--near``: its radius): outside the map's area."""
+    from flatlandia.solver.priors import Fix
+
+    out = []
+    view = Fix.VIEW_M
+    for flag, pos, reach, what in (
+        (
+            "--gps",
+            gps,
+            None if gps is None else Fix.GATE_SIGMAS * float(gps[2]) + view,
+            "4 sigma plus the {view:g} m a camera sees",
+        ),
+        ("--near", near, radius_m, "--radius-m"),
+    ):
+        if pos is None or reach is None:
+            continue
+        lon, lat = float(pos[0]), float(pos[1])
+        d = _metres_to_map(m, lon, lat)
+        if d is None or d <= reach:
+            continue
+        swapped = _metres_to_map(m, lat, lon)
+        if swapped is not None and swapped * SWAP_NEARER < d and swapped <= max(reach, 1000.0):
+            out.append(
+                f"{flag} {lon},{lat}: lon and lat look swapped: read as {lat},{lon} it lies {_far(swapped)} "
+                f"from the map's nearest object instead of {_far(d)} (give LON,LAT: longitude first)"
+            )
+        else:
+            lo, hi = m.lonlat.min(axis=0), m.lonlat.max(axis=0)
+            out.append(
+                f"{flag} {lon},{lat} is {_far(d)} from the map's nearest object, beyond its reach ({reach:g} m: "
+                f"{what.format(view=view)}): outside the map's area (lon {lo[0]:.5f} to {hi[0]:.5f}, lat "
+                f"{lo[1]:.5f} to {hi[1]:.5f})? No pose can lie near it"
+            )
+    return out
+
+
+def no_pose_reason(m: ObjectMap, cls, rows: np.ndarray, gps=None) -> str:
+    """Why a query (``cls``: its objects' classes; None: a sequence) got no pose. With a fix, the fix
+    is named when it ruled out every place (no map object within its 4 sigma, or too few of the
+    query's classes near it), so that a fix 262 m off, or with lon/lat swapped, says so."""
+    usable = int(np.isin(cls, m.cls[rows]).sum()) if cls is not None and len(rows) else 0
+    n = len(cls) if cls is not None else 0
+    if gps is None:
+        if usable < MIN_OBJECTS:
+            return f"only {usable} of the query's {n} objects have a class among the {len(rows)} map objects searched"
+        return "no pose explains the query's objects on the map objects searched"
+    lon, lat, sigma = (float(v) for v in gps[:3])
+    gate = 4.0 * sigma
+    where = f"of the fix at {lon}, {lat}"
+    ask = "is the fix right? lon/lat swapped?"
+    d = _metres_to_map(m, lon, lat)
+    if d is not None and d > gate:
+        return f"no pose: no map object within 4 sigma ({gate:g} m) {where} (the nearest is {_far(d)} away); {ask}"
+    if cls is not None and usable < MIN_OBJECTS:
+        return (
+            f"no pose: only {usable} of the query's {n} objects have a class among the {len(rows)} map objects "
+            f"within reach {where} (4 sigma, {gate:g} m, plus what a camera sees); {ask}"
+        )
+    return f"no pose within 4 sigma ({gate:g} m) {where} explains the objects on the map; {ask}"
 
 
 def _check_prior(gps, compass) -> None:
@@ -688,6 +833,7 @@ def localize(
     alternatives: int = ALTERNATIVES,
     gps: tuple[float, float, float] | None = None,
     compass: tuple[float, float] | None = None,
+    rows: np.ndarray | None = None,
 ) -> dict:
     """One query's pose on a loaded map (:func:`load_map`), as a dict of JSON values.
 
@@ -704,7 +850,8 @@ def localize(
     (the solver's time); ``reason`` when nothing was found; ``status`` and ``probability``
     (:func:`answer_status`; each alternative has its ``probability``). ``gps`` (lon, lat, sigma_m) and
     ``compass`` (heading_deg clockwise from north, sigma_deg): a phone's fix, weighed as a likelihood
-    (:func:`fixes`; not with ``near``)."""
+    (:func:`fixes`; not with ``near``). ``rows``: search only these rows of a scene map, in this order
+    (a proposal: the objects a coarse stage, or the oracle box, proposes; as rule fine_eval does)."""
     from flatlandia.city import search as city_search
 
     if map_type not in MAP_TYPES:
@@ -721,6 +868,8 @@ def localize(
     _check_prior(gps, compass)
     if gps is not None and near is not None:
         raise InputError("--gps", "give either a GPS fix (--gps) or a search radius (--near), not both")
+    if rows is not None and (m.kind != "scene" or near is not None or gps is not None):
+        raise InputError("--proposal", "a proposal (map rows) is searched on a scene map, without --near or --gps")
     xy, unit = _solver_units(q.xy, map_type)
     metric = map_type == "gt"
     priors_used = m.priors_used(map_type)
@@ -738,7 +887,8 @@ def localize(
         )
         best, alts, rows = found.solution, found.alternatives, found.rows
     else:
-        rows = np.arange(len(m.xy)) if near is None else _near_rows(m, near, radius_m)[0]
+        if rows is None:
+            rows = np.arange(len(m.xy)) if near is None else _near_rows(m, near, radius_m)[0]
         found = _solve_rows(m, xy, q.cls, rows, metric, map_type, alternatives)
         best, alts = found.best, found.alternatives
     seconds = time.perf_counter() - t0
@@ -746,12 +896,7 @@ def localize(
         priors_used["near"] = {"lon": float(near[0]), "lat": float(near[1]), "radius_m": float(radius_m)}
     out: dict[str, Any] = {"id": q.id, "map": str(m.path), "map_type": map_type, "found": best is not None}
     if best is None:
-        usable = int(np.isin(q.cls, m.cls[rows]).sum()) if len(rows) else 0
-        out["reason"] = (
-            f"only {usable} of the query's {len(q.cls)} objects have a class among the {len(rows)} map objects searched"
-            if usable < MIN_OBJECTS
-            else "no pose explains the query's objects on the map objects searched"
-        )
+        out["reason"] = no_pose_reason(m, q.cls, rows, gps)
         pose = dict.fromkeys(("lon", "lat", "x_m", "y_m", "heading_deg", "theta_deg", "scale"))
         out.update(pose, confidence=0.0, cost=None, matches=[], alternatives=[])
     else:
@@ -762,6 +907,7 @@ def localize(
         ]
     out.update(answer_status(best, m.settings.answer_probability))
     out.update(frame=m.frame, priors=priors_used, searched=int(len(rows)), seconds=seconds)
+    out["warnings"] = prior_warnings(m, gps=gps, near=near, radius_m=radius_m)
     return out
 
 
@@ -910,7 +1056,11 @@ def localize_sequence(
     anchor = seq.frames[0]
     out: dict[str, Any] = {"id": anchor.id, "map": str(m.path), "map_type": "depth", "found": found.best is not None}
     if found.best is None:
-        out["reason"] = "no pose explains the sequence's objects on the map objects searched"
+        out["reason"] = (
+            no_pose_reason(m, None, rows, gps)
+            if gps is not None
+            else "no pose explains the sequence's objects on the map objects searched"
+        )
         pose = dict.fromkeys(("lon", "lat", "x_m", "y_m", "heading_deg", "theta_deg", "scale"))
         out.update(pose, confidence=0.0, cost=None, matches=[], alternatives=[], frames=[])
     else:
@@ -939,17 +1089,19 @@ def localize_sequence(
                     "heading_deg": float((90.0 - theta) % 360.0) if lon is not None else None,
                     "theta_deg": float(theta),
                     "scale": float(p.scale) / unit,
+                    **place(m, p.x, p.y),
                 }
             )
     out.update(answer_status(found.best, m.settings.answer_probability))
     out.update(frame=m.frame, priors=priors_used, searched=int(len(rows)), seconds=seconds)
+    out["warnings"] = prior_warnings(m, gps=gps)
     return out
 
 
 def localize_file(
     map_path: str | Path,
     query_path: str | Path | None,
-    map_type: str = "gt",
+    map_type: str | None = None,
     near: tuple[float, float] | None = None,
     radius_m: float | None = None,
     alternatives: int = ALTERNATIVES,
@@ -962,7 +1114,10 @@ def localize_file(
     (:func:`localize`); a file of many: ``{"results": [answers]}``; a sequence file instead
     (``sequence_path``, depth maps): its anchor's answer with every frame's pose
     (:func:`localize_sequence`). ``gps``/``compass``: a fix of the query (of the sequence's anchor).
-    The input is read and checked before the map loads (a bad query fails in a second)."""
+    The input is read and checked before the map loads (a bad query fails in a second).
+    ``map_type`` None: ``depth`` for a sequence (the only type it takes), else ``gt``."""
+    if map_type is None:
+        map_type = "depth" if sequence_path is not None else "gt"
     if map_type not in MAP_TYPES:
         raise InputError("--map-type", f"{map_type!r} is not one of {', '.join(MAP_TYPES)}")
     _check_prior(gps, compass)

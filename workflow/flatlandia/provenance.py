@@ -144,15 +144,31 @@ def started() -> None:
 
 def _workflow_folder(smk) -> str:
     """The workflow folder that ran (``workflow/``, the parent of its scripts' folder), not the
-    checkout the package was installed from."""
+    checkout the package was installed from; for a module from a remote source, the address of its
+    scripts (with the tag, e.g. ``https://raw.githubusercontent.com/OWNER/REPO/v0.1.0/workflow/scripts``)."""
     scriptdir = getattr(smk, "scriptdir", None)
+    if scriptdir and _remote(str(scriptdir)):
+        return str(scriptdir)
     return str(Path(scriptdir).resolve().parent if scriptdir else Path(__file__).resolve().parents[1])
 
 
+def _remote(folder: str) -> bool:
+    return "://" in folder
+
+
+def _workflow_record(folder: str) -> dict:
+    """The commit of a workflow folder; for a remote source its address, which names the tag (the
+    commit is not known here)."""
+    if _remote(folder):
+        return {"source": folder, "commit": folder, "dirty": None, "modified": []}
+    return workflow_state(folder)
+
+
 def _scene_sheet(config: dict, workflow_folder: str) -> Path:
-    """The scene sheet the run read: as the workflow resolves it (the working folder, else the repository)."""
+    """The scene sheet the run read: as the workflow resolves it (the working folder, else the
+    repository of a workflow run from a folder)."""
     p = Path(str(config.get("scenes", ""))).expanduser()
-    if p.is_absolute() or p.exists():
+    if p.is_absolute() or p.exists() or _remote(workflow_folder):
         return p
     return Path(workflow_folder).parent / p
 
@@ -163,7 +179,7 @@ def record(smk) -> dict:
     settings = rule_settings(smk)
     config = dict(smk.config)
     folder = _workflow_folder(smk)
-    state = workflow_state(folder)
+    state = _workflow_record(folder)
     usage = resource.getrusage(resource.RUSAGE_SELF)
     now = time.time()
     sheet = _scene_sheet(config, folder)
@@ -303,6 +319,82 @@ def lineage(artifact: str, df: pd.DataFrame, tree: bool = False) -> list[dict]:
                 seen.add(inp)
                 walk(inp, depth + 1)
 
+    walk(artifact, 1)
+    return out
+
+
+def _job(rec: dict) -> tuple[str, str]:
+    """The job that wrote an artifact (its outputs share rule and wildcards)."""
+    return rec["rule"], rec.get("wildcards") or "{}"
+
+
+def _pattern(path: str, rec: dict | None) -> str:
+    """A path with its scene's folder written as {scene}, to count one scene's files among many."""
+    scene = str(rec.get("scene") or "") if rec else ""
+    return path.replace(f"/{scene}/", "/{scene}/", 1) if scene else path
+
+
+def _grouped(paths: list[str]) -> str:
+    """Sibling paths as one: their common folder and the names in braces (a single path as is)."""
+    if len(paths) == 1:
+        return paths[0]
+    folders = {str(Path(p).parent) for p in paths}
+    if len(folders) == 1:
+        return f"{folders.pop()}/{{{','.join(Path(p).name for p in paths)}}}"
+    return ", ".join(paths)
+
+
+def lineage_tree(artifact: str, df: pd.DataFrame) -> list[tuple[int, str]]:
+    """The inputs of ``artifact`` back to the files no rule produced, as (depth, text) lines, each
+    artifact's subtree once: the outputs of one job are one line; an input whose subtree is already
+    listed is not listed again but counted on one line per kind (``results/{scene}/...``, how many,
+    "listed above"); a job whose inputs are those of a job listed before says so. Why: shared
+    subtrees (every run of the fine table reads the same 20 maps and queries) made the full tree of
+    ``fine_localization.parquet`` 3,100 lines; this way it stays a few hundred."""
+    rows = producers(df)
+    shown: set[tuple] = set()  # jobs whose subtree is listed (or being listed)
+    sources: set[str] = set()  # sources listed
+    input_sets: dict[frozenset, str] = {}
+    out: list[tuple[int, str]] = []
+
+    def walk(path: str, depth: int) -> None:
+        rec = rows.get(path)
+        if rec is None:
+            return
+        inputs = dict(sorted(json.loads(rec["inputs"]).items()))
+        key = frozenset(inputs)
+        if len(key) > 1 and key in input_sets:
+            out.append((depth, f"(its {len(key)} inputs are those of {input_sets[key]}, listed above)"))
+            return
+        input_sets.setdefault(key, path)
+        groups: dict[tuple, list[str]] = {}
+        for inp in inputs:
+            prod = rows.get(inp)
+            groups.setdefault(_job(prod) if prod else ("", inp), []).append(inp)
+        again: dict[str, list[str]] = {}
+        for job, paths in groups.items():
+            prod = rows.get(paths[0])
+            changed = [p for p in paths if prod and inputs[p] and rows[p]["sha256"] != inputs[p]]
+            seen = job in shown if prod else paths[0] in sources
+            if seen and not changed:
+                again.setdefault(_pattern(_grouped(paths), prod), []).append(_grouped(paths))
+                continue
+            made = f"<- {prod['rule']}" if prod else "(source)"
+            digest = f"  {inputs[paths[0]][:12]}" if len(paths) == 1 else ""
+            flag = f"  CHANGED since used: {', '.join(changed)}" if changed else ""
+            out.append((depth, f"{_grouped(paths)}{digest}  {made}{flag}"))
+            if prod is None:
+                sources.add(paths[0])
+            elif not seen:
+                shown.add(job)
+                walk(paths[0], depth + 1)
+        if again:
+            listed = ", ".join(f"{len(ps)} x {p}" if len(ps) > 1 else ps[0] for p, ps in again.items())
+            out.append((depth, f"listed above: {listed}"))
+
+    start = rows.get(artifact)
+    if start is not None:
+        shown.add(_job(start))
     walk(artifact, 1)
     return out
 

@@ -239,6 +239,42 @@ def _numbers(values) -> tuple[np.ndarray, list[int]]:
     return out, bad
 
 
+#: a number written by a float reader: a decimal point or an exponent (tokens and scene ids are
+#: digits, or text; '198666222125904.0', '1.98666222125904e+14' are a token read as a float)
+FLOAT_LIKE = re.compile(r"^[+-]?(\d+\.\d*|\.\d+|\d+(\.\d*)?[eE][+-]?\d+)$")
+
+
+def _float_hint(values, what: str) -> str:
+    """A hint when ``values`` look like numbers a CSV reader turned into floats ('' otherwise)."""
+    floaty = [v for v in values if FLOAT_LIKE.match(str(v))]
+    if not floaty or len(floaty) < len(list(values)) / 2:
+        return ""
+    return (
+        f"; the {what} look like numbers read as floats (e.g. {floaty[0]!r}): read the CSV with dtype=str, "
+        "e.g. pd.read_csv(path, dtype={'scene': str, 'token': str}), before writing the poses"
+    )
+
+
+def _unknown_tokens(unknown: list[int], scene: list, token: list, split_of: dict, split: str) -> str:
+    """One line on the tokens that are none of their scene's queries: how many, a few of the first
+    scenes', an example of the right ones and, when they look like floats, why."""
+    by_scene: dict[str, list[int]] = {}
+    for i in unknown:
+        by_scene.setdefault(scene[i], []).append(i)
+    s0 = next(iter(by_scene))
+    some = [t for t, sp in split_of[s0].items() if sp == split][:3]
+    shown = list(by_scene.items())[:3]
+    more = f"; and {len(by_scene) - len(shown)} more scene(s)" if len(by_scene) > len(shown) else ""
+    hint = _float_hint([token[i] for i in unknown], "tokens")
+    return (
+        f"{len(unknown)} unknown token(s) in {len(by_scene)} scene(s): "
+        + "; ".join(f"scene {s}: {_listing(repr(token[i]) for i in rows)}" for s, rows in shown)
+        + more
+        + f" (scene {s0}'s {split} queries are e.g. {', '.join(some) or 'none'})"
+        + hint
+    )
+
+
 def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str = "test") -> Poses:
     """Read and check a poses file against the benchmark's ``scenes``; every problem is one
     :class:`InputError` naming the file. Poses of the scenes' queries outside ``split`` are kept
@@ -344,22 +380,12 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
         raise InputError(
             path,
             f"unknown scene(s) {_listing(repr(s) for s in unknown_scenes)}; the benchmark's scenes: "
-            f"{_listing(sorted(scenes, key=_natural), 25)}",
+            f"{_listing(sorted(scenes, key=_natural), 25)}" + _float_hint(unknown_scenes, "scene ids"),
         )
     split_of = {s: dict(zip(b.queries["token"].astype(str), b.queries["split"].astype(str))) for s, b in scenes.items()}
     unknown = [i for i in range(n) if token[i] not in split_of[scene[i]]]
     if unknown:
-        by_scene = {}
-        for i in unknown:
-            by_scene.setdefault(scene[i], []).append(i)
-        s0 = next(iter(by_scene))
-        some = [t for t, sp in split_of[s0].items() if sp == split][:3]
-        raise InputError(
-            path,
-            f"{len(unknown)} unknown token(s): "
-            + "; ".join(f"scene {s}: {_listing(repr(token[i]) for i in rows)}" for s, rows in by_scene.items())
-            + f" (scene {s0}'s {split} queries are e.g. {', '.join(some) or 'none'})",
-        )
+        raise InputError(path, _unknown_tokens(unknown, scene, token, split_of, split))
 
     table = pd.DataFrame(
         {
@@ -564,7 +590,8 @@ class Run:
         return (
             f"{self.run} ({self.map_type} local maps, {s['strategy']} proposals): {s['queries']} {s['split']} queries, "
             f"{s['scored']} scored, {s['missing']} missing (failures); median {f(s['median_m'], '.2f')} m, "
-            f"{f(s['median_deg'], '.2f')} deg; recall {ms} m: {rm} %; {ds} deg: {rd} %"
+            f"{f(s['median_deg'], '.2f')} deg; recall {ms} m: {rm} %; {ds} deg: {rd} %; "
+            f"{f(s[evaluation.WITHIN_COLUMN], '.1f')} % within ({evaluation.WITHIN[0]:g} m, {evaluation.WITHIN[1]:g} deg)"
         )
 
 
@@ -750,9 +777,12 @@ def score_file(path: str | Path, name: str, results: str | Path, split: str = "t
 
 
 #: the columns of scores.md: what the run is, then every threshold and recall, failures
+#: (the README's headline, % within (5 m, 5°), among the paper's thresholds in their order)
 SCORE_COLUMNS = (
     ["queries", "median_m", "median_deg"]
-    + evaluation.THRESHOLD_COLUMNS
+    + evaluation.THRESHOLD_COLUMNS[:2]
+    + [evaluation.WITHIN_COLUMN]
+    + evaluation.THRESHOLD_COLUMNS[2:]
     + evaluation.RECALL_COLUMNS
     + ["no_pose_pct", "failure_pct", "gross_pct"]
 )
@@ -763,9 +793,12 @@ def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
     and proposal (every threshold and recall column)."""
     from flatlandia.fine import table as fine_table
 
+    thresholds = [f"{m:g} m & {d:g}°" for m, d in paper.THRESHOLDS]
     heads = (
         ["queries", "median m", "median °"]
-        + [f"{m:g} m & {d:g}°" for m, d in paper.THRESHOLDS]
+        + thresholds[:2]
+        + ["{:g} m & {:g}°".format(*evaluation.WITHIN)]
+        + thresholds[2:]
         + [f"recall {m:g} m" for m in evaluation.RECALL_M]
         + [f"recall {d:g}°" for d in evaluation.RECALL_DEG]
         + ["no pose %", "F %", "gross %"]

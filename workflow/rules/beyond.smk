@@ -22,7 +22,7 @@ rule beyond_scene:
     wildcard_constraints:
         prior="on|off",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("beyond_scene")
     resources:
         **rule_resources("beyond_scene"),
@@ -48,7 +48,7 @@ rule beyond_city:
     wildcard_constraints:
         map="city-[0-9]+|simulated-[0-9]+",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("beyond_city")
     resources:
         **rule_resources("beyond_city"),
@@ -86,7 +86,7 @@ rule beyond_table:
     wildcard_constraints:
         part="one_frame|one_frame_city",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("beyond_table")
     resources:
         **rule_resources("beyond_table"),

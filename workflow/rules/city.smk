@@ -17,7 +17,7 @@ rule city_maps:
     wildcard_constraints:
         n="[0-9]+",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("city_maps")
     resources:
         **rule_resources("city_maps"),
@@ -39,7 +39,7 @@ rule city_index:
     wildcard_constraints:
         n="[0-9]+",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("city_index")
     resources:
         **rule_resources("city_index"),
@@ -61,7 +61,7 @@ rule city_eval:
         n="[0-9]+",
         method="|".join(CITY_METHODS),
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("city_eval")
     resources:
         **rule_resources("city_eval"),
@@ -87,7 +87,7 @@ rule city_simulate:
     wildcard_constraints:
         objects="[0-9]+",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("city_simulate")
     resources:
         **rule_resources("city_simulate"),
@@ -112,7 +112,7 @@ rule city_table:
     log:
         "logs/city_table/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("city_table")
     resources:
         **rule_resources("city_table"),

@@ -19,7 +19,7 @@ rule coarse_target:
     benchmark:
         "logs/benchmarks/coarse_target/{scene}.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("coarse_target")
     resources:
         **rule_resources("coarse_target"),
@@ -45,7 +45,7 @@ rule coarse_train:
         loss="|".join(COARSE_LOSSES),
     priority: 1
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("coarse_train")
     resources:
         **rule_resources("coarse_train"),
@@ -67,7 +67,7 @@ rule coarse_solver:
     benchmark:
         "logs/benchmarks/coarse_solver/all.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("coarse_solver")
     resources:
         **rule_resources("coarse_solver"),
@@ -96,7 +96,7 @@ rule coarse_eval:
     benchmark:
         "logs/benchmarks/coarse_eval/all.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("coarse_eval")
     resources:
         **rule_resources("coarse_eval"),

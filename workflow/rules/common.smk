@@ -10,12 +10,15 @@ import pandas as pd
 from snakemake.utils import validate
 
 from flatlandia import config as config_schema
-from flatlandia import runlock
+from flatlandia import device as device_check
+from flatlandia import runlock, scheduler
 from flatlandia.data.fetch import FetchError, check_dest
 
 # A lock of this folder left by a killed run is removed before this run locks, when provably stale
 # (flatlandia.runlock); otherwise Snakemake refuses after one line saying whose lock it is.
 runlock.install(workflow)
+# Snakemake's scheduler wakes once a second, not once a second per finished job (flatlandia.scheduler).
+scheduler.install(workflow)
 
 
 # Every rule's threads, memory and runtime, from one table: rules/resources.yaml.
@@ -32,10 +35,26 @@ config.clear()
 config.update(RESOLVED_CONFIG)
 
 
+def jobs_run_here():
+    """Whether this Snakemake runs jobs on this machine: a local run, or a cluster job's own
+    Snakemake on its node; not the host that submits a cluster run's jobs (a remote executor's
+    --jobs), which needs no GPU of its own."""
+    return workflow.remote_exec or workflow.resource_settings.nodes is None
+
+
+# config 'device': cuda where the jobs run and torch sees no GPU stops here, before any job (torch is
+# imported only for cuda); a cluster job checks again on its node, where its Snakemake parses this.
+DEVICE_PROBLEM = device_check.workflow_check(config["device"], jobs_run_here())
+if DEVICE_PROBLEM:
+    sys.exit(f"ERROR: {DEVICE_PROBLEM}")
+
+
 def config_path(path):
-    """A path from the config: relative to the working directory if it exists there, else to the repo."""
+    """A path from the config: relative to the working directory if it exists there, else to the
+    repository when the workflow runs from a folder (a module from a remote source: the working
+    directory only)."""
     p = Path(path).expanduser()
-    if p.is_absolute() or p.exists():
+    if p.is_absolute() or p.exists() or REPO_DIR is None:
         return p
     beside_repo = Path(REPO_DIR) / p
     return beside_repo if beside_repo.exists() else p
@@ -157,7 +176,10 @@ wildcard_constraints:
 
 # ---------------------------------------------------------------- data root
 def _resolve_root():
-    root = os.environ.get("FLATLANDIA_ROOT") or config["flatlandia_root"]
+    """The data folder: flatlandia_root when given explicitly (--configfile, --config, a module's
+    config), else the environment variable FLATLANDIA_ROOT, else the default config's."""
+    env = os.environ.get("FLATLANDIA_ROOT")
+    root = env if env and "flatlandia_root" not in CONFIG_GIVEN else config["flatlandia_root"]
     return config_path(root).resolve()
 
 

@@ -12,9 +12,9 @@ if FLAT_FETCH:
         log:
             "logs/fetch_flatlandia/fetch.log",
         conda:
-            "../../envs/flatlandia.yaml"
+            "../envs/flatlandia.yaml"
         params:
-            dest=config["fetch"]["dest"],
+            dest=fetch_dest,
             url=config["fetch"]["url"],
             sha256=config["fetch"]["sha256"],
             timeout_s=config["fetch"]["timeout_s"],
@@ -32,7 +32,7 @@ rule ingest:
     log:
         "logs/ingest/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("ingest")
     resources:
         **rule_resources("ingest"),
@@ -52,7 +52,7 @@ rule reference_map:
     log:
         "logs/reference_map/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("reference_map")
     resources:
         **rule_resources("reference_map"),

@@ -18,10 +18,11 @@ rule export_scene:
         local_maps="results/export/{scene}/local_maps.csv",
         proposals="results/export/{scene}/proposals.csv",
         ground_truth="results/export/{scene}/ground_truth.csv",
+        query_cameras="results/export/{scene}/query_cameras.geojson",
     log:
         "logs/export_scene/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("export_scene")
     resources:
         **rule_resources("export_scene"),
@@ -42,7 +43,7 @@ rule export_index:
     log:
         "logs/export_index/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("export_index")
     resources:
         **rule_resources("export_index"),

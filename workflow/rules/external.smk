@@ -20,11 +20,11 @@ rule external_eval:
         map_type="gt|depth",
         proposal="gtbb|whole|" + "|".join(FINE_COARSE),
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("external_eval")
     resources:
         **rule_resources("external_eval"),
     params:
-        p=fine_eval_params,
+        p=external_eval_params,
     script:
         "../scripts/external_eval.py"

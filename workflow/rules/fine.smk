@@ -24,7 +24,7 @@ rule fine_train:
         train="gtbb|coarse",
     priority: fine_train_priority
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("fine_train")
     resources:
         **rule_resources("fine_train"),
@@ -51,13 +51,13 @@ rule fine_eval:
         map_type="gt|depth",
         proposal="gtbb|whole|" + "|".join(FINE_COARSE),
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("fine_eval")
     resources:
         **rule_resources("fine_eval"),
     params:
         p=fine_eval_params,
-        solver=config["solver"],
+        solver=fine_eval_solver,
     script:
         "../scripts/fine_eval.py"
 
@@ -78,7 +78,7 @@ rule fine_table:
     benchmark:
         "logs/benchmarks/fine_table/all.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("fine_table")
     resources:
         **rule_resources("fine_table"),
@@ -97,7 +97,7 @@ rule scene_localization:
     benchmark:
         "logs/benchmarks/scene_localization/{scene}.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("scene_localization")
     resources:
         **rule_resources("scene_localization"),

@@ -12,7 +12,7 @@ rule fetch_images:
     log:
         "logs/fetch_images/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("fetch_images")
     resources:
         **rule_resources("fetch_images"),
@@ -32,7 +32,7 @@ rule image_audit:
     log:
         "logs/image_audit/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("image_audit")
     resources:
         **rule_resources("image_audit"),
@@ -61,7 +61,7 @@ rule segment:
         "logs/benchmarks/segment/{scene}.tsv"
     priority: 10
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("segment")
     resources:
         **rule_resources("segment"),
@@ -90,7 +90,7 @@ rule sfm:
         "logs/benchmarks/sfm/{scene}.tsv"
     priority: 10
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("sfm")
     resources:
         **rule_resources("sfm"),
@@ -114,7 +114,7 @@ rule classify_points:
     benchmark:
         "logs/benchmarks/classify_points/{scene}.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("classify_points")
     resources:
         **rule_resources("classify_points"),
@@ -139,7 +139,7 @@ rule plot_sfm:
     log:
         "logs/plot_sfm/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("plot_sfm")
     resources:
         **rule_resources("plot_sfm"),
@@ -158,7 +158,7 @@ rule gps_alignment:
     benchmark:
         "logs/benchmarks/gps_alignment/{scene}.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("gps_alignment")
     resources:
         **rule_resources("gps_alignment"),

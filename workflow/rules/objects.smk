@@ -17,7 +17,7 @@ rule objects:
     benchmark:
         "logs/benchmarks/objects/{scene}.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("objects")
     resources:
         **rule_resources("objects"),
@@ -38,7 +38,7 @@ rule principal_plane:
     benchmark:
         "logs/benchmarks/principal_plane/{scene}.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("principal_plane")
     resources:
         **rule_resources("principal_plane"),
@@ -72,7 +72,7 @@ rule reproduction_audit:
     benchmark:
         "logs/benchmarks/reproduction_audit/all.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("reproduction_audit")
     resources:
         **rule_resources("reproduction_audit"),

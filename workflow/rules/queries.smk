@@ -15,7 +15,7 @@ rule recover:
     benchmark:
         "logs/benchmarks/recover/{scene}.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("recover")
     resources:
         **rule_resources("recover"),
@@ -36,7 +36,7 @@ rule queries:
     benchmark:
         "logs/benchmarks/queries/{scene}.tsv"
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("queries")
     resources:
         **rule_resources("queries"),
@@ -64,7 +64,7 @@ rule plot_reference_map:
     log:
         "logs/plot_reference_map/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("plot_reference_map")
     resources:
         **rule_resources("plot_reference_map"),

@@ -14,7 +14,7 @@ rule figures_training:
     log:
         "logs/figures_training/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("figures_training")
     resources:
         **rule_resources("figures_training"),
@@ -43,7 +43,7 @@ rule figures_fine_errors:
     log:
         "logs/figures_fine_errors/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("figures_fine_errors")
     resources:
         **rule_resources("figures_fine_errors"),
@@ -69,7 +69,7 @@ rule figures_coarse_heatmap:
     log:
         "logs/figures_coarse_heatmap/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("figures_coarse_heatmap")
     resources:
         **rule_resources("figures_coarse_heatmap"),
@@ -103,7 +103,7 @@ rule query_figures:
     log:
         "logs/query_figures/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("query_figures")
     resources:
         **rule_resources("query_figures"),
@@ -126,7 +126,7 @@ rule viewer:
     log:
         "logs/viewer/{scene}.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("viewer")
     resources:
         **rule_resources("viewer"),

@@ -20,7 +20,7 @@ rule solver_priors:
     wildcard_constraints:
         region="|".join(SOLVER_PRIOR_REGIONS),
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("solver_priors")
     resources:
         **rule_resources("solver_priors"),

@@ -17,7 +17,7 @@ rule dataset_stats:
     log:
         "logs/dataset_stats/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("dataset_stats")
     resources:
         **rule_resources("dataset_stats"),
@@ -37,7 +37,7 @@ rule recovery_table:
     log:
         "logs/recovery_table/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("recovery_table")
     resources:
         **rule_resources("recovery_table"),
@@ -54,7 +54,7 @@ rule availability_table:
     log:
         "logs/availability_table/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("availability_table")
     resources:
         **rule_resources("availability_table"),
@@ -78,7 +78,7 @@ rule manifest:
     log:
         "logs/manifest/all.log",
     conda:
-        "../../envs/flatlandia.yaml"
+        "../envs/flatlandia.yaml"
     threads: rule_threads("manifest")
     resources:
         **rule_resources("manifest"),

@@ -13,11 +13,14 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints, io, runlog, tables
+from flatlandia import device as device_module
 from flatlandia.coarse import evaluation, retrieval
 
 
 def main(smk, log):
     torch.set_num_threads(int(smk.threads))
+    device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
+    log.info("device: %s", device_module.describe(device))
     losses = list(smk.params.losses)
     models = {
         retrieval.LOSSES[loss]: checkpoints.load_checkpoint(path, retrieval.CoarseTrainConfig, retrieval.build_model)
@@ -27,7 +30,8 @@ def main(smk, log):
         (pd.read_parquet(r), pd.read_parquet(q), pd.read_parquet(s))
         for r, q, s in zip(smk.input.reference_maps, smk.input.queries, smk.input.similarity)
     ]
-    out = evaluation.evaluate_models(models, scenes, pd.read_parquet(smk.input.solver), int(smk.params.seed), log)
+    solver_rows = pd.read_parquet(smk.input.solver)
+    out = evaluation.evaluate_models(models, scenes, solver_rows, int(smk.params.seed), log, device=device)
     for loss, path in zip(losses, smk.output.proposals):
         label = retrieval.LOSSES[loss]
         io.write_parquet(

@@ -9,11 +9,14 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints, io, runlog
+from flatlandia import device as device_module
 from flatlandia.coarse import retrieval, training
 
 
 def main(smk, log):
     torch.set_num_threads(int(smk.threads))
+    device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
+    log.info("device: %s", device_module.describe(device))
     cfg = retrieval.CoarseTrainConfig.from_dict({**dict(smk.params.train), "loss": smk.wildcards.loss})
     scenes = [
         (pd.read_parquet(r), pd.read_parquet(q), pd.read_parquet(s))
@@ -21,7 +24,8 @@ def main(smk, log):
     ]
     source = smk.input.queries[0] if smk.input.queries else "benchmark_scenes"
     ds = training.training_dataset(scenes, cfg, log=log, source=source)
-    res, history, meta = training.train_model(ds, cfg, log=log, progress=runlog.progress(log, f"coarse {cfg.loss}"))
+    progress = runlog.progress(log, f"coarse {cfg.loss}")
+    res, history, meta = training.train_model(ds, cfg, log=log, progress=progress, device=device)
     checkpoints.save_checkpoint(res, smk.output.model)
     io.write_parquet(history, smk.output.history, meta)
     log.info(

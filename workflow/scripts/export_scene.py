@@ -2,7 +2,8 @@
 
 The reference map (CSV, GeoJSON) and its frame, the queries and their GT and depth local maps,
 the proposals (the oracle GT-BB box of every query; the coarse stages' tables that exist, test
-split) and, in a file of its own, the ground truth (flatlandia.export.scene_export).
+split) and, in files of their own, the ground truth (CSV, and the query cameras as GeoJSON points;
+flatlandia.export.scene_export).
 """
 
 import json
@@ -26,6 +27,7 @@ def main(smk, log):
     for name in ("reference_map", "queries", "local_maps", "proposals", "ground_truth"):
         io.write_text(export.csv_text(out[name]), smk.output[name])
     io.write_text(json.dumps(out["reference_geojson"], indent=1) + "\n", smk.output.reference_geojson)
+    io.write_text(json.dumps(out["query_cameras"], indent=1) + "\n", smk.output.query_cameras)
     io.write_json(out["frame"], smk.output.frame)
     absent = [s for s in export.COARSE_SOURCES if s not in coarse]
     log.info(

@@ -15,7 +15,7 @@ def main(smk, log):
         scenes[s.scene] = s
     coarse = pd.read_parquet(smk.input.coarse) if smk.input.get("coarse") else None
     run, warnings = score.external_run(
-        smk.input.poses, scenes, p["method"], smk.wildcards.map_type, p["proposal"], coarse, p["strategy"]
+        smk.input.poses, scenes, p["method"], smk.wildcards.map_type, p["proposal"], coarse, p.get("strategy")
     )
     for w in warnings:
         log.warning("%s", w)

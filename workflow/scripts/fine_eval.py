@@ -15,6 +15,8 @@ from flatlandia.fine import evaluation
 
 def main(smk, log):
     p, mt = smk.params.p, smk.wildcards.map_type
+    strategy = p.get("strategy")  # absent: not a coarse proposal (the params hold what applies only)
+    crop_m = float(p.get("crop_m", 0.0))  # absent: not trained on simulated coarse proposals
     method, run = p["method"], f"{smk.wildcards.method}_{mt}_{smk.wildcards.proposal}"
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
     coarse = pd.read_parquet(smk.input.coarse) if smk.input.get("coarse") else None
@@ -27,17 +29,21 @@ def main(smk, log):
         log.info("learned priors: %s", learned)
         progress = lambda what: runlog.progress(log, what)  # noqa: E731
         errors = evaluation.solver_errors(
-            scenes, mt, p["proposal"], settings, learned, coarse, p["strategy"], progress=progress
+            scenes, mt, p["proposal"], settings, learned, coarse, strategy, progress=progress
         )
     else:  # torch only here: the solver's runs start 4 s faster without it
         import torch
 
         from flatlandia import checkpoints
+        from flatlandia import device as device_module
         from flatlandia.fine import learned as models
 
         torch.set_num_threads(int(smk.threads))
+        device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
+        log.info("device: %s", device_module.describe(device))
         model, cfg = checkpoints.load_checkpoint(smk.input.checkpoint, models.FineTrainConfig, models.build_model)
-        errors = evaluation.model_errors(scenes, model, cfg, p["proposal"], coarse, p["strategy"], float(p["crop_m"]))
+        model.to(device)
+        errors = evaluation.model_errors(scenes, model, cfg, p["proposal"], coarse, strategy, crop_m)
     errors["strategy"] = p["strategy_label"]
     meta = {
         "run": run,
@@ -59,7 +65,7 @@ def main(smk, log):
         ref_map_kb=float(np.mean([evaluation.ref_map_kb(ref) for ref, _ in scenes])) if scenes else float("nan"),
         train_s=0.0,
         epochs=0,
-        trained_on=proposals.training_label(p["train_regime"], p["crop_m"]),
+        trained_on=proposals.training_label(p.get("train_regime", ""), crop_m),
     )
     if model is not None:
         from flatlandia import checkpoints

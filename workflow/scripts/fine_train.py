@@ -12,11 +12,14 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints, io, runlog
+from flatlandia import device as device_module
 from flatlandia.fine import learned, training
 
 
 def main(smk, log):
     torch.set_num_threads(int(smk.threads))
+    device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
+    log.info("device: %s", device_module.describe(device))
     cfg = learned.FineTrainConfig.from_dict(
         {**dict(smk.params.train), "model": smk.params.model, "map_type": smk.wildcards.map_type}
     )
@@ -30,6 +33,7 @@ def main(smk, log):
         log=log,
         progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"),
         source=smk.input.queries[0] if smk.input.queries else "benchmark_scenes",
+        device=device,
     )
     checkpoints.save_checkpoint(res, smk.output.checkpoint)
     io.write_parquet(history, smk.output.history, meta)

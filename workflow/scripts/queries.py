@@ -32,6 +32,7 @@ def main(smk, log):
             images,
             smk.params.seed,
             smk.params.split,
+            device=smk.config["device"],
         )
         io.write_parquet(q, smk.output.queries, meta)
         log.info(

@@ -12,7 +12,8 @@ from flatlandia.images import segment
 def main(smk, log):
     table = pd.read_parquet(smk.input.table)
     names = list(table.loc[table["kept"], "name"])
-    backend = segment.make_backend(smk.params.backend, smk.params.weights, smk.params.labels_dir)
+    p = smk.params
+    backend = segment.make_backend(p.backend, p.weights, p.labels_dir, device=smk.config["device"])
     log.info("backend %s on %d images", backend.name, len(names))
     if backend.name == "transformers":
         missing = segment.missing_classes(backend.names)

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 import torch
 
+from flatlandia import device as device_module
 from flatlandia import escape, paper, proposals, tables
 from flatlandia.coarse import retrieval
 from flatlandia.proposals import proposal_metrics  # noqa: F401  (this module's API too)
@@ -212,11 +213,16 @@ def time_one_query(
     ref_emb = retrieval.embed(model, ds.ref_graphs[k])
     g = sample.graphs[map_type]
     times = {"score_cached_ref_s": [], "score_with_ref_s": []}
+    on_gpu = ref_emb.device.type == "cuda"  # GPU work is queued: wait for it before reading the clock
     for _ in range(repeats):
         t0 = time.perf_counter()
         retrieval.fused_scores(model, None, [g], ref_emb=ref_emb)
+        if on_gpu:
+            torch.cuda.synchronize()
         t1 = time.perf_counter()
         retrieval.fused_scores(model, ds.ref_graphs[k], [g])
+        if on_gpu:
+            torch.cuda.synchronize()
         t2 = time.perf_counter()
         times["score_cached_ref_s"].append(t1 - t0)
         times["score_with_ref_s"].append(t2 - t1)
@@ -245,17 +251,22 @@ def evaluate_models(
     solver_rows: pd.DataFrame,
     seed: int = 0,
     log=None,
+    device="cpu",
 ) -> CoarseEvaluation:
     """Rule coarse_eval: the trained models (loss label -> (model, config)) on the test split of
     every scene's (reference map, queries, similarity target), with the GT-BB, random and S-oracle
     baselines (:func:`evaluate`, seeded), beside the training-free solver's proposals
     (``solver_rows``, rule coarse_solver). The note records the training settings and the time
-    to score one query. Raises ValueError when the models differ in :data:`GRAPH_KEYS`."""
+    to score one query. The models and the test graphs go to ``device`` (a ``torch.device``, or
+    the config's ``auto`` | ``cpu`` | ``cuda``) once. Raises ValueError when the models differ in
+    :data:`GRAPH_KEYS`."""
     cfgs = [c for _, c in models.values()]
     graphs = [tuple(getattr(c, k) for k in GRAPH_KEYS) for c in cfgs]
     if any(g != graphs[0] for g in graphs):
         raise ValueError(f"the models were trained with different graph settings {GRAPH_KEYS}: {graphs}")
-    ds = retrieval.build_dataset(scenes, cfgs[0], splits=("test",))
+    dev = device_module.torch_device(device)
+    models = {label: (model.to(dev), cfg) for label, (model, cfg) in models.items()}
+    ds = retrieval.to_device(retrieval.build_dataset(scenes, cfgs[0], splits=("test",)), dev)
     if log is not None:
         log.info("%d test queries over %d scenes; models %s", len(ds.samples), len(scenes), list(models))
     per_query = evaluate(models, ds, "test", baselines=True, seed=int(seed))
@@ -275,9 +286,10 @@ def evaluate_models(
         "'random' scores nodes uniformly at random; 'S oracle' ranks by the Sim target itself (needs the GT map). "
     )
     if timing:
+        where = "1 CPU thread" if dev.type == "cpu" else f"on {device_module.describe(dev)}"
         note += (
             f"Scoring one query: {1000 * timing['score_cached_ref_s']:.2f} ms with the scene's reference "
-            f"embeddings cached, {1000 * timing['score_with_ref_s']:.2f} ms including them (1 CPU thread). "
+            f"embeddings cached, {1000 * timing['score_with_ref_s']:.2f} ms including them ({where}). "
         )
     if len(solver_rows):
         ms = (1000 * solver_rows.groupby("map_type")["seconds"].median()).to_dict()

@@ -12,6 +12,8 @@ as one disjoint union (:func:`fused_scores`). Graphs and targets of every query:
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,6 +74,7 @@ class Sample:
     cam_xy: np.ndarray  # true camera (metres), for the GT-BB oracle only
     S: np.ndarray | None = None  # similarity target per reference row
     negatives: np.ndarray | None = None  # rows not matched by the query (triplet negatives)
+    S_t: torch.Tensor | None = None  # S on the training device (:func:`to_device`)
 
 
 @dataclass
@@ -138,6 +141,25 @@ def build_dataset(
     sizes = np.array([len(r) for r in refs])
     offsets = np.r_[0, np.cumsum(sizes)[:-1]].astype(np.int64)
     return Dataset(scene_ids, refs, ref_graphs, graphs.batch(ref_graphs), offsets, samples)
+
+
+def to_device(ds: Dataset, device) -> Dataset:
+    """The dataset with every graph (and similarity target, ``Sample.S_t``) on ``device``, moved
+    once before the loops (a new dataset: the caller's keeps its tensors where they were)."""
+    dev = torch.device(device)
+
+    def move(g):
+        return copy.copy(g).to(dev)
+
+    samples = [
+        dataclasses.replace(
+            s,
+            graphs={mt: move(g) for mt, g in s.graphs.items()},
+            S_t=None if s.S is None else torch.from_numpy(np.array(s.S, np.float32)).to(dev),
+        )
+        for s in ds.samples
+    ]
+    return Dataset(ds.scene_ids, ds.refs, [move(g) for g in ds.ref_graphs], move(ds.ref_batch), ds.offsets, samples)
 
 
 # ----------------------------------------------------------------------------- model
@@ -238,7 +260,8 @@ def reference_embeddings(model, ds: Dataset, scene_pos=None) -> tuple[torch.Tens
 def scores(model, ref_emb: torch.Tensor, q_batch: Batch, node: np.ndarray, qpos: np.ndarray) -> torch.Tensor:
     """``s = ||psi_node - mean psi_query||`` for every pair."""
     q_mean = global_mean_pool(embed(model, q_batch), q_batch.batch, size=q_batch.num_graphs)
-    return torch.linalg.vector_norm(ref_emb[torch.from_numpy(node)] - q_mean[torch.from_numpy(qpos)], dim=1)
+    node_t, qpos_t = (torch.from_numpy(a).to(ref_emb.device, non_blocking=True) for a in (node, qpos))
+    return torch.linalg.vector_norm(ref_emb[node_t] - q_mean[qpos_t], dim=1)
 
 
 def fused_scores(model, ref_graph, query_graphs: list, ref_emb: torch.Tensor | None = None) -> torch.Tensor:
@@ -260,8 +283,8 @@ def fused_scores(model, ref_graph, query_graphs: list, ref_emb: torch.Tensor | N
     if ref_emb is None:
         n_ref = sizes[0]
         ref_emb, emb, sizes = emb[:n_ref], emb[n_ref:], sizes[1:]
-    sizes_t = torch.tensor(sizes)
-    qb = torch.repeat_interleave(torch.arange(len(sizes)), sizes_t)
+    sizes_t = torch.tensor(sizes).to(emb.device, non_blocking=True)  # sizes known here: nothing read back
+    qb = torch.repeat_interleave(torch.arange(len(sizes), device=emb.device), sizes_t, output_size=sum(sizes))
     q_mean = emb.new_zeros(len(sizes), emb.shape[1]).index_add(0, qb, emb) / sizes_t[:, None].to(emb.dtype)
     return torch.linalg.vector_norm(ref_emb[None] - q_mean[:, None], dim=-1)
 
@@ -279,7 +302,7 @@ def score_samples(model, ds: Dataset, samples: list[Sample], map_type: str, batc
         chunk = samples[k : k + batch_size]
         qb = graphs.batch([s.graphs[map_type] for s in chunk])
         node, qpos, _ = pair_index(ds, chunk)
-        s = scores(model, ref_emb, qb, node, qpos).numpy()
+        s = scores(model, ref_emb, qb, node, qpos).cpu().numpy()
         bounds = np.cumsum([len(ds.refs[c.scene]) for c in chunk])[:-1]
         out += np.split(s, bounds)
     return out

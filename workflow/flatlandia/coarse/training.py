@@ -20,7 +20,8 @@ that scene's reference graph and the batch's query graphs in one forward pass ov
 disjoint union (about 4x faster per epoch than ``mixed`` batches, which embed every scene the
 batch touches); each query is then compared with the nodes of its own scene. One model per loss,
 trained on GT and depth local maps (each epoch draws the map type of every training query at
-random from ``train_maps``). Seeded and deterministic on CPU; the best-on-validation weights are
+random from ``train_maps``). Seeded and deterministic on CPU (config ``device``: the same code on a
+GPU, the data moved there once, :func:`train`); the best-on-validation weights are
 kept (criterion: mean of the 2N_LM recall and the R_30 success over GT and depth maps, every
 ``eval_every`` epochs).
 """
@@ -36,6 +37,7 @@ import torch
 from torch import nn
 
 from flatlandia import checkpoints
+from flatlandia import device as device_module
 from flatlandia.coarse import graphs, retrieval
 from flatlandia.errors import InputError
 
@@ -44,11 +46,13 @@ from flatlandia.errors import InputError
 
 def sim_loss(s: torch.Tensor, S: torch.Tensor, qpos: torch.Tensor, n_queries: int, floor: float = 0.1) -> torch.Tensor:
     """Weighted regression of ``s`` to ``1 - S``; weights ``S / max_query S + floor``, mean over queries."""
-    smax = torch.zeros(n_queries, dtype=S.dtype).scatter_reduce(0, qpos, S, reduce="amax", include_self=True)
+    smax = torch.zeros(n_queries, dtype=S.dtype, device=S.device).scatter_reduce(
+        0, qpos, S, reduce="amax", include_self=True
+    )
     w = S / smax.clamp_min(1e-6)[qpos] + floor
     err = w * (s - (1.0 - S)) ** 2
-    num = torch.zeros(n_queries, dtype=s.dtype).index_add(0, qpos, err)
-    den = torch.zeros(n_queries, dtype=s.dtype).index_add(0, qpos, w)
+    num = torch.zeros(n_queries, dtype=s.dtype, device=s.device).index_add(0, qpos, err)
+    den = torch.zeros(n_queries, dtype=s.dtype, device=s.device).index_add(0, qpos, w)
     return (num / den.clamp_min(1e-12)).mean()
 
 
@@ -95,6 +99,112 @@ def draw_triplets(
     return np.concatenate(pos_all), np.concatenate(neg_all)
 
 
+def triplet_pairs(
+    batch_samples: list[retrieval.Sample],
+    sizes: list[int],
+    rng: np.random.Generator,
+    device,
+    scores: torch.Tensor | None = None,
+    hard_fraction: float = 0.0,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The pairs of :func:`draw_triplets` as index tensors on ``device``: on the CPU drawn by it
+    (the scores are readable in place), on another device by :func:`device_triplet_pairs` (the
+    same pairs, nothing read back from the device)."""
+    if torch.device(device).type == "cpu" and (scores is None or scores.device.type == "cpu"):
+        ip, ineg = draw_triplets(
+            batch_samples, sizes, rng, scores.numpy() if scores is not None else None, hard_fraction
+        )
+        return torch.from_numpy(ip), torch.from_numpy(ineg)
+    return device_triplet_pairs(batch_samples, sizes, rng, device, scores, hard_fraction)
+
+
+def device_triplet_pairs(
+    batch_samples: list[retrieval.Sample],
+    sizes: list[int],
+    rng: np.random.Generator,
+    device,
+    scores: torch.Tensor | None = None,
+    hard_fraction: float = 0.0,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`draw_triplets` with the scores left where they are (a GPU): the same pairs in the same
+    order from the same draws of ``rng``, as index tensors on ``device``, nothing read back.
+
+    The host knows every random position without the scores (how many hard negatives a query
+    takes and which places of the rest it draws); only which negatives rank best needs them, and
+    that is one stable sort of the batch's negatives on the device (:func:`_ranked_negatives`).
+    Negatives are in row order, as :func:`flatlandia.coarse.retrieval.build_dataset` makes them."""
+    pos_all, neg_all = [], []
+    from_rank, from_pool = [], []  # (slot, query row, rank) of hard negatives; (slot, query row, place) in the pool
+    hard_rows, n_hard_of = [], []  # the queries that take hard negatives, and how many
+    start, slot = 0, 0
+    for s, n in zip(batch_samples, sizes):
+        neg_pool = s.negatives if s.negatives is not None else np.setdiff1d(np.arange(n), s.positives)
+        n_pos = len(s.positives)
+        if n_pos and len(neg_pool):
+            n_hard = min(int(round(hard_fraction * n_pos)), len(neg_pool)) if scores is not None else 0
+            n_rand = n_pos - n_hard
+            neg = np.full(n_pos, -1, np.int64)
+            row = len(hard_rows)
+            if n_hard:
+                hard_rows.append((start, n, neg_pool))
+                n_hard_of.append(n_hard)
+                from_rank += [(slot + k, row, k) for k in range(n_hard)]
+            if len(neg_pool) - n_hard >= n_rand:  # without replacement, as draw_triplets draws
+                place = rng.permutation(len(neg_pool) - n_hard)[:n_rand]
+                if n_hard:
+                    from_pool += [(slot + n_hard + k, row, int(p)) for k, p in enumerate(place)]
+                else:
+                    neg[n_hard:] = start + neg_pool[place]
+            else:
+                neg[n_hard:] = start + neg_pool[rng.integers(0, len(neg_pool), n_rand)]
+            pos_all.append(start + s.positives)
+            neg_all.append(neg)
+            slot += n_pos
+        start += n
+    if not pos_all:
+        return torch.zeros(0, dtype=torch.long, device=device), torch.zeros(0, dtype=torch.long, device=device)
+    ip, ineg = np.concatenate(pos_all).astype(np.int64), np.concatenate(neg_all)
+    if not hard_rows:
+        return torch.from_numpy(ip).to(device, non_blocking=True), torch.from_numpy(ineg).to(device, non_blocking=True)
+    ranked, pool = _ranked_negatives(scores, hard_rows, np.asarray(n_hard_of), device)
+    packed = [ip, ineg]
+    for picks in (from_rank, from_pool):
+        packed += list(np.asarray(picks, np.int64).reshape(-1, 3).T)
+    offsets = np.array([s for s, _, _ in hard_rows], np.int64)
+    packed.append(offsets)
+    moved = torch.split(
+        torch.from_numpy(np.concatenate(packed)).to(device, non_blocking=True), [len(a) for a in packed]
+    )
+    ip_t, ineg_t, r_slot, r_row, r_rank, p_slot, p_row, p_place, first = moved
+    ineg_t = ineg_t.clone()
+    ineg_t[r_slot] = ranked[r_row, r_rank] + first[r_row]
+    ineg_t[p_slot] = pool[p_row, p_place] + first[p_row]
+    return ip_t, ineg_t
+
+
+def _ranked_negatives(scores: torch.Tensor, rows: list[tuple], n_hard: np.ndarray, device):
+    """For the queries ``rows`` ((first pair position, nodes, negative rows) each) that take hard
+    negatives: their negative rows ranked by score (ties by row, as a stable sort of the negatives
+    alone ranks them) and the rest, the pool, in row order, both as (queries, width) row tensors."""
+    width = max(n for _, n, _ in rows)
+    q = np.repeat(np.arange(len(rows)), [len(neg) for _, _, neg in rows])
+    col = np.concatenate([neg for _, _, neg in rows]).astype(np.int64)
+    at = np.concatenate([start + neg for start, _, neg in rows]).astype(np.int64)
+    q_t, col_t, at_t, n_hard_t = (
+        torch.from_numpy(a).to(device, non_blocking=True) for a in (q, col, at, n_hard.astype(np.int64))
+    )
+    is_neg = torch.zeros(len(rows), width, dtype=torch.bool, device=device)
+    is_neg[q_t, col_t] = True
+    vals = torch.zeros(len(rows), width, dtype=scores.dtype, device=device)
+    vals[q_t, col_t] = scores[at_t]
+    by_score = torch.sort(vals, dim=1, stable=True).indices  # then the negatives first, keeping that order
+    ranked = by_score.gather(1, torch.sort((~is_neg).gather(1, by_score).long(), dim=1, stable=True).indices)
+    rank = torch.empty_like(ranked).scatter_(1, ranked, torch.arange(width, device=device).expand_as(ranked))
+    in_pool = is_neg & (rank >= n_hard_t[:, None])
+    pool = torch.sort((~in_pool).long(), dim=1, stable=True).indices
+    return ranked, pool
+
+
 def batch_loss(
     model,
     ds: retrieval.Dataset,
@@ -103,9 +213,11 @@ def batch_loss(
     cfg: retrieval.CoarseTrainConfig,
     rng: np.random.Generator,
 ) -> tuple[torch.Tensor, dict]:
-    """The configured loss of one batch (map type per sample given); only the reference graphs of
-    the batch's scenes are embedded (one fused forward pass when the batch holds one scene)."""
+    """The configured loss of one batch (map type per sample given) and its parts (tensors: read
+    them once an epoch, not per step); only the reference graphs of the batch's scenes are embedded
+    (one fused forward pass when the batch holds one scene), on the model's device."""
     scenes = {b.scene for b in batch_samples}
+    device = device_module.model_device(model)
     qpos = np.repeat(np.arange(len(batch_samples)), [len(ds.refs[b.scene]) for b in batch_samples])
     if len(scenes) == 1:
         k = batch_samples[0].scene
@@ -122,17 +234,21 @@ def batch_loss(
     if cfg.loss in ("sim", "simtrip"):
         if any(b.S is None for b in batch_samples):
             raise ValueError("the Sim loss needs the similarity table of every training query")
-        S = torch.from_numpy(np.concatenate([b.S for b in batch_samples]).astype(np.float32))
-        ls = sim_loss(s, S, torch.from_numpy(qpos), len(batch_samples), cfg.sim_weight_floor)
-        parts["loss_sim"] = float(ls.detach())
+        if all(b.S_t is not None for b in batch_samples):  # moved to the device once (retrieval.to_device)
+            S = torch.cat([b.S_t for b in batch_samples])
+        else:
+            S = torch.from_numpy(np.concatenate([b.S for b in batch_samples]).astype(np.float32)).to(device)
+        qpos_t = torch.from_numpy(qpos).to(device, non_blocking=True)
+        ls = sim_loss(s, S, qpos_t, len(batch_samples), cfg.sim_weight_floor)
+        parts["loss_sim"] = ls.detach()
         total = total + ls
     if cfg.loss in ("trip", "simtrip"):
         sizes = [len(ds.refs[b.scene]) for b in batch_samples]
-        ip, ineg = draw_triplets(
-            batch_samples, sizes, rng, s.detach().numpy() if cfg.hard_negatives else None, cfg.hard_negatives
+        ip, ineg = triplet_pairs(
+            batch_samples, sizes, rng, device, s.detach() if cfg.hard_negatives else None, cfg.hard_negatives
         )
-        lt = triplet_loss(s[torch.from_numpy(ip)], s[torch.from_numpy(ineg)], cfg.margin)
-        parts["loss_trip"] = float(lt.detach())
+        lt = triplet_loss(s[ip], s[ineg], cfg.margin)
+        parts["loss_trip"] = lt.detach()
         total = total + cfg.trip_weight * lt
     return total, parts
 
@@ -178,14 +294,22 @@ def epoch_batches(
     return [out[i] for i in rng.permutation(len(out))]
 
 
-def train(ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, progress=None) -> dict:
+def train(ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, progress=None, device="cpu") -> dict:
     """Adam over batches of (query, reference) pairs; keeps the best-on-validation weights.
 
-    Returns {'model', 'state_dict', 'config', 'history', 'best_epoch', 'best_val', 'seconds',
-    'seconds_per_epoch'}.
+    ``device``: where it trains (a ``torch.device``, or the config's ``auto`` | ``cpu`` | ``cuda``):
+    the model is built and seeded on the CPU, then it and the dataset's graphs and targets go there
+    once (:func:`flatlandia.coarse.retrieval.to_device`); a step reads nothing back from it (the
+    hard negatives are ranked there, :func:`triplet_pairs`; the losses are summed there and read
+    once per epoch).
+
+    Returns {'model' (on ``device``), 'state_dict' (on the CPU), 'config', 'history', 'best_epoch',
+    'best_val', 'seconds', 'seconds_per_epoch'}.
     """
     checkpoints.set_determinism(cfg.seed)
-    model = retrieval.build_model(cfg)
+    dev = device_module.torch_device(device)
+    model = retrieval.build_model(cfg).to(dev)
+    ds = retrieval.to_device(ds, dev)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, foreach=True)
     rng = np.random.default_rng(cfg.seed)
     train_s, val_s = ds.split("train"), ds.split("val")
@@ -206,7 +330,7 @@ def train(ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, pro
         te = time.perf_counter()
         model.train()
         mts = rng.choice(len(cfg.train_maps), size=len(train_s))
-        tot, parts_sum, n = 0.0, {}, 0
+        tot, parts_sum, n = torch.zeros((), dtype=torch.float64, device=dev), {}, 0  # as float() sums them
         for idx in epoch_batches(train_s, cfg, rng):
             opt.zero_grad()
             loss, parts = batch_loss(
@@ -218,17 +342,14 @@ def train(ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, pro
             opt.step()
             if sched is not None:
                 sched.step()
-            tot += float(loss.detach()) * len(idx)
+            tot += loss.detach().double() * len(idx)
             for key, v in parts.items():
-                parts_sum[key] = parts_sum.get(key, 0.0) + v * len(idx)
+                parts_sum[key] = parts_sum.get(key, 0.0) + v.double() * len(idx)
             n += len(idx)
+        train_loss = tot.item() / n  # the epoch's one read from the device: it waits for the epoch's work
+        part_means = {k: v.item() / n for k, v in parts_sum.items()}
         train_time += time.perf_counter() - te
-        rec = {
-            "epoch": ep,
-            "train_loss": tot / n,
-            **{k: v / n for k, v in parts_sum.items()},
-            "epoch_seconds": time.perf_counter() - te,
-        }
+        rec = {"epoch": ep, "train_loss": train_loss, **part_means, "epoch_seconds": time.perf_counter() - te}
         if val_s and (ep % cfg.eval_every == 0 or ep == cfg.epochs - 1):
             rec["val_metric"] = validation_metric(model, ds, val_s, cfg)
             if rec["val_metric"] > best:
@@ -243,7 +364,7 @@ def train(ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, pro
     model.eval()
     return {
         "model": model,
-        "state_dict": best_state,
+        "state_dict": checkpoints.on_cpu(best_state),
         "config": cfg.to_dict(),
         "history": history,
         "best_epoch": best_epoch,
@@ -286,11 +407,12 @@ def training_dataset(
 
 
 def train_model(
-    ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, progress=None
+    ds: retrieval.Dataset, cfg: retrieval.CoarseTrainConfig, log=None, progress=None, device="cpu"
 ) -> tuple[dict, pd.DataFrame, dict]:
     """Rule coarse_train: one model (loss ``cfg.loss``) trained on ``ds`` (:func:`training_dataset`)
-    -> (:func:`train`'s result, the training history, the history table's metadata)."""
-    res = train(ds, cfg, log=log, progress=progress)
+    on ``device`` (as :func:`train`) -> (:func:`train`'s result, the training history, the history
+    table's metadata)."""
+    res = train(ds, cfg, log=log, progress=progress, device=device)
     meta = {
         "config": res["config"],
         "best_epoch": res["best_epoch"],

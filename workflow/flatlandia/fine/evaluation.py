@@ -320,9 +320,10 @@ def evaluate_model(
 ) -> pd.DataFrame:
     """Run a learned model on every query of one scene; one row of errors per query (the solver's
     columns). Query time is the single-query inference time (batch of one, after building the
-    sample)."""
+    sample; on the model's device, a GPU: with the copies there and back)."""
     import torch
 
+    from flatlandia import device as device_module
     from flatlandia.fine import learned
     from flatlandia.pyg import Batch
 
@@ -334,10 +335,11 @@ def evaluate_model(
     lat = float(ref["lat"].mean())
     rows = []
     model.eval()
+    device = device_module.model_device(model)
     for s, r in zip(samples, kept.itertuples(index=False)):
         t0, c0 = time.perf_counter(), time.process_time()
         with torch.no_grad():
-            p = model(Batch.from_data_list([s])).numpy()
+            p = model(Batch.from_data_list([s]).to(device)).cpu().numpy()
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         x, y, th = learned.to_world(p, [s], cfg)[0]
         e_m, e_deg = pose_errors(x, y, th, r.x_m, r.y_m, math.radians(r.theta_deg))

@@ -25,6 +25,7 @@ the MLP models. Training, loss and augmentation: :mod:`flatlandia.fine.training`
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field
 
@@ -34,6 +35,7 @@ import torch
 from torch import nn
 
 from flatlandia import config
+from flatlandia import device as device_module
 from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
 from flatlandia.pyg import Batch, Data, GATv2Conv, scatter, to_dense_batch
@@ -135,7 +137,9 @@ class DenseMaps:
     """Padded per-query tensors (query objects, region objects, target) for the MLP models.
 
     Why: collating torch-geometric batches at every step costs about as much as the MLP step; the
-    whole split is padded once and a batch is a row selection, trimmed to its longest map.
+    whole split is padded once (and moved to the device once, :meth:`to`) and a batch is a row
+    selection, trimmed to its longest map. The maps' lengths are kept on the host (``q_len``,
+    ``r_len``), so trimming a batch on a GPU reads nothing back from it.
     """
 
     q_cls: torch.Tensor  # (N, Lq) class ids (0 on padding)
@@ -145,6 +149,8 @@ class DenseMaps:
     r_xy: torch.Tensor  # (N, Lr, 2) region objects, normalised region frame
     r_mask: torch.Tensor  # (N, Lr)
     y: torch.Tensor  # (N, 3) target pose
+    q_len: np.ndarray | None = None  # (N,) query objects per row, on the host (None: from q_mask)
+    r_len: np.ndarray | None = None  # (N,) region objects per row, on the host
 
     @property
     def num_graphs(self) -> int:
@@ -153,10 +159,23 @@ class DenseMaps:
     def __len__(self) -> int:
         return self.num_graphs
 
+    def to(self, device) -> DenseMaps:
+        """The same maps on ``device`` (the host lengths stay on the host); itself when there already."""
+        if same_device(self.y.device, device):
+            return self
+        moved = [getattr(self, f).to(device) for f in ("q_cls", "q_xy", "q_mask", "r_cls", "r_xy", "r_mask", "y")]
+        return DenseMaps(*moved, q_len=self._lengths("q"), r_len=self._lengths("r"))
+
+    def _lengths(self, kind: str) -> np.ndarray:
+        kept = getattr(self, f"{kind}_len")
+        return kept if kept is not None else getattr(self, f"{kind}_mask").sum(1).cpu().numpy()
+
     def __getitem__(self, idx) -> DenseMaps:
-        idx = torch.as_tensor(idx, dtype=torch.long)
-        lq = max(int(self.q_mask[idx].sum(1).max()), 1) if len(idx) else 1
-        lr = max(int(self.r_mask[idx].sum(1).max()), 1) if len(idx) else 1
+        rows = np.asarray(idx, dtype=np.int64).reshape(-1)
+        q_len, r_len = self._lengths("q")[rows], self._lengths("r")[rows]
+        lq = max(int(q_len.max()), 1) if len(rows) else 1
+        lr = max(int(r_len.max()), 1) if len(rows) else 1
+        idx = torch.from_numpy(rows).to(self.y.device, non_blocking=True)  # the step's one copy to the device
         return DenseMaps(
             self.q_cls[idx, :lq],
             self.q_xy[idx, :lq],
@@ -165,6 +184,8 @@ class DenseMaps:
             self.r_xy[idx, :lr],
             self.r_mask[idx, :lr],
             self.y[idx],
+            q_len,
+            r_len,
         )
 
 
@@ -180,7 +201,95 @@ def dense_maps(samples) -> DenseMaps:
         if xy.shape[1] == 0:  # no object of this kind in any sample: one padded column
             xy, mask, cls = xy.new_zeros(n, 1, 2), mask.new_zeros(n, 1), cls.new_zeros(n, 1)
         parts += [cls, xy, mask]
-    return DenseMaps(*parts, y=b.y)
+    q_len, r_len = (m.sum(1).cpu().numpy() for m in (parts[2], parts[5]))
+    return DenseMaps(*parts, y=b.y, q_len=q_len, r_len=r_len)
+
+
+# ----------------------------------------------------------------------------- graph batches (GAT models)
+
+#: the per-node, per-graph and edge-index attributes of a sample (:func:`make_sample`)
+NODE_KEYS = ("cls", "local", "is_q")
+GRAPH_KEYS = ("y", "centre")
+EDGE_KEYS = ("intra_edge_index", "inter_edge_index")
+
+
+@dataclass
+class GraphBatch:
+    """Sample graphs batched as ``Batch.from_data_list`` batches them (nodes and edges in sample
+    order, edge indices shifted by the nodes before, ``batch`` the graph of each node): what the
+    GAT models and :func:`flatlandia.fine.training.augment` read."""
+
+    cls: torch.Tensor
+    local: torch.Tensor
+    is_q: torch.Tensor
+    intra_edge_index: torch.Tensor
+    inter_edge_index: torch.Tensor
+    y: torch.Tensor
+    centre: torch.Tensor
+    batch: torch.Tensor
+    num_graphs: int
+
+    def to(self, device) -> GraphBatch:
+        if same_device(self.y.device, device):
+            return self
+        moved = {k: getattr(self, k).to(device) for k in (*NODE_KEYS, *EDGE_KEYS, *GRAPH_KEYS, "batch")}
+        return GraphBatch(**moved, num_graphs=self.num_graphs)
+
+
+def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """``concatenate([arange(s, s + c) for s, c in zip(starts, counts)])``, without the loop."""
+    total = int(counts.sum())
+    before = np.cumsum(counts) - counts
+    return np.repeat(starts - before, counts) + np.arange(total, dtype=np.int64)
+
+
+class GraphSplit:
+    """Every sample graph of a split collated once (and moved to the device once, :meth:`to`); a
+    batch is a selection of graphs (:meth:`__getitem__`), equal to ``Batch.from_data_list`` of those
+    samples. Why: collating on every step costs CPU time, and collating graphs that live on a GPU
+    copies a number to it per graph and attribute (torch-geometric's collate), each a wait; here
+    the node and edge positions of a batch are computed on the host and go over in one copy."""
+
+    def __init__(self, samples: list[Data]):
+        b = Batch.from_data_list(list(samples))
+        self.tensors = {k: b[k] for k in (*NODE_KEYS, *GRAPH_KEYS, *EDGE_KEYS)}
+        self.node_ptr = np.r_[0, np.cumsum([int(s.num_nodes) for s in samples])].astype(np.int64)
+        self.edge_ptr = {
+            k: np.r_[0, np.cumsum([int(s[k].shape[1]) for s in samples])].astype(np.int64) for k in EDGE_KEYS
+        }
+
+    def __len__(self) -> int:
+        return len(self.node_ptr) - 1
+
+    @property
+    def device(self) -> torch.device:
+        return self.tensors["y"].device
+
+    def to(self, device) -> GraphSplit:
+        """The same split on ``device`` (positions stay on the host); itself when there already."""
+        if same_device(self.device, device):
+            return self
+        out = copy.copy(self)
+        out.tensors = {k: v.to(device) for k, v in self.tensors.items()}
+        return out
+
+    def __getitem__(self, idx) -> GraphBatch:
+        rows = np.asarray(idx, dtype=np.int64).reshape(-1)
+        n_nodes = self.node_ptr[rows + 1] - self.node_ptr[rows]
+        new_start = np.cumsum(n_nodes) - n_nodes  # first node of each graph in the batch
+        parts = [rows, _ranges(self.node_ptr[rows], n_nodes), np.repeat(np.arange(len(rows)), n_nodes)]
+        for k in EDGE_KEYS:
+            ptr = self.edge_ptr[k]
+            n_edges = ptr[rows + 1] - ptr[rows]
+            parts += [_ranges(ptr[rows], n_edges), np.repeat(new_start - self.node_ptr[rows], n_edges)]
+        sizes = [len(p) for p in parts]
+        packed = torch.from_numpy(np.concatenate(parts)).to(self.device, non_blocking=True)
+        graph, node, batch, *edges = torch.split(packed, sizes)
+        t = self.tensors
+        out = {k: t[k][node] for k in NODE_KEYS} | {k: t[k][graph] for k in GRAPH_KEYS}
+        for k, (edge, shift) in zip(EDGE_KEYS, zip(edges[::2], edges[1::2])):
+            out[k] = t[k][:, edge] + shift
+        return GraphBatch(**out, batch=batch, num_graphs=len(rows))
 
 
 def _masked_max(h: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -205,7 +314,7 @@ def _masked_attention_pool(att: nn.MultiheadAttention, h: torch.Tensor, index: t
     """Self-attention over the rows of each graph (padding + mask), residual, then masked max-pool."""
     dense, mask = to_dense_batch(h, index, batch_size=n_graphs)  # (B, L, d), (B, L)
     if dense.shape[1] == 0:
-        return torch.zeros(n_graphs, h.shape[1], dtype=h.dtype)
+        return torch.zeros(n_graphs, h.shape[1], dtype=h.dtype, device=h.device)
     pad = ~mask
     empty = pad.all(dim=1)
     pad = pad.clone()
@@ -327,28 +436,49 @@ def is_dense(model: nn.Module) -> bool:
 
 
 def batches(samples, batch_size: int, order: np.ndarray | None = None):
-    """Batches of a sample list (torch-geometric) or row selections of :class:`DenseMaps`."""
+    """Batches of a sample list (torch-geometric) or selections of :class:`DenseMaps` or :class:`GraphSplit`."""
     idx = np.arange(len(samples)) if order is None else order
     for k in range(0, len(idx), batch_size):
-        if isinstance(samples, DenseMaps):
+        if isinstance(samples, (DenseMaps, GraphSplit)):
             yield samples[idx[k : k + batch_size]]
         else:
             yield Batch.from_data_list([samples[i] for i in idx[k : k + batch_size]])
 
 
+def to_device(samples, device) -> list[Data] | DenseMaps:
+    """Samples (a list of graphs or :class:`DenseMaps`) on ``device``, moved once before the loops;
+    on the device they are on already they come back as they are (no copy)."""
+    if isinstance(samples, DenseMaps):
+        return samples.to(device)
+    return [s if same_device(s.y.device, device) else copy.copy(s).to(device) for s in samples]
+
+
+def same_device(a, b) -> bool:
+    """Whether two devices are the same (``cuda`` is the current GPU, ``cuda:0`` one named)."""
+    a, b = torch.device(a), torch.device(b)
+    if a.type != b.type:
+        return False
+    if a.type != "cuda" or a.index == b.index:
+        return True
+    current = torch.cuda.current_device()
+    return (current if a.index is None else a.index) == (current if b.index is None else b.index)
+
+
 @torch.no_grad()
 def predict(model: nn.Module, samples, batch_size: int = 256) -> np.ndarray:
-    """(N, 3) predictions in the normalised region frame (x, y, theta); samples: a list or DenseMaps."""
+    """(N, 3) predictions in the normalised region frame (x, y, theta); samples: a list or DenseMaps,
+    on any device (batches go to the model's; samples already there are not copied)."""
     model.eval()
     if is_dense(model) and not isinstance(samples, DenseMaps) and len(samples):
         samples = dense_maps(samples)
-    out = [model(b) for b in batches(samples, batch_size)]
-    return torch.cat(out).numpy() if out else np.zeros((0, 3))
+    device = device_module.model_device(model)
+    out = [model(b.to(device)) for b in batches(samples, batch_size)]
+    return torch.cat(out).cpu().numpy() if out else np.zeros((0, 3))
 
 
 def errors_metres(pred: np.ndarray, samples: list[Data], cfg: FineTrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """Position error (m) and heading error (deg) of normalised predictions."""
-    y = torch.cat([s.y for s in samples]).numpy()
+    y = torch.cat([s.y for s in samples]).cpu().numpy()
     e_m = np.hypot(*(pred[:, :2] - y[:, :2]).T) * cfg.scale_m
     d = pred[:, 2] - y[:, 2]
     e_deg = np.degrees(np.abs(np.arctan2(np.sin(d), np.cos(d))))
@@ -357,5 +487,5 @@ def errors_metres(pred: np.ndarray, samples: list[Data], cfg: FineTrainConfig) -
 
 def to_world(pred: np.ndarray, samples: list[Data], cfg: FineTrainConfig) -> np.ndarray:
     """Normalised predictions back to the scene's metric frame: (N, 3) as x, y (metres), theta."""
-    centre = torch.cat([s.centre for s in samples]).numpy()
+    centre = torch.cat([s.centre for s in samples]).cpu().numpy()
     return np.column_stack([pred[:, :2] * cfg.scale_m + centre, pred[:, 2]])

@@ -5,7 +5,8 @@ The loss is ``Δo + w Δθ``: Euclidean position error in normalised units plus 
 angle (radians). Augmentation: a random rigid roto-translation of the region together with the
 target pose (the query stays in its camera frame), and for depth maps an optional random scale of
 the query. Adam on batches, seeded and deterministic on CPU; the best-on-validation weights are
-kept and saved with :func:`flatlandia.checkpoints.save_checkpoint`.
+kept and saved with :func:`flatlandia.checkpoints.save_checkpoint`. On a GPU (config ``device``)
+the same code runs with the model and both splits moved there once (:func:`train`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints, proposals
+from flatlandia import device as device_module
 from flatlandia.errors import InputError
 from flatlandia.fine import learned
 from flatlandia.pyg import Data
@@ -50,6 +52,9 @@ def augment(batch, cfg: learned.FineTrainConfig, gen: torch.Generator):
         if cfg.map_type == "depth" and cfg.aug_depth_scale > 0
         else None
     )
+    device = batch.y.device  # drawn on the host generator (the same draws on every device), then moved
+    phi, tr, rot = (t.to(device, non_blocking=True) for t in (phi, tr, rot))
+    scale = scale.to(device, non_blocking=True) if scale is not None else None
     y = batch.y.clone()
     y[:, :2] = torch.einsum("bij,bj->bi", rot, y[:, :2]) + tr
     y[:, 2] = torch.atan2(torch.sin(y[:, 2] + phi), torch.cos(y[:, 2] + phi))
@@ -74,16 +79,24 @@ def train(
     log=None,
     progress=None,
     init_state: dict | None = None,
+    device="cpu",
 ) -> dict:
     """Adam on batches; the best-on-validation (median position error) weights are kept.
     ``init_state``: weights to start from (a warm start) instead of the seeded initialisation.
+    ``device``: where it trains (a ``torch.device``, or the config's ``auto`` | ``cpu`` | ``cuda``):
+    the model is built and seeded on the CPU, then it, the padded maps or collated graphs of both
+    splits go there once; a step copies only its batch's row positions there and reads nothing
+    back (the loss is summed there, read once per epoch).
 
-    Returns {'model', 'state_dict', 'config', 'history', 'best_epoch', 'best_val_median_m', 'seconds'}.
+    Returns {'model' (on ``device``), 'state_dict' (on the CPU), 'config', 'history', 'best_epoch',
+    'best_val_median_m', 'seconds'}.
     """
     checkpoints.set_determinism(cfg.seed)
+    dev = device_module.torch_device(device)
     model = learned.build_model(cfg)
     if init_state is not None:
         model.load_state_dict(init_state)
+    model.to(dev)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True)
     sched = (
         torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(cfg.epochs, 1), eta_min=0.01 * cfg.lr)
@@ -94,14 +107,14 @@ def train(
     rng = np.random.default_rng(cfg.seed)
     history, best, best_state, best_epoch = [], float("inf"), None, -1
     t0 = time.perf_counter()
-    data, val_data = train_samples, val_samples
-    if learned.is_dense(model):  # padded once; a batch is a row selection
-        data = learned.dense_maps(train_samples)
-        val_data = learned.dense_maps(val_samples) if val_samples else val_samples
+    # padded (MLPs) or collated (GATs) once and moved once; a batch is a selection of rows
+    split = learned.dense_maps if learned.is_dense(model) else learned.GraphSplit
+    data = split(train_samples).to(dev)
+    val_data = split(val_samples).to(dev) if val_samples else val_samples
     epochs = range(cfg.epochs)
     for ep in progress(epochs) if progress else epochs:
         model.train()
-        tot, n = 0.0, 0
+        tot, n = torch.zeros((), dtype=torch.float64, device=dev), 0  # summed on the device, as float() would
         for batch in learned.batches(data, cfg.batch_size, rng.permutation(len(train_samples))):
             if cfg.augment:
                 batch = augment(batch, cfg, gen)
@@ -109,11 +122,11 @@ def train(
             loss = pose_loss(model(batch), batch.y, cfg.angle_weight)
             loss.backward()
             opt.step()
-            tot += float(loss.detach()) * int(batch.num_graphs)
+            tot += loss.detach().double() * int(batch.num_graphs)
             n += int(batch.num_graphs)
         if sched is not None:
             sched.step()
-        rec = {"epoch": ep, "train_loss": tot / max(n, 1)}
+        rec = {"epoch": ep, "train_loss": tot.item() / max(n, 1)}
         if val_samples and (ep % cfg.eval_every == 0 or ep == cfg.epochs - 1):
             e_m, e_deg = learned.errors_metres(learned.predict(model, val_data), val_samples, cfg)
             rec.update(val_median_m=float(np.median(e_m)), val_median_deg=float(np.median(e_deg)))
@@ -128,7 +141,7 @@ def train(
     model.load_state_dict(best_state)
     return {
         "model": model,
-        "state_dict": best_state,
+        "state_dict": checkpoints.on_cpu(best_state),
         "config": cfg.to_dict(),
         "history": history,
         "best_epoch": best_epoch,
@@ -176,11 +189,13 @@ def train_model(
     log=None,
     progress=None,
     source: str = "benchmark_scenes",
+    device="cpu",
 ) -> tuple[dict, pd.DataFrame, dict]:
     """Rule fine_train: one learned model on every scene's train split (validated on the val split).
 
     Samples from :func:`training_samples`; ``init`` is a checkpoint to start from (a warm start:
-    the GT-BB-trained model of the same model and map type), else the seeded initialisation.
+    the GT-BB-trained model of the same model and map type), else the seeded initialisation;
+    ``device`` as for :func:`train`.
     Returns (:func:`train`'s result, the training history, the history table's metadata). Raises
     :class:`InputError` (naming ``source``) when the scenes hold no training or validation sample.
     """
@@ -208,7 +223,7 @@ def train_model(
         init_state = start.state_dict()
         if log is not None:
             log.info("starting from %s", init)
-    res = train(train_s, val_s, cfg, log=log, progress=progress, init_state=init_state)
+    res = train(train_s, val_s, cfg, log=log, progress=progress, init_state=init_state, device=device)
     meta = {
         "config": cfg.to_dict(),
         "best_epoch": res["best_epoch"],

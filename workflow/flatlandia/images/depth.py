@@ -64,13 +64,15 @@ def upsample(pred, size: tuple[int, int]) -> np.ndarray:
     """A (h, w) prediction resized to ``size`` (kornia, bilinear: stays positive, unlike bicubic)."""
     from kornia.geometry.transform import resize
 
-    return resize(pred, size, interpolation="bilinear", align_corners=False).double().numpy()
+    return resize(pred, size, interpolation="bilinear", align_corners=False).double().cpu().numpy()
 
 
 class MonocularDepth:
     """A local ``transformers`` depth-estimation checkpoint; predictions scaled per image to SfM."""
 
-    def __init__(self, weights: str | Path | None, inverse: bool = True):
+    def __init__(self, weights: str | Path | None, inverse: bool = True, device="cpu"):
+        """``device``: where the model runs (a ``torch.device``, or the config's ``auto`` | ``cpu`` |
+        ``cuda``); it is moved there once, each image's tensors go there and the depth map comes back."""
         if not weights:
             raise InputError(
                 "config images.depth.weights",
@@ -88,7 +90,11 @@ class MonocularDepth:
                 self.weights, f"the transformers depth backend needs `pip install transformers` ({e})"
             ) from e
         # local files only, remote code never trusted, safetensors weights only (see load_local_model)
+        from flatlandia import device as device_module
+
+        self.device = device_module.torch_device(device)
         self.processor, self.model = load_local_model(self.weights, AutoModelForDepthEstimation)
+        self.model.to(self.device)
         self.inverse = inverse
 
     def predict(self, image_path: str | Path, size: tuple[int, int]) -> np.ndarray:
@@ -99,7 +105,7 @@ class MonocularDepth:
         with Image.open(image_path) as im:
             rgb = im.convert("RGB")
         with torch.no_grad():
-            pred = self.model(**self.processor(images=rgb, return_tensors="pt")).predicted_depth
+            pred = self.model(**self.processor(images=rgb, return_tensors="pt").to(self.device)).predicted_depth
         return upsample(pred[0], size)
 
     def scaled_map(self, view: View, image_path: str | Path, point_xyz: dict[int, np.ndarray]) -> np.ndarray:
@@ -119,12 +125,14 @@ def make_lifter(
     images_dir: str | Path | None = None,
     weights: str | None = None,
     inverse: bool = True,
+    device="cpu",
 ) -> Callable[[View, list[float]], np.ndarray | None]:
-    """The ``lift(view, box)`` function of a backend (``sparse`` or ``transformers``)."""
+    """The ``lift(view, box)`` function of a backend (``sparse`` or ``transformers``, its model on
+    ``device``, the config's ``device``)."""
     if backend == "sparse":
         return lambda view, box: sparse_depth_point(view, box, point_xyz)
     if backend == "transformers":
-        model = MonocularDepth(weights, inverse=inverse)
+        model = MonocularDepth(weights, inverse=inverse, device=device)
         cache: dict[str, np.ndarray] = {}
 
         def lift(view: View, box: list[float]) -> np.ndarray | None:

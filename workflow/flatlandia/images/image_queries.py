@@ -241,13 +241,15 @@ def images_scene_queries(
     images: dict,
     seed: int,
     split: dict,
+    device="cpu",
 ) -> tuple[pd.DataFrame, dict]:
     """Rule queries on an images scene -> (query table, its Parquet metadata).
 
     ``rec``: the GPS-aligned SfM model (a ``pycolmap.Reconstruction``); ``alignment``: rule
     gps_alignment's record; ``ref``, ``objects``, ``members``: the scene's reference map, objects
     and point -> object table; ``images``: the config's images section (min_objects, min_points,
-    depth, images_dir). Queries are the registered images that see at least ``min_objects`` of the
+    depth, images_dir); ``device``: where the transformers depth backend runs (config ``device``).
+    Queries are the registered images that see at least ``min_objects`` of the
     reference map's objects (:func:`scene_queries`), indexed by the map's row (``obj_idx``) as the
     published scenes are, split as the published scenes are (config ``seed``, ``split``).
     """
@@ -275,6 +277,7 @@ def images_scene_queries(
         images_dir=images["images_dir"],
         weights=dcfg["weights"],
         inverse=bool(dcfg["inverse"]),
+        device=device,
     )
     q = scene_queries(
         scene,

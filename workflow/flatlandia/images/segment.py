@@ -321,7 +321,9 @@ class PrecomputedBackend(Backend):
 class TransformersBackend(Backend):
     name = "transformers"
 
-    def __init__(self, weights: str | Path | None):
+    def __init__(self, weights: str | Path | None, device="cpu"):
+        """``device``: where the model runs (a ``torch.device``, or the config's ``auto`` | ``cpu``
+        | ``cuda``); it is moved there once, each image's tensors go there and the label map comes back."""
         if not weights:
             raise InputError("config segment.weights", "the transformers backend needs a local checkpoint folder")
         self.weights = Path(weights)
@@ -334,8 +336,12 @@ class TransformersBackend(Backend):
             from transformers import AutoModelForUniversalSegmentation
         except ImportError as e:
             raise InputError(self.weights, f"the transformers backend needs `pip install transformers` ({e})") from e
+        from flatlandia import device as device_module
+
         self.torch = torch
+        self.device = device_module.torch_device(device)
         self.processor, self.model = load_local_model(self.weights, AutoModelForUniversalSegmentation)
+        self.model.to(self.device)
         self.names = vistas_names(self.model.config.id2label)
         if not any("--" in n for n in self.names):
             raise InputError(self.weights, "the checkpoint's classes are not Mapillary Vistas labels")
@@ -343,7 +349,7 @@ class TransformersBackend(Backend):
     def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
         rgb = read_rgb(path)
         with self.torch.no_grad():
-            out = self.model(**self.processor(images=rgb, return_tensors="pt"))
+            out = self.model(**self.processor(images=rgb, return_tensors="pt").to(self.device))
         scores = semantic_scores(out.class_queries_logits[0], out.masks_queries_logits[0])
         return label_map(scores, (rgb.height, rgb.width)), self.names
 
@@ -398,10 +404,12 @@ def label_map(scores, size: tuple[int, int]) -> np.ndarray:
     from kornia.geometry.transform import resize
 
     up = resize(scores, size, interpolation="bilinear", align_corners=False)
-    return up.argmax(0).numpy().astype(np.int32)
+    return up.argmax(0).cpu().numpy().astype(np.int32)
 
 
-def make_backend(name: str, weights: str | None = None, labels_dir: str | None = None) -> Backend:
+def make_backend(name: str, weights: str | None = None, labels_dir: str | None = None, device="cpu") -> Backend:
+    """The backend ``name`` (config ``segment.backend``); ``device`` (config ``device``) is where the
+    transformers model runs: the offline and precomputed backends use no model."""
     if name == "offline":
         return OfflineBackend()
     if name == "precomputed":
@@ -409,7 +417,7 @@ def make_backend(name: str, weights: str | None = None, labels_dir: str | None =
             raise InputError("config segment.labels_dir", "the precomputed backend needs a folder of label images")
         return PrecomputedBackend(labels_dir)
     if name == "transformers":
-        return TransformersBackend(weights)
+        return TransformersBackend(weights, device)
     raise InputError("config segment.backend", f"unknown backend {name!r} (offline, precomputed, transformers)")
 
 

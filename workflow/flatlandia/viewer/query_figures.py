@@ -80,7 +80,7 @@ def draw_query(ax, view: SceneView, q: QueryView, runs: tuple[str, ...], legend:
     ax.set_title(f"query {q.token} ({len(truth)} objects)\n" + "\n".join(errors), fontsize=8)
 
 
-def _gallery_legend(fig, view: SceneView) -> None:
+def _gallery_handles(view: SceneView) -> list:
     """What the colours of a gallery's panels mean (their errors are in their titles)."""
     from matplotlib.lines import Line2D
 
@@ -91,7 +91,7 @@ def _gallery_legend(fig, view: SceneView) -> None:
     for run in (Run.parse(name) for name in view.featured):
         handles.append(Line2D([], [], marker="x", c=run.colour, ls=":", label=f"{run.label}: estimate"))
     handles.append(Line2D([], [], c=WRONG_COLOUR, label="matched to a wrong object"))
-    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.97), ncol=3, fontsize=9, frameon=False)
+    return handles
 
 
 def _frame(ax, pts: np.ndarray, pad: float = 0.15, min_half: float = 12.0) -> None:
@@ -117,7 +117,13 @@ def worst_figure(view: SceneView, n: int = 6):
     worst = worst_queries(view, n)
     cols = max(1, min(3, len(worst)))
     rows = max(1, int(np.ceil(len(worst) / cols)))
-    fig, axes = plt.subplots(rows, cols, figsize=(5.6 * cols, 5.8 * rows + 1.0), squeeze=False)
+    handles = _gallery_handles(view)
+    ncol = 3 if cols > 1 else 1  # a one-panel gallery is too narrow for three legend columns
+    # the title and the legend above the panels, in inches from the top, so that neither touches the
+    # other nor the first row's titles whatever the rows (the panels' own titles are 3 lines)
+    head_in = 0.45 + 0.2 * int(np.ceil(len(handles) / ncol)) + 0.3
+    height = 5.8 * rows + head_in
+    fig, axes = plt.subplots(rows, cols, figsize=(5.6 * cols, height), squeeze=False)
     for ax, q in zip(axes.ravel(), worst):
         draw_query(ax, view, q, view.featured, legend=False)
     for ax in axes.ravel()[len(worst) :]:
@@ -126,9 +132,20 @@ def worst_figure(view: SceneView, n: int = 6):
         axes[0, 0].text(0.5, 0.5, f"scene {view.scene}: no test query localized", ha="center", va="center")
         return fig
     label = Run.parse(view.featured[0]).label
-    fig.suptitle(f"scene {view.scene}: the test queries the {label} run localizes worst", fontsize=12)
-    _gallery_legend(fig, view)
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.9 / (5.8 * rows + 1.0)), h_pad=2.5)
+    title = f"scene {view.scene}: the test queries the {label} run localizes worst"
+    if cols == 1:  # one panel: the title on two lines, as narrow as the panel
+        title = title.replace(": ", ":\n", 1)
+    fig.suptitle(title, fontsize=12, y=1 - 0.1 / height, va="top")
+    fig.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 1 - (0.45 + 0.2 * (cols == 1)) / height),
+        ncol=ncol,
+        fontsize=9,
+        frameon=False,
+    )
+    # rows 5 font sizes apart: the x labels of a row and the 3-line titles of the next did touch
+    fig.tight_layout(rect=(0, 0, 1, 1 - (head_in + 0.2 * (cols == 1)) / height), h_pad=5.0)
     return fig
 
 

@@ -5,6 +5,12 @@
 FETCH_LIMITS = {key: config["fetch"][key] for key in ("max_download_mb", "max_unpacked_mb", "max_members")}
 
 
+def fetch_dest(wildcards, output):
+    """fetch.dest, where the data is unpacked, beside the fetch's flag (FETCH_FLAG: dest's name with
+    .fetched); taken from the flag, as Snakemake asks of a path parameter, so a module's prefix moves both."""
+    return str(Path(output.flag).parent / Path(config["fetch"]["dest"]).name)
+
+
 def reference_map_inputs(wildcards):
     """A published scene's map is built from the published files; an images scene's from its objects."""
     if scene_source(wildcards) == "images":

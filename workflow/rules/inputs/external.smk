@@ -28,3 +28,12 @@ def external_eval_inputs(wildcards):
         loss = wildcards.proposal.split("-", 1)[1]
         inp["coarse"] = f"results/coarse/{loss}/proposals.parquet"
     return inp
+
+
+def external_eval_params(wildcards):
+    """What external_eval reads, and only that: the method's name and proposal, the coarse table's strategy
+    for coarse proposals (an external method is not trained and runs no solver)."""
+    out = {"method": wildcards.method, "proposal": wildcards.proposal}
+    if wildcards.proposal in FINE_COARSE:
+        out["strategy"] = fine_coarse_strategy(wildcards.proposal)
+    return out

@@ -77,19 +77,24 @@ def fine_coarse_strategy(proposal):
 
 
 def fine_eval_params(wildcards):
+    """What rule fine_eval reads for one run, and only that (the provenance record lists these as
+    the run's settings): the coarse table's strategy for coarse proposals; how a learned model was
+    trained (``train_regime``, and ``crop_m`` for coarse training), not for the solver."""
     p = wildcards.proposal
-    strategy = fine_coarse_strategy(p)
-    label = {"gtbb": "GT-BB", "whole": "whole map"}.get(p, f"{FINE_COARSE.get(p, p)} {strategy}")
-    regime = fine_train_regime(p) if wildcards.method not in SOLVER_METHODS else ""  # "": the solver, not trained
-    crop = float(config["fine"]["coarse_training"]["crop_m"]) if regime == "coarse" else 0.0
-    return {
-        "method": wildcards.method,
-        "proposal": p,
-        "strategy": strategy,
-        "strategy_label": label,
-        "train_regime": regime,
-        "crop_m": crop,
-    }
+    out = {"method": wildcards.method, "proposal": p}
+    if p in FINE_COARSE:
+        out["strategy"] = fine_coarse_strategy(p)
+    out["strategy_label"] = {"gtbb": "GT-BB", "whole": "whole map"}.get(p) or f"{FINE_COARSE[p]} {out['strategy']}"
+    if wildcards.method not in SOLVER_METHODS:
+        out["train_regime"] = fine_train_regime(p)
+        if out["train_regime"] == "coarse":
+            out["crop_m"] = float(config["fine"]["coarse_training"]["crop_m"])
+    return out
+
+
+def fine_eval_solver(wildcards):
+    """The solver's settings, for the solver's runs only (a learned model reads none of them)."""
+    return config["solver"] if wildcards.method in SOLVER_METHODS else {}
 
 
 #: the order of ready trainings: the longest first (a clean default run: GAT+ATT 110 s, GAT 85 s,
@@ -110,6 +115,12 @@ def fine_train_runtime(wildcards):
     epochs = fine_train_params(wildcards)["epochs"]
     slow = 2.0 if wildcards.train == "coarse" else 1.0
     return int(math.ceil(epochs * FINE_EPOCH_S[wildcards.model] * slow * 1.5 / 60)) + 10
+
+
+def fine_eval_gpus(wildcards):
+    """GPUs for a fine_eval job with config device: cuda (rules/resources.yaml): 1 for a learned
+    model's run, none for the solver's (no model)."""
+    return 1 if wildcards.method in FINE_MODELS else 0
 
 
 def fine_train_priority(wildcards):

@@ -44,6 +44,12 @@ def sfm_threads():
     return 1 if config["sfm"]["deterministic"] else 2
 
 
+def segment_gpus():
+    """GPUs for segment with config device: cuda (rules/resources.yaml): 1 for the transformers
+    backend, none for the offline and precomputed ones (no model)."""
+    return 1 if config["segment"]["backend"] == "transformers" else 0
+
+
 def segment_mem_mb():
     """Memory for segment (MB): 1000 + 80 per megapixel of images.max_megapixels, the largest image
     the audit lets through (offline backend: 3.4 GB measured for one 49.9 MP photo, 0.7 GB for 8 MP)."""

@@ -2,6 +2,13 @@
 # wants rules and functions in separate files). No lambdas in rules.
 
 
+def queries_gpus(wildcards):
+    """GPUs for a queries job with config device: cuda (rules/resources.yaml): 1 for an images scene
+    whose depth maps come from the transformers backend, none otherwise (no model)."""
+    images = scene_source(wildcards) == "images"
+    return 1 if images and config["images"]["depth"]["backend"] == "transformers" else 0
+
+
 def queries_inputs(wildcards):
     """Published scenes: the recovered published local maps; images scenes: the GPS-aligned SfM
     model and the objects its points belong to."""

@@ -1,0 +1,258 @@
+"""No text over text in any figure the workflow draws, at its saved size: every figure type drawn on
+the tiny scene (training curves, error CDFs, error vs content, the coarse heat map, a query figure,
+the worst-queries gallery, the reference map, the reproduction audit, the SfM summary, the answers' risk-coverage and reliability) is saved as
+its rule saves it, and no two of its visible text boxes overlap (matplotlib's renderer extents, at
+the saved dpi). Fast lane: no published data."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pandas as pd
+import pytest
+from conftest import TINY_ROOT, TINY_SCENE
+
+from flatlandia import config, figures, geo, io
+from flatlandia.classes import CLASSES
+from flatlandia.data import queries, recover, reference_map
+from flatlandia.fine import evaluation
+from flatlandia.viewer import query_figures, scene
+
+#: pixels two boxes may share (antialiasing, a glyph's bearing): less than a stroke
+TOLERANCE_PX = 1.0
+#: a title keeps at least this many pixels from any other text: the worst-queries gallery had its
+#: top row's x labels 2-4 px above the next row's titles, which read as one line (issue 36)
+TITLE_CLEARANCE_PX = 6.0
+
+
+def _drawn_tick_labels(fig) -> tuple[set[int], list]:
+    """(ids of every tick label Text, the tick labels matplotlib draws: those of ticks inside the
+    axis's view; the others exist as Text objects but are never drawn)."""
+    every, drawn = set(), []
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis):
+            lo, hi = sorted(axis.get_view_interval())
+            span = (hi - lo) or 1.0
+            for tick in axis.get_major_ticks() + axis.get_minor_ticks():
+                labels = (tick.label1, tick.label2)
+                every |= {id(t) for t in labels}
+                if ax.get_visible() and lo - 1e-9 * span <= tick.get_loc() <= hi + 1e-9 * span:
+                    drawn += [t for t in labels if t.get_visible() and t.get_text().strip()]
+    return every, drawn
+
+
+def _texts(fig):
+    """The texts a figure draws, non-empty: titles, labels, the tick labels in view, legends, annotations."""
+    from matplotlib.text import Text
+
+    ticks, out = _drawn_tick_labels(fig)
+    for t in fig.findobj(Text):
+        if id(t) in ticks or not t.get_visible() or not t.get_text().strip() or t.get_alpha() == 0:
+            continue
+        ax = t.axes
+        if ax is not None and not ax.get_visible():
+            continue
+        out.append(t)
+    return out
+
+
+def _titles(fig) -> set[int]:
+    """ids of the figure's title and its axes' titles."""
+    out = {id(t) for ax in fig.axes for t in (ax.title, ax._left_title, ax._right_title)}
+    return out | ({id(fig._suptitle)} if fig._suptitle is not None else set())
+
+
+def overlapping_texts(fig, renderer) -> list[tuple[str, str]]:
+    """Pairs of texts whose boxes overlap (a title: that come within TITLE_CLEARANCE_PX of it), as
+    ``renderer`` draws the figure (call it while the figure is drawn for its file: a draw_event, at
+    the saved dpi and layout)."""
+    titles = _titles(fig)
+    boxes = []
+    for t in _texts(fig):
+        try:
+            bb = t.get_window_extent(renderer)
+        except RuntimeError:
+            continue
+        if bb.width > 0 and bb.height > 0 and np.isfinite([bb.x0, bb.y0, bb.x1, bb.y1]).all():
+            boxes.append((t, bb))
+    hits = []
+    for (a, ba), (b, bb) in itertools.combinations(boxes, 2):
+        margin = TITLE_CLEARANCE_PX if id(a) in titles or id(b) in titles else -TOLERANCE_PX
+        if ba.padded(margin / 2).overlaps(bb.padded(margin / 2)):
+            hits.append((a.get_text()[:60], b.get_text()[:60]))
+    return hits
+
+
+@pytest.fixture
+def saved(monkeypatch):
+    """Every figure saved while the test runs: its file name and its overlapping texts, checked right
+    after matplotlib drew it for the file."""
+    from matplotlib.figure import Figure
+
+    out = {}
+    original = Figure.savefig
+
+    def savefig(self, fname, *args, **kwargs):
+        drawn = []  # the texts' boxes of each draw: the last is the file's (a tight box draws twice)
+        cid = self.canvas.mpl_connect("draw_event", lambda e: drawn.append(overlapping_texts(self, e.renderer)))
+        try:
+            original(self, fname, *args, **kwargs)
+        finally:
+            self.canvas.mpl_disconnect(cid)
+        out[str(fname)] = drawn[-1]  # keyed by the atomic writers' temporary name, beside the file
+
+    monkeypatch.setattr(Figure, "savefig", savefig)
+    return out
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    """The tiny scene's reference map and queries, and the solver's runs on its train split (both
+    map types, GT-BB and the whole map) as rule fine_eval's errors tables."""
+    lonlat, classes = io.read_reference_map(
+        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
+    )
+    ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
+    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
+    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
+    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
+    q = queries.build_queries(TINY_SCENE, rec, ref, local, geo.MetricFrame(meta["lon0"], meta["lat0"]), split)
+    errors = {}
+    settings = config.section_defaults("solver")
+    for map_type in ("gt", "depth"):
+        for proposal in ("gtbb", "whole"):
+            e = evaluation.solver_errors([(ref, q)], map_type, proposal, settings, split="train")
+            e["strategy"] = {"gtbb": "GT-BB", "whole": "whole map"}[proposal]
+            errors[f"solver_{map_type}_{proposal}"] = e
+            # a second method, so that panels hold several curves (the MLP's poses: the solver's, moved)
+            errors[f"mlp_{map_type}_{proposal}"] = e.assign(
+                x=e["x"] + 3.0, error_m=e["error_m"] + 3.0, error_deg=e["error_deg"] * 2 + 1, method="MLP"
+            )
+    q = q.assign(split=q["split"].replace({"train": "test"}))  # the figures draw test queries: ten of them
+    return ref, meta, q, errors
+
+
+def _check(saved: dict) -> None:
+    assert saved, "no figure was saved"
+    bad = {name: hits for name, hits in saved.items() if hits}
+    assert not bad, bad
+
+
+def test_fine_figures(tiny, saved, tmp_path):
+    _, _, _, errors = tiny
+    figures.plot_error_cdfs(errors, tmp_path / "fine_error_cdf.png")
+    figures.plot_error_vs_objects(errors, tmp_path / "fine_error_vs_objects.png")
+    _check(saved)
+
+
+def test_query_figures_and_the_worst_queries(tiny, saved, tmp_path):
+    ref, _, q, errors = tiny
+    view = scene.scene_view(TINY_SCENE, ref, q, errors)
+    written = query_figures.write_query_figures(view, tmp_path / "figures")
+    assert len(written) >= 6
+    figures.save(query_figures.worst_figure(view), tmp_path / "worst_queries.png")
+    # galleries of one and of two queries (a scene with few test queries): narrower than the legend
+    for k in (1, 2):
+        few = scene.scene_view(TINY_SCENE, ref, q.assign(split=["test"] * k + ["train"] * (len(q) - k)), errors)
+        figures.save(query_figures.worst_figure(few), tmp_path / f"worst_{k}.png")
+    _check(saved)
+
+
+def test_training_curves_and_heat_map(tiny, saved, tmp_path):
+    ref, _, q, _ = tiny
+    rng = np.random.default_rng(0)
+    epochs = np.arange(1, 41)
+    curves = {
+        label: pd.DataFrame({"epoch": epochs, "train_loss": 1 / epochs, val: np.linspace(0.2, 0.8, 40)})
+        for label, val in (
+            ("coarse Sim", "val_metric"),
+            ("coarse Trip", "val_metric"),
+            ("coarse Sim+Trip", "val_metric"),
+            ("fine MLP, depth", "val_median_m"),
+            ("fine GAT+ATT, depth, coarse proposals", "val_median_m"),
+        )
+    }
+    figures.plot_training_curves(curves, tmp_path / "training_curves.png")
+    r = q.iloc[0]
+    scores = {name: rng.normal(size=len(ref)) for name in ("Sim", "Trip", "Sim+Trip")}
+    positives = np.isin(ref["obj_idx"], r["ref_idx"])
+    figures.plot_score_heatmap(
+        ref,
+        scores,
+        positives,
+        np.array([r["x_m"], r["y_m"]]),
+        r["theta_deg"],
+        tmp_path / "heat.png",
+        f"scene {TINY_SCENE}, query {r['token']}: coarse scores",
+    )
+    _check(saved)
+
+
+def test_map_audit_and_sfm_figures(tiny, saved, tmp_path):
+    from flatlandia.images import sfm
+    from flatlandia.objects import audit
+
+    ref, meta, q, _ = tiny
+    reference_map.plot_reference_map(
+        ref, q, tmp_path / "reference_map.png", f"scene {TINY_SCENE}: {len(ref)} objects, {len(q)} queries"
+    )
+    xy = ref[["x_m", "y_m"]].to_numpy(float)
+    audit.plot_audit(xy + 0.3, xy, tmp_path / "audit.png", f"scene {TINY_SCENE}: ours over the published map")
+    audit.plot_audit_grid([(f"scene {s}", xy + 0.2, xy) for s in range(6)], tmp_path / "audit_grid.png")
+    rng = np.random.default_rng(1)
+    cams = pd.DataFrame(
+        {
+            "name": [f"{k:02d}.jpg" for k in range(12)],
+            "x": np.arange(12.0),
+            "y": rng.normal(0, 0.3, 12),
+            "z": rng.normal(0, 0.1, 12),
+            "lon": 11.0 + np.arange(12) * 1e-5,
+            "lat": 48.0 + rng.normal(0, 1e-6, 12),
+            "heading": np.full(12, 90.0),
+        }
+    )
+    stats = pd.Series({"registered": 12, "images_input": 12, "mean_reprojection_error_px": 0.63})
+    sfm.plot_summary(cams, rng.normal(size=(300, 3)) * [6, 2, 1], stats, tmp_path / "sfm.png", "scene lund: SfM")
+    _check(saved)
+
+
+def test_the_check_finds_text_over_text(saved, tmp_path):
+    """The check itself: two labels written over each other are found."""
+    plt = figures.pyplot()
+    fig, ax = plt.subplots(figsize=(3, 3))
+    ax.text(0.5, 0.5, "one label", transform=ax.transAxes)
+    ax.text(0.52, 0.5, "another label", transform=ax.transAxes)
+    figures.save(fig, tmp_path / "bad.png")
+    ((name, hits),) = saved.items()
+    assert "bad.png" in name and [set(h) for h in hits] == [{"one label", "another label"}]
+
+
+def test_the_answers_risk_coverage_and_reliability_figures(saved, tmp_path):
+    """Rule beyond_table's figures of the answers' probability, with the three maps at 1 and 5 frames
+    (the legend's six entries over the lines' start)."""
+    from flatlandia.beyond import figures as beyond_figures
+
+    rng = np.random.default_rng(1)
+    rows = []
+    for m in ("scene", "city-20", "simulated-100000"):
+        for k in (1, 5):
+            p = rng.random(200)
+            right = rng.random(200) < p
+            rows.append(
+                pd.DataFrame(
+                    {
+                        "map": m,
+                        "frames": k,
+                        "gps_sigma_m": np.nan,
+                        "camera_prior": "on",
+                        "probability": p,
+                        "error_m": np.where(right, 1.0, 900.0),
+                        "error_deg": np.where(right, 1.0, 40.0),
+                    }
+                )
+            )
+    errors = pd.concat(rows, ignore_index=True)
+    beyond_figures.plot_risk_coverage(errors, 0.7, tmp_path / "risk_coverage.png")
+    beyond_figures.plot_reliability(errors, tmp_path / "reliability.png")
+    _check(saved)
