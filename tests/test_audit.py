@@ -54,7 +54,7 @@ def tiny_run(tmp_path_factory):
 
 def test_a_record_holds_the_settings_the_rule_reads_and_the_whole_config_once(tiny_run):
     rec = json.loads((tiny_run / "logs/provenance/recover/scene-0.json").read_text())
-    assert rec["settings"]["tol_m"] == 0.10 and rec["config_hash"] == provenance.config_hash(rec["settings"])
+    assert rec["settings"]["recover.tol_m"] == 0.10 and rec["config_hash"] == provenance.config_hash(rec["settings"])
     stored = provenance.stored_config(rec["config_id"], tiny_run / "logs/provenance/configs")
     assert stored["recover"]["tol_m"] == 0.10 and stored["scenes"] == "config/test/tiny_scenes.tsv"
     assert rec["workflow"]["commit"] and isinstance(rec["workflow"]["dirty"], bool)

@@ -109,9 +109,10 @@ def test_a_changed_input_is_still_flagged_where_it_is_read_again():
 
 
 def test_a_record_lists_only_the_settings_its_rule_read(tmp_path):
-    """The settings of a fine_eval or external_eval record are the run's params (provenance.rule_settings),
-    and they hold only what applies: no coarse strategy for the whole map or GT-BB, no training regime
-    or solver settings where nothing was trained or solved (an external method: its name and proposal)."""
+    """The settings of a fine_eval or external_eval record are the config keys the rule names
+    (config_keys, by their dotted names: provenance.rule_settings), and only those the job reads: no
+    coarse strategy for the whole map or GT-BB, no training regime or solver settings where nothing was
+    trained or solved (an external method on the whole map reads no setting at all)."""
     from conftest import REPO
 
     from flatlandia import debug
@@ -126,16 +127,15 @@ def test_a_record_lists_only_the_settings_its_rule_read(tmp_path):
         return provenance.rule_settings(job)
 
     ext = settings("external_eval", ext_cfg, method="mine", map_type="depth", proposal="whole")
-    assert ext == {"p": {"method": "mine", "proposal": "whole"}}
+    assert ext == {}
     ext = settings("external_eval", ext_cfg, method="mine", map_type="depth", proposal="coarse-sim")
-    assert ext == {"p": {"method": "mine", "proposal": "coarse-sim", "strategy": "2N_LM"}}
+    assert ext == {"fine.coarse_strategy": "2N_LM"}
+    ext = settings("external_eval", ext_cfg, method="mine", map_type="depth", proposal="coarse-solver")
+    assert ext == {"coarse.solver.fine_strategy": "BB"}
     solver = settings("fine_eval", method="solver", map_type="depth", proposal="whole")
-    assert solver["p"] == {"method": "solver", "proposal": "whole", "strategy_label": "whole map"}
-    assert solver["solver"]["top_k"] == 6
+    assert list(solver) == ["solver"] and solver["solver"]["top_k"] == 6
     mlp = settings("fine_eval", method="mlp", map_type="depth", proposal="gtbb")
-    assert mlp == {
-        "p": {"method": "mlp", "proposal": "gtbb", "strategy_label": "GT-BB", "train_regime": "gtbb"},
-        "solver": {},
-    }
-    coarse = settings("fine_eval", method="mlp", map_type="gt", proposal="coarse-sim")["p"]
-    assert coarse["strategy"] == "2N_LM" and coarse["train_regime"] == "coarse" and coarse["crop_m"] > 0
+    assert mlp == {}
+    coarse = settings("fine_eval", method="mlp", map_type="gt", proposal="coarse-sim")
+    assert set(coarse) == {"fine.coarse_strategy", "fine.coarse_training.enabled", "fine.coarse_training.crop_m"}
+    assert coarse["fine.coarse_strategy"] == "2N_LM" and coarse["fine.coarse_training.crop_m"] > 0

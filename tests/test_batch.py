@@ -255,7 +255,7 @@ def test_fixes_per_query(tiny_run, tmp_path, capsys):
         (["--batch", "{run}", "--out", "{tmp}/p.csv", "--map", "{run}/0/maps/reference_map.parquet"], "city index"),
         (["--batch", "{run}", "--out", "{tmp}/p.csv", "--fixes", "{tmp}/none.csv"], "none.csv: missing"),
         (["--map", "{run}/0/maps/reference_map.parquet", "--query", "q.json", "--fixes", "f.csv"], "for --batch"),
-        (["--batch", "{run}", "--out", "{tmp}/p.csv", "--proposal", "box"], "'box' is not one of whole, gtbb"),
+        (["--batch", "{run}", "--out", "{tmp}/p.csv", "--proposal", "box"], "'box' is not one of gtbb, coarse-sim"),
         (
             ["--batch", "{run}", "--out", "{tmp}/p.csv", "--proposal", "coarse-sim"],
             "coarse/sim/proposals.parquet: missing",
@@ -340,16 +340,19 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
         assert exported[["x_m", "y_m"]].equals(pd.read_csv(poses, dtype=TEXT)[["x_m", "y_m"]].astype(float))
 
 
-def test_the_learned_priors_are_those_rule_fine_eval_reads():
-    """batch.priors_file is rules/inputs/solver.smk's solver_priors_file (read from the rule file)."""
+def test_the_learned_priors_are_those_rule_fine_eval_reads(tmp_path):
+    """The learned priors a batch reads for a proposal (paths.proposal_priors) are those of the solver's
+    fine_eval job on that proposal, as Snakemake resolves its input."""
     from conftest import REPO
 
-    text = (REPO / "workflow" / "rules" / "inputs" / "solver.smk").read_text()
-    source = text[text.index("def solver_priors_file(") :]
-    namespace: dict = {}
-    exec(source.split("\n\n\n")[0], namespace)  # the function alone, as the rule file defines it
-    for proposal in batch.PROPOSALS:
-        assert namespace["solver_priors_file"](proposal) == f"results/{batch.priors_file(proposal)}", proposal
+    from flatlandia import debug, paths, vocabulary
+
+    tiny = [REPO / "config" / "test" / "tiny.yaml"]
+    for proposal in (vocabulary.WHOLE, vocabulary.GTBB, "coarse-simtrip"):
+        job = debug.mock_snakemake(
+            "fine_eval", workdir=tmp_path, configfiles=tiny, method="solver", map_type="depth", proposal=proposal
+        )
+        assert job.input.solver_priors == paths.proposal_priors(proposal), proposal
 
 
 def test_a_progress_bar_on_a_terminal_only_and_none_without_tqdm(tiny_run, monkeypatch, capsys):

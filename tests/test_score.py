@@ -436,20 +436,14 @@ def test_config_entries_get_their_defaults_and_names_are_checked():
         score.external_entries([{"name": "mine", "poses": "a"}, {"name": "mine", "poses": "b"}])
 
 
-def test_builtin_names_and_settings_agree_with_the_schema_and_the_rules():
-    """score's lists of built-in methods, settings and coarse labels are those of the schema, the
-    figures, the fine table and rules/inputs/fine.smk (FINE_COARSE)."""
-    import ast
+def test_builtin_names_are_the_vocabularys_in_the_figures_and_the_fine_table():
+    """Every built-in method has its colour in the figures and its label in the fine table, in the
+    vocabulary's order (the schema's enums: tests/test_vocabulary.py)."""
+    from flatlandia import vocabulary
 
-    runs = config.schema()["properties"]["fine"]["properties"]["runs"]["properties"]
-    name = config.schema()["properties"]["external"]["items"]["properties"]["name"]
-    assert score.BUILTIN_METHODS == tuple(runs["methods"]["items"]["enum"]) == tuple(name["not"]["enum"])
-    assert score.BUILTIN_METHODS == tuple(figures.METHOD_COLOURS) == tuple(fine_table.METHOD_LABELS)
-    assert score.PROPOSALS == tuple(runs["proposals"]["items"]["enum"])
-    assert score.MAP_TYPES == tuple(runs["map_types"]["items"]["enum"])
-    text = (REPO / "workflow" / "rules" / "inputs" / "fine.smk").read_text()
-    line = next(ln for ln in text.splitlines() if ln.startswith("FINE_COARSE = "))
-    assert ast.literal_eval(line.split("=", 1)[1].strip()) == score.COARSE_LABELS
+    assert tuple(figures.METHOD_COLOURS) == vocabulary.METHODS == tuple(fine_table.METHOD_LABELS)
+    with pytest.raises(InputError, match="built-in method"):
+        score.check_name("mlp_att")
 
 
 def test_the_fine_table_takes_an_external_row(tiny_results, tiny_scenes, tmp_path):
@@ -546,8 +540,9 @@ def test_dry_run_plans_the_external_runs_beside_the_builtins(repo, tmp_path):
     )
     assert res.returncode == 0, res.stderr[-3000:] + res.stdout[-3000:]
     jobs = res.stdout
-    assert "external_eval" in jobs and "results/fine/mine_gt_whole/errors.parquet" in jobs
-    assert "results/fine/mine_depth_whole/summary.json" in jobs and "fine_train" not in jobs
+    assert "external_eval" in jobs and "results/external/mine_gt_whole/errors.parquet" in jobs
+    assert "results/external/mine_depth_whole/summary.json" in jobs and "fine_train" not in jobs
+    assert "results/fine/mine_" not in jobs  # the built-in runs' tree holds no external run
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump({"external": [{"name": "mine", "poses": "a"}, {"name": "mine", "poses": "b"}]}))
     res = smk_dry_run(repo, tmp_path, "--configfile", tiny, str(bad))
@@ -663,7 +658,7 @@ def test_cli_end_to_end_on_a_workflow_results_folder(external_workflow, tmp_path
     rc, lines = _cli(capsys, wd / "mine.csv", "--name", "theirs", "--out", tmp_path / "out", "--results", res)
     assert rc == 0, lines
     ours = json.loads((tmp_path / "out" / "theirs_depth_whole" / "summary.json").read_text())
-    workflow = json.loads((res / "fine" / "mine_depth_whole" / "summary.json").read_text())
+    workflow = json.loads((res / "external" / "mine_depth_whole" / "summary.json").read_text())
     same = {k for k in workflow if k not in ("method", "method_slug", "run", "poses")}
     assert {k: ours[k] for k in same} == {k: workflow[k] for k in same}
     md = (tmp_path / "out" / "scores.md").read_text()
@@ -680,5 +675,5 @@ def test_an_edited_poses_file_rescores_its_runs(external_workflow, repo):
     assert res.returncode == 0, res.stderr[-3000:]
     planned = res.stdout + res.stderr
     # the edited method's run is planned again, the other method's is not (its files are only inputs of the table)
-    assert "output: results/fine/mine_depth_whole/errors.parquet" in planned
-    assert "output: results/fine/noisy_gt_whole/errors.parquet" not in planned
+    assert "output: results/external/mine_depth_whole/errors.parquet" in planned
+    assert "output: results/external/noisy_gt_whole/errors.parquet" not in planned

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import localize, validate
+from flatlandia import localize, paths, validate, vocabulary
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
@@ -38,18 +38,9 @@ from flatlandia.errors import InputError
 POSE_COLUMNS = ["scene", "token", "x_m", "y_m", "theta_deg", "map_type", "proposal", "seconds"]
 EXTRA_COLUMNS = ["found", "confidence", "located_scene", "reason"]
 #: the proposal a batch searches by default: the whole map (the score's setting ``whole``); the
-#: others are the map regions of rule fine_eval (``gtbb``, the oracle box; ``coarse-*``, a coarse
-#: stage's proposals), searched row for row as it searches them
-PROPOSAL = "whole"
-PROPOSALS = ("whole", "gtbb", "coarse-sim", "coarse-trip", "coarse-simtrip", "coarse-solver")
-
-
-def priors_file(proposal: str) -> str:
-    """The learned priors (rule solver_priors) a depth-map run on ``proposal`` reads, relative to the
-    results folder, as rule fine_eval reads them (rules/inputs/solver.smk, solver_priors_file): a
-    verifier learned on the whole map or the GT-BB box, the scale prior alone on coarse proposals."""
-    region = proposal if proposal in ("whole", "gtbb") else "scale"
-    return f"solver/priors/{region}.json"
+#: others (vocabulary.PROPOSALS) are the map regions of rule fine_eval (``gtbb``, the oracle box;
+#: ``coarse-*``, a coarse stage's proposals), searched row for row as it searches them
+PROPOSAL = vocabulary.WHOLE
 
 
 #: the columns of a fixes file (a phone's fix per query); the compass pair is optional
@@ -84,8 +75,8 @@ class Source:
         from flatlandia import score
 
         strategy = None
-        if proposal in score.COARSE_LABELS:
-            table = self.root / "tables" / "fine_localization.parquet" if self.kind == "results" else None
+        if proposal in vocabulary.COARSE_PROPOSALS:
+            table = paths.within(self.root, paths.table("fine_localization")) if self.kind == "results" else None
             builtin = pd.read_parquet(table) if table is not None and table.is_file() else None
             strategy = score.builtin_setting(builtin, proposal) or score.default_strategy(proposal)
         if self.kind == "results":
@@ -95,9 +86,9 @@ class Source:
         props = props[
             (props["source"] == proposal)
             & (props["map_type"] == map_type)
-            & (props["strategy"] == (strategy or "GT-BB"))
+            & (props["strategy"] == (strategy or vocabulary.ORACLE_STRATEGY))
         ]
-        if proposal != "gtbb" and not len(props):
+        if proposal != vocabulary.GTBB and not len(props):
             raise InputError(
                 path, f"no {proposal} proposals ({strategy}, {map_type}): the export was written without them"
             )
@@ -112,13 +103,13 @@ class Source:
     def scene_map(self, scene: str, learned, settings=None, proposal: str = PROPOSAL) -> localize.ObjectMap:
         """The scene's map with what the source gives the solver: a run's reference_map.parquet with
         its training cameras and learned priors (``learned`` "auto": those rule fine_eval reads for
-        ``proposal``, :func:`priors_file`); an export's reference_map.geojson with the cameras of its
+        ``proposal``, paths.proposal_priors); an export's reference_map.geojson with the cameras of its
         ground_truth.csv's train split (learned priors only where ``learned`` names a file)."""
         if self.kind == "results":
             if learned == "auto":
-                learned = self.root / priors_file(proposal)
+                learned = paths.within(self.root, paths.proposal_priors(proposal))
                 learned = learned if learned.is_file() else None
-            return localize.load_map(self.root / scene / "maps" / "reference_map.parquet", settings, learned)
+            return localize.load_map(paths.within(self.root, paths.reference_map(scene)), settings, learned)
         folder = self.root / scene
         m = localize.load_map(folder / "reference_map.geojson", settings, None if learned == "auto" else learned)
         localize.set_training_priors(m, _export_training(folder / "ground_truth.csv"), folder / "ground_truth.csv")
@@ -166,7 +157,7 @@ def _read_csv(path: Path, columns: list[str]) -> pd.DataFrame:
 def _results_queries(results: Path, scene: str, split: str, map_type: str) -> list[localize.Query]:
     from flatlandia.data import localmaps
 
-    path = results / scene / "queries" / "queries.parquet"
+    path = paths.within(results, paths.queries(scene))
     if not path.is_file():
         raise InputError(path, "missing: run the workflow first (`snakemake --cores 2 benchmark`)")
     q = pd.read_parquet(path)
@@ -182,11 +173,11 @@ def _results_proposals(
 ) -> dict[str, list[int]]:
     from flatlandia import proposals
 
-    ref = pd.read_parquet(results / scene / "maps" / "reference_map.parquet")
-    q = pd.read_parquet(results / scene / "queries" / "queries.parquet")
+    ref = pd.read_parquet(paths.within(results, paths.reference_map(scene)))
+    q = pd.read_parquet(paths.within(results, paths.queries(scene)))
     coarse = None
-    if proposal not in ("gtbb", "whole"):
-        path = results / "coarse" / proposal.split("-", 1)[1] / "proposals.parquet"
+    if vocabulary.coarse_source(proposal):
+        path = paths.within(results, paths.proposal_table(proposal))
         if not path.is_file():
             raise InputError(path, f"missing: the {proposal} proposals (`snakemake --cores 2 {path}`)")
         coarse = pd.read_parquet(path)
@@ -328,10 +319,10 @@ def localize_batch(
     scene map, no fixes), searched as rule fine_eval searches it."""
     if split not in SPLITS:
         raise InputError("--split", f"{split!r} is not one of {', '.join(SPLITS)}")
-    if map_type not in localize.MAP_TYPES:
-        raise InputError("--map-type", f"{map_type!r} is not one of {', '.join(localize.MAP_TYPES)}")
-    if proposal not in PROPOSALS:
-        raise InputError("--proposal", f"{proposal!r} is not one of {', '.join(PROPOSALS)}")
+    if map_type not in vocabulary.MAP_TYPES:
+        raise InputError("--map-type", f"{map_type!r} is not one of {', '.join(vocabulary.MAP_TYPES)}")
+    if proposal not in vocabulary.PROPOSALS:
+        raise InputError("--proposal", f"{proposal!r} is not one of {', '.join(vocabulary.PROPOSALS)}")
     if proposal != PROPOSAL and (city is not None or fixes):
         raise InputError("--proposal", "a proposal is searched on each scene's map: not with a city index or fixes")
     src = source if isinstance(source, Source) else open_source(source)
@@ -352,7 +343,7 @@ def localize_batch(
     if src.kind == "export" and learned == "auto" and map_type == "depth":
         notes.append(
             "an export holds no learned priors: depth maps are solved without the scale prior and verifier of the "
-            f"workflow's run (give --priors results/{priors_file(proposal)} for the benchmark's solver)"
+            f"workflow's run (give --priors {paths.proposal_priors(proposal)} for the benchmark's solver)"
         )
     total = sum(len(q) for _, q in work)
     bar = _terminal_progress(total, "localize") if progress else None

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import __version__, config, io, provenance, release
+from flatlandia import __version__, config, io, provenance, release, vocabulary
 from flatlandia.errors import InputError
 
 
@@ -439,9 +439,9 @@ def main(argv: list[str] | None = None) -> int:
     lq.add_argument("--split", default="test", choices=["train", "val", "test"], help="with --batch (default: test)")
     lq.add_argument(
         "--proposal",
-        default="whole",
-        help="with --batch: the map region each query searches: whole (default), gtbb (the oracle box) or "
-        "coarse-sim, coarse-trip, coarse-simtrip, coarse-solver (a coarse stage's proposals), as rule fine_eval",
+        default=vocabulary.WHOLE,
+        help=f"with --batch: the map region each query searches: {vocabulary.WHOLE} (default), {vocabulary.GTBB} (the "
+        f"oracle box) or {', '.join(vocabulary.COARSE_PROPOSALS)} (a coarse stage's proposals), as rule fine_eval",
     )
     lq.add_argument(
         "--fixes",

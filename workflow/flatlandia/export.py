@@ -19,17 +19,18 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, geo, proposals
+from flatlandia import escape, geo, proposals, vocabulary
 from flatlandia.classes import CLASSES
 from flatlandia.data import localmaps
 from flatlandia.errors import InputError
 
-MAP_TYPES = ["gt", "depth"]
-#: every proposal source, in the order of proposals.csv: the oracle box, then the coarse stages
-COARSE_SOURCES = ["coarse-sim", "coarse-trip", "coarse-simtrip", "coarse-solver"]
-SOURCES = ["gtbb", *COARSE_SOURCES]
+MAP_TYPES = list(vocabulary.MAP_TYPES)
+#: every proposal source, in the order of proposals.csv: the oracle box, then the coarse stages (the
+#: whole map needs no file: reference_map.csv)
+COARSE_SOURCES = list(vocabulary.COARSE_PROPOSALS)
+SOURCES = [vocabulary.GTBB, *COARSE_SOURCES]
 #: strategies in the order of proposals.csv (a coarse model writes N_LM, 2N_LM, R_30; the solver also BB)
-STRATEGIES = ["GT-BB", "N_LM", "2N_LM", "R_30", "BB"]
+STRATEGIES = list(vocabulary.STRATEGIES)
 SPLITS = ["train", "val", "test"]
 
 REFERENCE_COLUMNS = ["obj_idx", "class_id", "class", "lon", "lat", "x_m", "y_m"]
@@ -326,7 +327,7 @@ def proposals_table(ref: pd.DataFrame, queries: pd.DataFrame, coarse: dict[str, 
     if unknown:
         raise ValueError(f"unknown proposal sources {unknown}; known: {COARSE_SOURCES}")
     scene = str(ref["scene"].iloc[0])
-    parts = [_proposal_rows(proposals.gtbb_proposals(ref, queries), "gtbb", MAP_TYPES)]
+    parts = [_proposal_rows(proposals.gtbb_proposals(ref, queries), vocabulary.GTBB, MAP_TYPES)]
     for source in COARSE_SOURCES:
         if source not in coarse:
             continue
@@ -453,7 +454,7 @@ def index_export(scenes: list[dict], sources: list[str]) -> dict:
     if unknown:
         raise ValueError(f"unknown proposal sources {unknown}; known: {COARSE_SOURCES}")
     table = scenes_table(scenes)
-    present = ["gtbb", *[s for s in COARSE_SOURCES if s in sources]]
+    present = [vocabulary.GTBB, *[s for s in COARSE_SOURCES if s in sources]]
     absent = [s for s in COARSE_SOURCES if s not in sources]
     return {
         "readme": readme_text(table, present, absent),

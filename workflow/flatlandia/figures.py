@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, paper
+from flatlandia import escape, paper, vocabulary
 from flatlandia.io import atomic_path
 
 
@@ -81,7 +81,7 @@ def plot_training_curves(curves: dict[str, pd.DataFrame], path: str | Path) -> N
 
 # ----------------------------------------------------------------------------- fine runs, styled alike
 
-#: one colour per method, the same in every figure and in the map viewer
+#: one colour per method (vocabulary.METHODS), the same in every figure and in the map viewer
 METHOD_COLOURS = {
     "solver": "#000000",
     "solver-noprior": "#7f7f7f",
@@ -92,16 +92,9 @@ METHOD_COLOURS = {
 }
 #: the methods' names as the paper writes them (its tables' keys); ``solver-noprior`` is the solver
 #: without the training split's cameras (config solver.camera_prior off for that run)
-METHOD_LABELS = {
-    "solver": "solver",
-    "solver-noprior": "solver, no camera prior",
-    "mlp": "MLP",
-    "mlp_att": "MLP+ATT",
-    "gat": "GAT",
-    "gat_att": "GAT+ATT",
-}
+METHOD_LABELS = vocabulary.METHOD_SHORT_LABELS
 #: the geometric solver's methods: no training, matches per object
-SOLVER_METHODS = ("solver", "solver-noprior")
+SOLVER_METHODS = vocabulary.SOLVER_METHODS
 #: colours of external methods (config ``external``, ``flatlandia score``), none of the built-ins', the
 #: truth's, the wrong match's or the splits': picked by a hash of the name, so a method keeps its colour
 #: in every figure and viewer whatever else is shown (two of many externals may share one)
@@ -110,7 +103,7 @@ EXTERNAL_COLOURS = ("#17becf", "#e377c2", "#bcbd22", "#01665e", "#e6ab02")
 
 def is_builtin(method: str) -> bool:
     """One of the benchmark's own methods (else an external one, scored from its poses)."""
-    return method in METHOD_COLOURS
+    return vocabulary.is_builtin(method)
 
 
 def method_colour(method: str) -> str:
@@ -128,22 +121,15 @@ def method_label(method: str) -> str:
 def method_order(methods) -> list[str]:
     """Methods in legend order: the built-ins in :data:`METHOD_COLOURS` order, then the external ones by name."""
     methods = set(methods)
-    return [m for m in METHOD_COLOURS if m in methods] + sorted(m for m in methods if not is_builtin(m))
+    return [m for m in vocabulary.METHODS if m in methods] + sorted(m for m in methods if not is_builtin(m))
 
 
 #: one line style per local-map type (matplotlib, and the viewer's SVG dash pattern)
 MAP_TYPE_STYLES = {"gt": "-", "depth": "--"}
 MAP_TYPE_DASHES = {"gt": "", "depth": "6 3"}
-MAP_TYPE_LABELS = {"gt": "GT local map", "depth": "depth local map"}
+MAP_TYPE_LABELS = vocabulary.MAP_TYPE_LABELS
 #: proposal settings in panel order
-PROPOSAL_LABELS = {
-    "gtbb": "GT-BB proposals",
-    "coarse-sim": "coarse proposals (Sim)",
-    "coarse-trip": "coarse proposals (Trip)",
-    "coarse-simtrip": "coarse proposals (Sim+Trip)",
-    "coarse-solver": "coarse proposals (solver)",
-    "whole": "whole reference map",
-}
+PROPOSAL_LABELS = {slug: p.figure_label for slug, p in vocabulary.PROPOSALS.items()}
 #: the colour of the true pose in the query figures and the viewer
 TRUTH_COLOUR = "#00b050"
 
@@ -160,15 +146,14 @@ class Run:
 
     @classmethod
     def parse(cls, name: str) -> Run:
-        method, map_type, proposal = name.rsplit("_", 2)
-        return cls(name, method, map_type, proposal)
+        return cls(name, *vocabulary.split_run(name))
 
     def sort_key(self) -> tuple:
         """Panel order: proposal setting (one unknown here last, by name), method (the built-ins in
         their order, then external methods by name), local-map type."""
         known = list(PROPOSAL_LABELS)
         rank = known.index(self.proposal) if self.proposal in known else len(known)
-        builtin = list(METHOD_COLOURS)
+        builtin = list(vocabulary.METHODS)
         return (
             rank,
             self.proposal,
@@ -208,7 +193,7 @@ def paper_median(run: Run, strategy: str) -> tuple[float, float] | None:
     if run.external:
         return None
     model = METHOD_LABELS[run.method]
-    if run.proposal == "gtbb" and (model, run.map_type) in paper.TABLE4:
+    if run.proposal == vocabulary.GTBB and (model, run.map_type) in paper.TABLE4:
         return paper.TABLE4[(model, run.map_type)][4:6]
     key = (model, "Sim+Trip", run.map_type)
     if run.proposal == "coarse-simtrip" and "2N_LM" in strategy and key in paper.TABLE5:

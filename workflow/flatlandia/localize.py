@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from flatlandia import validate
+from flatlandia import paths, validate, vocabulary
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
@@ -65,7 +65,7 @@ if TYPE_CHECKING:  # the solver loads numba (2 s): only a loaded map needs it
     from flatlandia.city.index import ViewIndex
     from flatlandia.city.search import SearchConfig
 
-MAP_TYPES = ("gt", "depth")
+MAP_TYPES = vocabulary.MAP_TYPES
 #: fewest objects a query needs (a 2-point fit and one object to check it)
 MIN_OBJECTS = 3
 #: next-best distinct poses returned by default
@@ -308,15 +308,16 @@ class ObjectMap:
         }
 
 
-def _workflow_paths(path: Path) -> tuple[str | None, Path | None, Path | None]:
-    """(scene, queries, learned priors) of a workflow map ``results/{scene}/maps/reference_map.*``
-    (None each where the path is not one or the file is missing)."""
-    if not (path.stem == "reference_map" and path.parent.name == "maps"):
-        return None, None, None
-    scene, results = path.parent.parent.name, path.parent.parent.parent
-    queries = results / scene / "queries" / "queries.parquet"
-    learned = results / "solver" / "priors" / "whole.json"
-    return scene, queries if queries.is_file() else None, learned if learned.is_file() else None
+def _workflow_paths(path: Path) -> tuple[Path | None, str | None, Path | None, Path | None]:
+    """(results folder, scene, queries, learned priors) of a workflow map ``results/{scene}/maps/
+    reference_map.*`` (paths.reference_map; None each where the path is not one or the file is missing)."""
+    found = paths.locate(path, paths.reference_map, ext=path.suffix[1:])
+    if found is None:
+        return None, None, None, None
+    results, scene = found[0], found[1]["scene"]
+    queries = paths.within(results, paths.queries(scene))
+    learned = paths.within(results, paths.solver_priors(vocabulary.WHOLE))
+    return results, scene, queries if queries.is_file() else None, learned if learned.is_file() else None
 
 
 def _transformers(lon0: float, lat0: float):
@@ -467,7 +468,7 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
         frame = f"transverse Mercator at lon {lon0:.7f}, lat {lat0:.7f} (x east, y north, metres)"
     if not np.isfinite(xy).all():
         raise InputError(path, "some objects have no finite position")
-    scene, queries_path, learned_auto = _workflow_paths(path)
+    results, scene, queries_path, learned_auto = _workflow_paths(path)
     settings = solver.SolverConfig.of(settings)
     m = ObjectMap(path, "scene", obj, cls, xy, lonlat, settings, frame, to_lonlat, to_xy, scene=scene)
     m.learned_path = learned_auto if learned == "auto" else (Path(learned) if learned else None)
@@ -482,7 +483,7 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
             raise InputError(queries_path, f"not a readable Parquet file ({type(e).__name__}: {e})") from None
     set_training_priors(m, training, queries_path)
     if scene is not None:
-        m.cities = scene_cities(path.parent.parent.parent)
+        m.cities = scene_cities(results)
     return m
 
 
@@ -491,7 +492,7 @@ def scene_cities(results: Path) -> dict:
     (rule dataset_stats; empty where it is missing or unreadable: the answers then give no city)."""
     import pandas as pd
 
-    table = Path(results) / "tables" / "dataset_stats_per_scene.parquet"
+    table = paths.within(results, paths.BENCHMARK_RECORD)
     try:
         t = pd.read_parquet(table, columns=["scene", "city"])
     except Exception:  # missing, or not the table: a city name is a courtesy, not needed for a pose
@@ -545,7 +546,7 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
     m.cameras = len(ix.cam)
     m.queries_path = path
     city_dir = path.parent.parent
-    auto = city_dir.parent.parent / "solver" / "priors" / "whole.json"
+    auto = paths.within(city_dir.parent.parent, paths.solver_priors(vocabulary.WHOLE))
     m.learned_path = (auto if auto.is_file() else None) if learned == "auto" else (Path(learned) if learned else None)
     m.learned = solver.LearnedPriors.read(m.learned_path) if m.learned_path else None
     table = city_dir / "map.parquet"

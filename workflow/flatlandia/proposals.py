@@ -172,6 +172,16 @@ def training_proposals(
     return out
 
 
+def training_settings(train: dict, override: dict, coarse_training: dict, regime: str) -> dict:
+    """A learned model's training settings (rule fine_train): config fine.train updated by its model's
+    fine.train_overrides (e.g. fewer epochs for the slower GATs), and when it trains on simulated
+    coarse proposals (``regime`` coarse) by fine.coarse_training.epochs, when set."""
+    out = {**train, **override}
+    if regime == "coarse" and coarse_training["epochs"]:
+        out["epochs"] = coarse_training["epochs"]
+    return out
+
+
 def training_label(regime: str, crop_m: float = 0.0) -> str:
     """How a learned model was trained, for the tables: '' (solver), 'GT-BB' or 'simulated coarse ...'."""
     if not regime:

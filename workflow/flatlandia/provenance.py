@@ -3,7 +3,8 @@
 Every rule script run through :func:`flatlandia.runlog.run` leaves a provenance record in
 ``logs/provenance/{rule}/{wildcards}.json``: the rule and its wildcards; its inputs with their
 sha256 (their own producing rules are found from the other records); the settings the rule reads
-(its resolved ``params``: the config values that reach it) with their hash, so the same artifact
+(its resolved ``params``: the config keys it names, ``config_keys(...)`` in rules/common.smk, by
+their dotted names, and the values it derives from the scene sheet) with their hash, so the same artifact
 built by ``all`` or by ``maps --config select=[...]`` carries the same hash; the id of the whole
 resolved config, stored once per id in ``logs/provenance/configs/{id}.json``; the commit of the
 workflow folder that ran, whether it had uncommitted changes and which files; the scene sheet's
@@ -93,10 +94,16 @@ def config_hash(config: dict) -> str:
 
 
 def rule_settings(smk) -> dict:
-    """The settings a rule reads: its resolved params by name (what reaches the script from the config)."""
+    """The settings a rule reads: its resolved params by name (what reaches the script from the config;
+    a config key by its dotted name, ``solver.top_k``), without the keys this job does not read (a
+    ``config_keys(..., reads=...)`` param that is {} for it)."""
     params = smk.params
     names = list(params.keys()) if hasattr(params, "keys") else []
-    return {name: _plain(params[name]) for name in names}
+    return {name: _plain(params[name]) for name in names if not _unread(params[name])}
+
+
+def _unread(value) -> bool:
+    return (isinstance(value, dict) or hasattr(value, "items")) and not len(value)
 
 
 def store_config(config: dict, folder: Path = CONFIGS_DIR) -> str:

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, geo, io, paper, validate
+from flatlandia import escape, geo, io, paper, paths, validate, vocabulary
 from flatlandia import proposals as proposals_module
 from flatlandia.errors import InputError
 from flatlandia.fine import evaluation
@@ -39,16 +39,11 @@ KEYS = ("scene", "token")
 METRIC = ("x_m", "y_m", "theta_deg")
 GEOGRAPHIC = ("lon", "lat", "heading_deg")
 FORMS = {"metric": METRIC, "geographic": GEOGRAPHIC}
-#: a row's setting, and its value when the file has no such column
+#: a row's setting (its values: flatlandia.vocabulary), and its value when the file has no such column
 DEFAULT_MAP_TYPE = "depth"
-DEFAULT_PROPOSAL = "whole"
-MAP_TYPES = ("gt", "depth")
-PROPOSALS = ("gtbb", "whole", "coarse-sim", "coarse-trip", "coarse-simtrip", "coarse-solver")
-#: the coarse proposals' names in the tables (as rules/inputs/fine.smk's FINE_COARSE)
-COARSE_LABELS = {"coarse-sim": "Sim", "coarse-trip": "Trip", "coarse-simtrip": "Sim+Trip", "coarse-solver": "Solver"}
-#: the built-in methods' slugs (rule fine_eval): an external method's name is none of them
-BUILTIN_METHODS = ("solver", "solver-noprior", "mlp", "mlp_att", "gat", "gat_att")
-#: an external method's name: a plain lowercase id (it becomes results/fine/{name}_{map_type}_{proposal}/)
+DEFAULT_PROPOSAL = vocabulary.WHOLE
+#: an external method's name: a plain lowercase id that is no built-in method's slug
+#: (vocabulary.METHODS; it becomes results/external/{name}_{map_type}_{proposal}/, paths.external_run)
 NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,39}$")
 #: offending values a message lists
 SHOW = 5
@@ -70,8 +65,10 @@ def check_name(name: str, source: str = "--name") -> str:
             source,
             f"name {name!r} is refused: a method name is a lowercase letter, then letters, digits or '_' (at most 40)",
         )
-    if name in BUILTIN_METHODS:
-        raise InputError(source, f"name {name!r} is a built-in method's ({', '.join(BUILTIN_METHODS)}): pick another")
+    if vocabulary.is_builtin(name):
+        raise InputError(
+            source, f"name {name!r} is a built-in method's ({', '.join(vocabulary.METHODS)}): pick another"
+        )
     return name
 
 
@@ -118,8 +115,9 @@ def read_scene(reference_map: str | Path, queries: str | Path) -> BenchmarkScene
     return BenchmarkScene(scene, ref, q, frame)
 
 
-#: the record of the scenes the benchmark in a results folder was built on (common.smk reads it too)
-BENCHMARK_RECORD = "tables/dataset_stats_per_scene.parquet"
+#: the record of the scenes the benchmark in a results folder was built on, in that folder
+#: (paths.BENCHMARK_RECORD; common.smk reads it too)
+BENCHMARK_RECORD = str(paths.within("", paths.BENCHMARK_RECORD))
 
 
 def results_scenes(results: str | Path) -> dict[str, BenchmarkScene]:
@@ -133,7 +131,7 @@ def results_scenes(results: str | Path) -> dict[str, BenchmarkScene]:
         )
     ids = [str(s) for s in pd.read_parquet(record, columns=["scene"])["scene"]]
     return {
-        s: read_scene(results / s / "maps" / "reference_map.parquet", results / s / "queries" / "queries.parquet")
+        s: read_scene(paths.within(results, paths.reference_map(s)), paths.within(results, paths.queries(s)))
         for s in ids
     }
 
@@ -358,7 +356,10 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
         return f"{_where(kind, i)} (scene {_short(scene[i])}, token {_short(token[i])})"
 
     setting = {}
-    for name, known, default in (("map_type", MAP_TYPES, DEFAULT_MAP_TYPE), ("proposal", PROPOSALS, DEFAULT_PROPOSAL)):
+    for name, known, default in (
+        ("map_type", vocabulary.MAP_TYPES, DEFAULT_MAP_TYPE),
+        ("proposal", tuple(vocabulary.PROPOSALS), DEFAULT_PROPOSAL),
+    ):
         if name not in cols:
             setting[name] = [default] * n
             continue
@@ -485,15 +486,6 @@ def to_metric(table: pd.DataFrame, form: str, scenes: dict[str, BenchmarkScene],
 # ----------------------------------------------------------------------------- scoring
 
 
-def strategy_label(proposal: str, strategy: str | None) -> str:
-    """The strategy label the tables show for a proposal setting (as rule fine_eval writes it)."""
-    if proposal == "gtbb":
-        return "GT-BB"
-    if proposal == "whole":
-        return "whole map"
-    return f"{COARSE_LABELS.get(proposal, proposal)} {strategy}"
-
-
 def errors_table(
     poses: Poses,
     scenes: dict[str, BenchmarkScene],
@@ -514,7 +506,7 @@ def errors_table(
             index=False
         )
     }
-    label = strategy_label(proposal, strategy)
+    label = vocabulary.strategy_label(proposal, strategy)
     rows = []
     for b in scenes.values():
         ref, q = b.ref, b.queries
@@ -569,7 +561,7 @@ def run_summary(
         method_slug=name,
         map_type=map_type,
         proposal=proposal,
-        strategy=strategy_label(proposal, strategy),
+        strategy=vocabulary.strategy_label(proposal, strategy),
         run=f"{name}_{map_type}_{proposal}",
         ref_map_kb=float(np.mean([evaluation.ref_map_kb(b.ref) for b in scenes.values()])) if scenes else float("nan"),
         train_s=0.0,
@@ -889,21 +881,21 @@ def plausibility(poses: Poses, scenes: dict[str, BenchmarkScene], min_poses: int
 def builtin_setting(table: pd.DataFrame | None, proposal: str) -> str | None:
     """The coarse strategy of the built-in runs of ``proposal`` in a fine table (its label is
     '{loss label} {strategy}'), None where the table has none."""
-    if table is None or proposal not in COARSE_LABELS:
+    if table is None or proposal not in vocabulary.COARSE_PROPOSALS:
         return None
     rows = table[table["proposal"] == proposal]
-    prefix = COARSE_LABELS[proposal] + " "
+    prefix = vocabulary.COARSE_PROPOSALS[proposal] + " "
     labels = [s for s in rows["strategy"].astype(str) if s.startswith(prefix)]
     return labels[0][len(prefix) :] if labels else None
 
 
-def default_strategy(proposal: str) -> str:
-    """The default config's strategy of a coarse proposal table (fine.coarse_strategy;
-    coarse.solver.fine_strategy for the solver's proposals), as rule fine_eval picks it."""
+def default_strategy(proposal: str) -> str | None:
+    """The default config's strategy of a coarse proposal table, picked by the key rule fine_eval
+    reads for it (vocabulary.coarse_strategy: fine.coarse_strategy, or coarse.solver.fine_strategy
+    for the solver's proposals); None for a map region."""
     from flatlandia import config
 
-    d = config.section_defaults()
-    return d["coarse"]["solver"]["fine_strategy"] if proposal == "coarse-solver" else d["fine"]["coarse_strategy"]
+    return vocabulary.coarse_strategy(proposal, config.section_defaults())
 
 
 @dataclass
@@ -922,7 +914,7 @@ def score_file(path: str | Path, name: str, results: str | Path, split: str = "t
     results = Path(results)
     scenes = results_scenes(results)
     poses = read_poses(path, scenes, split)
-    table_path = results / "tables" / "fine_localization.parquet"
+    table_path = paths.within(results, paths.table("fine_localization"))
     builtin = pd.read_parquet(table_path) if table_path.exists() else None
     notes = list(poses.notes)
     if builtin is None:
@@ -930,8 +922,8 @@ def score_file(path: str | Path, name: str, results: str | Path, split: str = "t
     runs = []
     for map_type, proposal in poses.settings():
         coarse = strategy = None
-        if proposal in COARSE_LABELS:
-            coarse_path = results / "coarse" / proposal.split("-", 1)[1] / "proposals.parquet"
+        if vocabulary.coarse_source(proposal):
+            coarse_path = paths.within(results, paths.proposal_table(proposal))
             if not coarse_path.exists():
                 raise InputError(
                     coarse_path, f"missing: the {proposal} proposals are needed to score {map_type}/{proposal}"

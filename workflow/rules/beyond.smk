@@ -13,8 +13,8 @@ rule beyond_scene:
     input:
         unpack(beyond_scene_inputs),
     output:
-        errors="results/beyond/scene/errors_{prior}.parquet",
-        summary="results/beyond/scene/summary_{prior}.json",
+        errors=paths.beyond_scene(part="errors"),
+        summary=paths.beyond_scene(),
     log:
         "logs/beyond_scene/{prior}.log",
     benchmark:
@@ -27,10 +27,8 @@ rule beyond_scene:
     resources:
         **rule_resources("beyond_scene"),
     params:
-        scenes=benchmark_scenes(),
-        seed=config["seed"],
-        solver=config["solver"],
-        beyond=BEYOND_PROTOCOL,
+        **config_keys("seed", "solver", "beyond", exclude=BEYOND_CITIES),
+        scene_ids=benchmark_scenes(),
     script:
         "../scripts/beyond_scene.py"
 
@@ -39,8 +37,8 @@ rule beyond_city:
     input:
         unpack(beyond_city_inputs),
     output:
-        errors="results/beyond/{map}/errors.parquet",
-        summary="results/beyond/{map}/summary.json",
+        errors=paths.beyond_city(part="errors.parquet"),
+        summary=paths.beyond_city(),
     log:
         "logs/beyond_city/{map}.log",
     benchmark:
@@ -53,13 +51,10 @@ rule beyond_city:
     resources:
         **rule_resources("beyond_city"),
     params:
-        scenes=benchmark_scenes(),
-        seed=config["seed"],
-        solver=config["solver"],
-        search=config["city"]["search"],
-        simulate=config["city"]["simulate"],
-        spacing_m=config["city"]["spacing_m"],
-        beyond=BEYOND_PROTOCOL,
+        **config_keys(
+            "seed", "solver", "city.search", "city.simulate", "city.spacing_m", "beyond", exclude=BEYOND_CITIES
+        ),
+        scene_ids=benchmark_scenes(),
     script:
         "../scripts/beyond_city.py"
 
@@ -69,15 +64,15 @@ rule beyond_table:
         summaries=beyond_summaries,
         errors=beyond_errors,
     output:
-        parquet="results/tables/beyond_{part}.parquet",
-        markdown="results/tables/beyond_{part}.md",
+        parquet=paths.table("beyond_{part}"),
+        markdown=paths.table("beyond_{part}", "md"),
         risk_coverage=report(
-            "results/figures/beyond_{part}_risk_coverage.png",
+            paths.figure("beyond_{part}_risk_coverage.png"),
             caption="../report/risk_coverage.rst",
             category="Knowing when it is right",
         ),
         reliability=report(
-            "results/figures/beyond_{part}_reliability.png",
+            paths.figure("beyond_{part}_reliability.png"),
             caption="../report/reliability.rst",
             category="Knowing when it is right",
         ),
@@ -91,8 +86,6 @@ rule beyond_table:
     resources:
         **rule_resources("beyond_table"),
     params:
-        split=config["beyond"]["split"],
-        beyond=BEYOND_PROTOCOL,
-        threshold=config["solver"]["answer_probability"],
+        **config_keys("beyond.split", "beyond", "solver.answer_probability", exclude=BEYOND_CITIES),
     script:
         "../scripts/beyond_table.py"

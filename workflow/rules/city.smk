@@ -10,8 +10,8 @@ rule city_maps:
     input:
         unpack(city_scene_inputs),
     output:
-        map="results/city/{n}/map.parquet",
-        queries="results/city/{n}/queries.parquet",
+        map=paths.city(),
+        queries=paths.city(part="queries.parquet"),
     log:
         "logs/city_maps/{n}.log",
     wildcard_constraints:
@@ -22,18 +22,18 @@ rule city_maps:
     resources:
         **rule_resources("city_maps"),
     params:
-        scenes=benchmark_scenes(),
-        spacing_m=config["city"]["spacing_m"],
+        **config_keys("city.spacing_m"),
+        scene_ids=benchmark_scenes(),
     script:
         "../scripts/city_maps.py"
 
 
 rule city_index:
     input:
-        map="results/city/{n}/map.parquet",
-        queries="results/city/{n}/queries.parquet",
+        map=paths.city(),
+        queries=paths.city(part="queries.parquet"),
     output:
-        index=directory("results/city/{n}/index"),
+        index=directory(paths.city(part="index")),
     log:
         "logs/city_index/{n}.log",
     wildcard_constraints:
@@ -51,24 +51,22 @@ rule city_eval:
     input:
         unpack(city_eval_inputs),
     output:
-        errors="results/city/{n}/errors_{method}.parquet",
-        summary="results/city/{n}/summary_{method}.json",
+        errors=paths.city_result(part="errors"),
+        summary=paths.city_result(),
     log:
         "logs/city_eval/{n}_{method}.log",
     benchmark:
         "logs/benchmarks/city_eval/{n}_{method}.tsv"
     wildcard_constraints:
         n="[0-9]+",
-        method="|".join(CITY_METHODS),
+        method="|".join(vocabulary.CITY_METHODS),
     conda:
         "../envs/flatlandia.yaml"
     threads: rule_threads("city_eval")
     resources:
         **rule_resources("city_eval"),
     params:
-        solver=config["solver"],
-        split=config["city"]["split"],
-        search=config["city"]["search"],
+        **config_keys("solver", "city.split", "city.search"),
     script:
         "../scripts/city_eval.py"
 
@@ -76,10 +74,10 @@ rule city_eval:
 rule city_simulate:
     input:
         unpack(city_scene_inputs),
-        priors="results/solver/priors/whole.json",
+        priors=paths.solver_priors(vocabulary.WHOLE),
     output:
-        errors="results/city/simulated/{objects}/errors.parquet",
-        summary="results/city/simulated/{objects}/summary.json",
+        errors=paths.simulated_city(part="errors.parquet"),
+        summary=paths.simulated_city(),
     log:
         "logs/city_simulate/{objects}.log",
     benchmark:
@@ -92,13 +90,8 @@ rule city_simulate:
     resources:
         **rule_resources("city_simulate"),
     params:
-        scenes=benchmark_scenes(),
-        seed=config["seed"],
-        spacing_m=config["city"]["spacing_m"],
-        split=config["city"]["split"],
-        solver=config["solver"],
-        search=config["city"]["search"],
-        simulate=config["city"]["simulate"],
+        **config_keys("seed", "city.spacing_m", "city.split", "solver", "city.search", "city.simulate"),
+        scene_ids=benchmark_scenes(),
     script:
         "../scripts/city_simulate.py"
 
@@ -107,8 +100,8 @@ rule city_table:
     input:
         summaries=city_summaries(),
     output:
-        parquet="results/tables/city_scale.parquet",
-        markdown="results/tables/city_scale.md",
+        parquet=paths.table("city_scale"),
+        markdown=paths.table("city_scale", "md"),
     log:
         "logs/city_table/all.log",
     conda:
@@ -117,7 +110,6 @@ rule city_table:
     resources:
         **rule_resources("city_table"),
     params:
-        split=config["city"]["split"],
-        spacing_m=config["city"]["spacing_m"],
+        **config_keys("city.split", "city.spacing_m"),
     script:
         "../scripts/city_table.py"

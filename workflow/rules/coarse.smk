@@ -10,10 +10,10 @@ include: "inputs/coarse.smk"
 
 rule coarse_target:
     input:
-        reference_map="results/{scene}/maps/reference_map.parquet",
-        queries="results/{scene}/queries/queries.parquet",
+        reference_map=paths.reference_map(),
+        queries=paths.queries(),
     output:
-        similarity="results/{scene}/coarse/target.parquet",
+        similarity=paths.coarse_target(),
     log:
         "logs/coarse_target/{scene}.log",
     benchmark:
@@ -24,25 +24,25 @@ rule coarse_target:
     resources:
         **rule_resources("coarse_target"),
     params:
-        similarity=config["coarse"]["similarity"],
+        **config_keys("coarse.similarity"),
     script:
         "../scripts/coarse_target.py"
 
 
 rule coarse_train:
     input:
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
-        similarity=per_scene("results/{scene}/coarse/target.parquet", benchmark_scenes()),
+        reference_maps=per_scene(paths.reference_map(), benchmark_scenes()),
+        queries=per_scene(paths.queries(), benchmark_scenes()),
+        similarity=per_scene(paths.coarse_target(), benchmark_scenes()),
     output:
-        model="results/coarse/{loss}/model.pt",
-        history="results/coarse/{loss}/training.parquet",
+        model=paths.coarse_model(),
+        history=paths.coarse_training(),
     log:
         "logs/coarse_train/{loss}.log",
     benchmark:
         "logs/benchmarks/coarse_train/{loss}.tsv"
     wildcard_constraints:
-        loss="|".join(COARSE_LOSSES),
+        loss="|".join(vocabulary.COARSE_LOSSES),
     priority: 1
     conda:
         "../envs/flatlandia.yaml"
@@ -50,18 +50,18 @@ rule coarse_train:
     resources:
         **rule_resources("coarse_train"),
     params:
-        train=COARSE_TRAIN,
+        **config_keys("coarse.train", "coarse.seed_offset", "seed"),
     script:
         "../scripts/coarse_train.py"
 
 
 rule coarse_solver:
     input:
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
-        solver_priors="results/solver/priors/scale.json",
+        reference_maps=per_scene(paths.reference_map(), benchmark_scenes()),
+        queries=per_scene(paths.queries(), benchmark_scenes()),
+        solver_priors=paths.solver_priors("scale"),
     output:
-        proposals="results/coarse/solver/proposals.parquet",
+        proposals=paths.coarse_proposals("solver"),
     log:
         "logs/coarse_solver/all.log",
     benchmark:
@@ -72,25 +72,24 @@ rule coarse_solver:
     resources:
         **rule_resources("coarse_solver"),
     params:
-        proposals=config["coarse"]["solver"],
-        solver=config["solver"],
+        **config_keys("coarse.solver", "solver"),
     script:
         "../scripts/coarse_solver.py"
 
 
 rule coarse_eval:
     input:
-        models=expand("results/coarse/{loss}/model.pt", loss=coarse_losses()),
-        solver="results/coarse/solver/proposals.parquet",
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
-        similarity=per_scene("results/{scene}/coarse/target.parquet", benchmark_scenes()),
+        models=[paths.coarse_model(loss) for loss in coarse_losses()],
+        solver=paths.coarse_proposals("solver"),
+        reference_maps=per_scene(paths.reference_map(), benchmark_scenes()),
+        queries=per_scene(paths.queries(), benchmark_scenes()),
+        similarity=per_scene(paths.coarse_target(), benchmark_scenes()),
     output:
-        proposals=expand("results/coarse/{loss}/proposals.parquet", loss=coarse_losses()),
-        table="results/tables/coarse_localization.parquet",
-        markdown="results/tables/coarse_localization.md",
-        rows_markdown="results/tables/coarse_localization_rows.md",
-        latex="results/tables/coarse_localization.tex",
+        proposals=[paths.coarse_proposals(loss) for loss in coarse_losses()],
+        table=paths.table("coarse_localization"),
+        markdown=paths.table("coarse_localization", "md"),
+        rows_markdown=paths.table("coarse_localization_rows", "md"),
+        latex=paths.table("coarse_localization", "tex"),
     log:
         "logs/coarse_eval/all.log",
     benchmark:
@@ -101,7 +100,6 @@ rule coarse_eval:
     resources:
         **rule_resources("coarse_eval"),
     params:
-        losses=coarse_losses(),
-        seed=COARSE_SEED,
+        **config_keys("coarse.losses", "coarse.seed_offset", "seed"),
     script:
         "../scripts/coarse_eval.py"

@@ -11,7 +11,7 @@ from snakemake.utils import validate
 
 from flatlandia import config as config_schema
 from flatlandia import device as device_check
-from flatlandia import runlock, scheduler
+from flatlandia import paths, runlock, scheduler, vocabulary
 from flatlandia.data.fetch import FetchError, check_dest
 
 # A lock of this folder left by a killed run is removed before this run locks, when provably stale
@@ -33,6 +33,47 @@ except config_schema.ConfigError as err:
     sys.exit(f"ERROR: config: {err}")
 config.clear()
 config.update(RESOLVED_CONFIG)
+
+
+def config_keys(*keys, exclude=(), reads=None):
+    """The config keys a rule reads, as its params, named by their dotted keys (PyPSA-Eur's
+    config_provider): `params: **config_keys("solver", "city.split")` gives the params "solver" and
+    "city.split", which the script reads as `snakemake.params["city.split"]` and `flatlandia audit`
+    lists as the rule's settings. A key names a value or a whole section (read whole by a settings
+    class); a part in braces is a wildcard of the job ("fine.train_overrides.{model}": its model's
+    entry); `exclude` leaves keys of a section out (its value without them); `reads(wildcards)`, when
+    given, is the set of the keys one job reads: the others are {} for that job (not read, and left
+    out of its provenance record), so a setting reruns only the jobs that read it."""
+    out = {}
+    for key in keys:
+        known = key.split(".{", 1)[0]  # the part without wildcards must exist now
+        try:
+            value = vocabulary.config_value(config, known)
+        except (KeyError, TypeError):
+            raise WorkflowError(f"config_keys: the config has no key {known!r}") from None
+        if known != key:
+            value = _key_of_job(key)
+        drop = [e.rsplit(".", 1)[1] for e in exclude if e.rsplit(".", 1)[0] == key]
+        out[key] = {k: v for k, v in value.items() if k not in drop} if drop else value
+    if reads is None:
+        return out
+    return {key: _read_by(reads, key, value) for key, value in out.items()}
+
+
+def _key_of_job(key):
+    def param(wildcards):
+        return vocabulary.config_value(config, key.format(**wildcards))
+
+    return param
+
+
+def _read_by(reads, key, value):
+    def param(wildcards):
+        if key not in reads(wildcards):
+            return {}
+        return value(wildcards) if callable(value) else value
+
+    return param
 
 
 def jobs_run_here():
@@ -124,7 +165,7 @@ def benchmark_scenes():
     return [s for s in scenes_named("benchmark_scenes") if SCENES_SHEET.loc[s, "source"] == "flatlandia"]
 
 
-def check_benchmark_folder(record="results/tables/dataset_stats_per_scene.parquet"):
+def check_benchmark_folder(record=paths.BENCHMARK_RECORD):
     """Stop before any job when benchmark_scenes differs from the set the results here were built
     on: the models, tables and label transfer would be overwritten. A benchmark on other scenes
     (e.g. a subset) is a named run in a folder of its own."""
@@ -135,7 +176,7 @@ def check_benchmark_folder(record="results/tables/dataset_stats_per_scene.parque
     if built != wanted:
         sys.exit(
             f"ERROR: config: benchmark_scenes {wanted} differs from the scenes {built} that the benchmark in "
-            f"results/ was built on ({record}): models and tables of another scene set go in a folder of their "
+            f"{paths.RESULTS}/ was built on ({record}): models and tables of another scene set go in a folder of their "
             "own, named by you: snakemake -d runs/<name> ... (or remove results/tables to rebuild here)"
         )
 
@@ -170,8 +211,8 @@ def scene_source(wildcards):
 
 wildcard_constraints:
     scene="|".join(map(str, SCENES_SHEET["scene"])),
-    map_type="gt|depth",
-    proposal="gtbb|whole|coarse-sim|coarse-trip|coarse-simtrip|coarse-solver",
+    map_type="|".join(vocabulary.MAP_TYPES),
+    proposal="|".join(vocabulary.PROPOSALS),
 
 
 # ---------------------------------------------------------------- data root
@@ -221,39 +262,42 @@ def scene_city(wildcards):
 def map_products():
     """Per-scene maps of the selected scenes (the `maps` target): reference maps, queries with their
     local maps, objects; for images scenes the audit-to-map chain. No training, no shared tables."""
+    published, images, clouds = published_scenes(), images_scenes(), class_cloud_scenes()
     return (
-        per_scene("results/{scene}/maps/reference_map.parquet")
-        + per_scene("results/{scene}/maps/reference_map.geojson")
-        + per_scene("results/{scene}/maps/reference_map.png")
-        + per_scene("results/{scene}/queries/queries.parquet")
-        + per_scene("results/{scene}/sfm/classified_points.parquet", images_scenes())
-        + per_scene("results/{scene}/sfm/sfm_summary.png", images_scenes())
-        + per_scene("results/{scene}/sfm/gps_alignment.json", images_scenes())
-        + per_scene("results/{scene}/objects/objects.ply", images_scenes())
-        + per_scene("results/{scene}/maps/reference_map.geojson", images_scenes())
-        + per_scene("results/{scene}/maps/reference_map.png", images_scenes())
-        + per_scene("results/{scene}/queries/queries.parquet", images_scenes())
-        + per_scene("results/{scene}/objects/objects.parquet", class_cloud_scenes())
-        + per_scene("results/{scene}/objects/objects.ply", class_cloud_scenes())
-        + per_scene("results/{scene}/objects/principal_plane.json", class_cloud_scenes())
+        [paths.reference_map(s, ext) for ext in ("parquet", "geojson", "png") for s in published]
+        + [paths.queries(s) for s in published]
+        + [paths.classified_points(s) for s in images]
+        + [paths.sfm(s, "sfm_summary.png") for s in images]
+        + [paths.gps_alignment(s) for s in images]
+        + [paths.objects(s, "ply") for s in images]
+        + [paths.reference_map(s, ext) for ext in ("geojson", "png") for s in images]
+        + [paths.queries(s) for s in images]
+        + [paths.objects(s, ext) for ext in ("parquet", "ply") for s in clouds]
+        + [paths.principal_plane(s) for s in clouds]
     )
+
+
+#: the result tables of `benchmark` (the others are parts of a rule's outputs beside these)
+BENCHMARK_TABLES = [
+    paths.table("dataset_stats"),
+    paths.table("dataset_stats", "md"),
+    paths.table("recovery"),
+    paths.table("availability"),
+    paths.table("fine_localization"),
+    paths.table("fine_localization", "md"),
+    paths.table("coarse_localization"),
+    paths.table("coarse_localization", "md"),
+]
 
 
 def benchmark_products():
     """The dataset tables, the models and the localization tables (the `benchmark` target), and the
     selected images scenes localized by the benchmark's methods."""
     return (
-        [
-            "results/tables/dataset_stats.parquet",
-            "results/tables/dataset_stats.md",
-            "results/tables/recovery.parquet",
-            "results/tables/availability.parquet",
-        ]
-        + ["results/tables/fine_localization.parquet", "results/tables/fine_localization.md"]
-        + ["results/tables/coarse_localization.parquet", "results/tables/coarse_localization.md"]
+        BENCHMARK_TABLES
         + beyond_products()
-        + (["results/tables/reference_map_reproduction.parquet"] if class_cloud_scenes(benchmark_scenes()) else [])
-        + per_scene("results/{scene}/localization/localization.parquet", localization_scenes())
+        + ([paths.table("reference_map_reproduction")] if class_cloud_scenes(benchmark_scenes()) else [])
+        + [paths.scene_localization(s) for s in localization_scenes()]
     )
 
 
@@ -263,7 +307,7 @@ def products_of_the_run():
 
 
 def all_targets():
-    return products_of_the_run() + report_figures() + scene_viewers() + ["results/manifest.parquet"]
+    return products_of_the_run() + report_figures() + scene_viewers() + [paths.manifest()]
 
 
 # before any job: never overwrite a benchmark built on other scenes

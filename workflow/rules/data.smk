@@ -14,13 +14,10 @@ if FLAT_FETCH:
         conda:
             "../envs/flatlandia.yaml"
         params:
+            **config_keys("fetch", exclude=["fetch.dest"]),
             dest=fetch_dest,
             data_folder=str(FLAT_ROOT_GIVEN),
-            url=config["fetch"]["url"],
-            sha256=config["fetch"]["sha256"],
-            timeout_s=config["fetch"]["timeout_s"],
-            limits=FETCH_LIMITS,
-            scenes=str(config_path(config["scenes"])),
+            scene_sheet=str(config_path(config["scenes"])),
         script:
             "../scripts/fetch_flatlandia.py"
 
@@ -29,7 +26,7 @@ rule ingest:
     input:
         unpack(scene_data_inputs),
     output:
-        report="results/{scene}/ingest/ingest.json",
+        report=paths.ingest(),
     log:
         "logs/ingest/{scene}.log",
     conda:
@@ -38,8 +35,8 @@ rule ingest:
     resources:
         **rule_resources("ingest"),
     params:
+        **config_keys("ingest.verify_sha256"),
         root=str(FLAT_ROOT),
-        verify_sha256=config["ingest"]["verify_sha256"],
     script:
         "../scripts/ingest.py"
 
@@ -48,8 +45,8 @@ rule reference_map:
     input:
         unpack(reference_map_inputs),
     output:
-        parquet="results/{scene}/maps/reference_map.parquet",
-        geojson="results/{scene}/maps/reference_map.geojson",
+        parquet=paths.reference_map(),
+        geojson=paths.reference_map(ext="geojson"),
     log:
         "logs/reference_map/{scene}.log",
     conda:

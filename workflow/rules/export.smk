@@ -11,14 +11,14 @@ rule export_scene:
     input:
         unpack(export_scene_inputs),
     output:
-        reference_map="results/export/{scene}/reference_map.csv",
-        reference_geojson="results/export/{scene}/reference_map.geojson",
-        frame="results/export/{scene}/frame.json",
-        queries="results/export/{scene}/queries.csv",
-        local_maps="results/export/{scene}/local_maps.csv",
-        proposals="results/export/{scene}/proposals.csv",
-        ground_truth="results/export/{scene}/ground_truth.csv",
-        query_cameras="results/export/{scene}/query_cameras.geojson",
+        reference_map=paths.export("reference_map.csv", "{scene}"),
+        reference_geojson=paths.export("reference_map.geojson", "{scene}"),
+        frame=paths.export("frame.json", "{scene}"),
+        queries=paths.export("queries.csv", "{scene}"),
+        local_maps=paths.export("local_maps.csv", "{scene}"),
+        proposals=paths.export("proposals.csv", "{scene}"),
+        ground_truth=paths.export("ground_truth.csv", "{scene}"),
+        query_cameras=paths.export("query_cameras.geojson", "{scene}"),
     log:
         "logs/export_scene/{scene}.log",
     conda:
@@ -36,10 +36,10 @@ rule export_index:
     input:
         unpack(export_index_inputs),
     output:
-        readme="results/export/README.md",
-        classes="results/export/classes.csv",
-        scenes="results/export/scenes.csv",
-        template="results/export/poses_template.csv",
+        readme=paths.export("README.md"),
+        classes=paths.export("classes.csv"),
+        scenes=paths.export("scenes.csv"),
+        template=paths.export("poses_template.csv"),
     log:
         "logs/export_index/all.log",
     conda:
@@ -48,7 +48,7 @@ rule export_index:
     resources:
         **rule_resources("export_index"),
     params:
-        scenes=benchmark_scenes(),
+        scene_ids=benchmark_scenes(),
         cities=benchmark_cities(),
         sources=export_present_sources,
     script:

@@ -1,7 +1,8 @@
 # External methods (config `external`): a method's own poses of the test queries, scored with the
 # functions of rule fine_eval (flatlandia.score), so that its runs {name}_{map_type}_{proposal} sit in
 # the fine table, the error figures, the query figures and the viewers beside the built-in methods
-# (fine_runs() lists them). The poses file is an input: editing it rescores the runs.
+# (fine_runs() lists them; paths.run_file finds their files). Their tree is their own,
+# results/external/{name}_{map_type}_{proposal}/. The poses file is an input: editing it rescores the runs.
 
 
 include: "inputs/external.smk"
@@ -11,20 +12,18 @@ rule external_eval:
     input:
         unpack(external_eval_inputs),
     output:
-        errors="results/fine/{method}_{map_type}_{proposal}/errors.parquet",
-        summary="results/fine/{method}_{map_type}_{proposal}/summary.json",
+        errors=paths.external_run(),
+        summary=paths.external_run(part="summary.json"),
     log:
         "logs/external_eval/{method}_{map_type}_{proposal}.log",
     wildcard_constraints:
         method=external_method_pattern(),
-        map_type="gt|depth",
-        proposal="gtbb|whole|" + "|".join(FINE_COARSE),
     conda:
         "../envs/flatlandia.yaml"
     threads: rule_threads("external_eval")
     resources:
         **rule_resources("external_eval"),
     params:
-        p=external_eval_params,
+        **config_keys("fine.coarse_strategy", "coarse.solver.fine_strategy", reads=strategy_reads),
     script:
         "../scripts/external_eval.py"

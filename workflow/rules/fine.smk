@@ -12,16 +12,15 @@ rule fine_train:
     input:
         unpack(fine_train_inputs),
     output:
-        checkpoint="results/fine/models/{model}_{map_type}_{train}/checkpoint.pt",
-        history="results/fine/models/{model}_{map_type}_{train}/history.parquet",
+        checkpoint=paths.fine_model(),
+        history=paths.fine_model(part="history.parquet"),
     log:
         "logs/fine_train/{model}_{map_type}_{train}.log",
     benchmark:
         "logs/benchmarks/fine_train/{model}_{map_type}_{train}.tsv"
     wildcard_constraints:
-        model="|".join(FINE_MODELS),
-        map_type="gt|depth",
-        train="gtbb|coarse",
+        model="|".join(vocabulary.LEARNED_METHODS),
+        train="|".join(vocabulary.TRAIN_REGIMES),
     priority: fine_train_priority
     conda:
         "../envs/flatlandia.yaml"
@@ -29,9 +28,8 @@ rule fine_train:
     resources:
         **rule_resources("fine_train"),
     params:
+        **config_keys("fine.train", "fine.train_overrides.{model}", "fine.coarse_training"),
         model=fine_model_name,
-        train=fine_train_params,
-        coarse_training=config["fine"]["coarse_training"],
     script:
         "../scripts/fine_train.py"
 
@@ -40,39 +38,43 @@ rule fine_eval:
     input:
         unpack(fine_eval_inputs),
     output:
-        errors="results/fine/{method}_{map_type}_{proposal}/errors.parquet",
-        summary="results/fine/{method}_{map_type}_{proposal}/summary.json",
+        errors=paths.fine_run(),
+        summary=paths.fine_run(part="summary.json"),
     log:
         "logs/fine_eval/{method}_{map_type}_{proposal}.log",
     benchmark:
         "logs/benchmarks/fine_eval/{method}_{map_type}_{proposal}.tsv"
     wildcard_constraints:
-        method="solver|solver-noprior|" + "|".join(FINE_MODELS),
-        map_type="gt|depth",
-        proposal="gtbb|whole|" + "|".join(FINE_COARSE),
+        method="|".join(vocabulary.METHODS),
     conda:
         "../envs/flatlandia.yaml"
     threads: rule_threads("fine_eval")
     resources:
         **rule_resources("fine_eval"),
     params:
-        p=fine_eval_params,
-        solver=fine_eval_solver,
+        **config_keys(
+            "solver",
+            "fine.coarse_strategy",
+            "coarse.solver.fine_strategy",
+            "fine.coarse_training.enabled",
+            "fine.coarse_training.crop_m",
+            reads=fine_eval_reads,
+        ),
     script:
         "../scripts/fine_eval.py"
 
 
 rule fine_table:
     input:
-        summaries=expand("results/fine/{run}/summary.json", run=fine_runs()),
-        errors=expand("results/fine/{run}/errors.parquet", run=fine_runs()),
+        summaries=run_files(fine_runs(), "summary.json"),
+        errors=run_files(fine_runs(), "errors.parquet"),
     output:
-        parquet="results/tables/fine_localization.parquet",
-        per_scene="results/tables/fine_per_scene.parquet",
-        per_scene_markdown="results/tables/fine_per_scene.md",
-        markdown="results/tables/fine_localization.md",
-        rows_markdown="results/tables/fine_localization_rows.md",
-        latex="results/tables/fine_localization.tex",
+        parquet=paths.table("fine_localization"),
+        per_scene=paths.table("fine_per_scene"),
+        per_scene_markdown=paths.table("fine_per_scene", "md"),
+        markdown=paths.table("fine_localization", "md"),
+        rows_markdown=paths.table("fine_localization_rows", "md"),
+        latex=paths.table("fine_localization", "tex"),
     log:
         "logs/fine_table/all.log",
     benchmark:
@@ -90,8 +92,8 @@ rule scene_localization:
     input:
         unpack(scene_localization_inputs),
     output:
-        parquet="results/{scene}/localization/localization.parquet",
-        markdown="results/{scene}/localization/localization.md",
+        parquet=paths.scene_localization(),
+        markdown=paths.scene_localization(ext="md"),
     log:
         "logs/scene_localization/{scene}.log",
     benchmark:
@@ -102,7 +104,6 @@ rule scene_localization:
     resources:
         **rule_resources("scene_localization"),
     params:
-        map_types=config["fine"]["runs"]["map_types"],
-        solver=config["solver"],
+        **config_keys("fine.runs.map_types", "solver"),
     script:
         "../scripts/scene_localization.py"

@@ -17,9 +17,8 @@ rule fetch_images:
     resources:
         **rule_resources("fetch_images"),
     params:
+        **config_keys("fetch", exclude=["fetch.url", "fetch.sha256", "fetch.dest"]),
         source=images_fetch_params,
-        timeout_s=config["fetch"]["timeout_s"],
-        limits=FETCH_LIMITS,
     script:
         "../scripts/fetch_images.py"
 
@@ -28,7 +27,7 @@ rule image_audit:
     input:
         images=images_dir,
     output:
-        table="results/{scene}/images/images.parquet",
+        table=paths.image_table(),
     log:
         "logs/image_audit/{scene}.log",
     conda:
@@ -37,11 +36,13 @@ rule image_audit:
     resources:
         **rule_resources("image_audit"),
     params:
-        dedup_threshold=config["images"]["dedup_threshold"],
-        min_side_px=config["images"]["min_side_px"],
-        max_megapixels=config["images"]["max_megapixels"],
-        missing_gps=config["images"]["missing_gps"],
-        align_mode=config["images"]["align"]["mode"],
+        **config_keys(
+            "images.dedup_threshold",
+            "images.min_side_px",
+            "images.max_megapixels",
+            "images.missing_gps",
+            "images.align.mode",
+        ),
         folder_fingerprint=images_folder_fingerprint,
     script:
         "../scripts/image_audit.py"
@@ -50,11 +51,11 @@ rule image_audit:
 rule segment:
     input:
         images=images_dir,
-        table="results/{scene}/images/images.parquet",
+        table=paths.image_table(),
     output:
-        masks=directory("results/{scene}/segment/masks"),
-        classes=directory("results/{scene}/segment/classes"),
-        stats="results/{scene}/segment/segment_stats.parquet",
+        masks=directory(paths.segment(part="masks")),
+        classes=directory(paths.segment(part="classes")),
+        stats=paths.segment(part="segment_stats.parquet"),
     log:
         "logs/segment/{scene}.log",
     benchmark:
@@ -66,11 +67,13 @@ rule segment:
     resources:
         **rule_resources("segment"),
     params:
-        backend=config["segment"]["backend"],
-        weights=config["segment"]["weights"],
-        labels_dir=config["segment"]["labels_dir"],
-        watermark_box=config["segment"]["watermark_box"],
-        dilate_px=config["segment"]["dilate_px"],
+        **config_keys(
+            "segment.backend",
+            "segment.weights",
+            "segment.labels_dir",
+            "segment.watermark_box",
+            "segment.dilate_px",
+        ),
     script:
         "../scripts/segment.py"
 
@@ -78,12 +81,12 @@ rule segment:
 rule sfm:
     input:
         images=images_dir,
-        table="results/{scene}/images/images.parquet",
-        masks="results/{scene}/segment/masks",
+        table=paths.image_table(),
+        masks=paths.segment(part="masks"),
     output:
-        model=directory("results/{scene}/sfm/model"),
-        stats="results/{scene}/sfm/sfm_stats.parquet",
-        cameras="results/{scene}/sfm/cameras.parquet",
+        model=directory(paths.sfm(part="model")),
+        stats=paths.sfm(part="sfm_stats.parquet"),
+        cameras=paths.sfm(part="cameras.parquet"),
     log:
         "logs/sfm/{scene}.log",
     benchmark:
@@ -95,20 +98,19 @@ rule sfm:
     resources:
         **rule_resources("sfm"),
     params:
-        options=config["sfm"],
-        seed=config["seed"],
+        **config_keys("sfm", "seed"),
     script:
         "../scripts/sfm.py"
 
 
 rule classify_points:
     input:
-        model="results/{scene}/sfm/model",
-        classes="results/{scene}/segment/classes",
+        model=paths.sfm(part="model"),
+        classes=paths.segment(part="classes"),
     output:
-        points="results/{scene}/sfm/classified_points.parquet",
-        ply="results/{scene}/sfm/classified_points.ply",
-        instances="results/{scene}/sfm/point_instances.parquet",
+        points=paths.classified_points(),
+        ply=paths.classified_points(ext="ply"),
+        instances=paths.point_instances(),
     log:
         "logs/classify_points/{scene}.log",
     benchmark:
@@ -119,19 +121,19 @@ rule classify_points:
     resources:
         **rule_resources("classify_points"),
     params:
-        instances_dir=config["segment"]["instances_dir"],
+        **config_keys("segment.instances_dir"),
     script:
         "../scripts/classify_points.py"
 
 
 rule plot_sfm:
     input:
-        model="results/{scene}/sfm/model",
-        cameras="results/{scene}/sfm/cameras.parquet",
-        stats="results/{scene}/sfm/sfm_stats.parquet",
+        model=paths.sfm(part="model"),
+        cameras=paths.sfm(part="cameras.parquet"),
+        stats=paths.sfm(part="sfm_stats.parquet"),
     output:
         png=report(
-            "results/{scene}/sfm/sfm_summary.png",
+            paths.sfm(part="sfm_summary.png"),
             caption="../report/sfm_summary.rst",
             category="SfM",
             labels={"scene": "{scene}"},
@@ -149,10 +151,10 @@ rule plot_sfm:
 
 rule gps_alignment:
     input:
-        model="results/{scene}/sfm/model",
-        cameras="results/{scene}/sfm/cameras.parquet",
+        model=paths.sfm(part="model"),
+        cameras=paths.sfm(part="cameras.parquet"),
     output:
-        json="results/{scene}/sfm/gps_alignment.json",
+        json=paths.gps_alignment(),
     log:
         "logs/gps_alignment/{scene}.log",
     benchmark:
@@ -163,7 +165,6 @@ rule gps_alignment:
     resources:
         **rule_resources("gps_alignment"),
     params:
-        align=config["images"]["align"],
-        seed=config["seed"],
+        **config_keys("images.align", "seed"),
     script:
         "../scripts/gps_alignment.py"

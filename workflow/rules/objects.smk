@@ -9,9 +9,9 @@ rule objects:
     input:
         unpack(objects_inputs),
     output:
-        parquet="results/{scene}/objects/objects.parquet",
-        ply="results/{scene}/objects/objects.ply",
-        members="results/{scene}/objects/point_objects.parquet",
+        parquet=paths.objects(),
+        ply=paths.objects(ext="ply"),
+        members=paths.point_objects(),
     log:
         "logs/objects/{scene}.log",
     benchmark:
@@ -22,8 +22,8 @@ rule objects:
     resources:
         **rule_resources("objects"),
     params:
+        **config_keys("objects.cluster"),
         source=scene_source,
-        cluster=objects_cluster_params,
     script:
         "../scripts/objects.py"
 
@@ -32,7 +32,7 @@ rule principal_plane:
     input:
         unpack(principal_plane_inputs),
     output:
-        json="results/{scene}/objects/principal_plane.json",
+        json=paths.principal_plane(),
     log:
         "logs/principal_plane/{scene}.log",
     benchmark:
@@ -43,10 +43,12 @@ rule principal_plane:
     resources:
         **rule_resources("principal_plane"),
     params:
-        max_points=config["objects"]["principal_plane"]["max_points"],
-        ground_scale_m=config["objects"]["principal_plane"]["ground_scale_m"],
-        fallback_scale_m=config["objects"]["principal_plane"]["fallback_scale_m"],
-        min_ground_points=config["objects"]["principal_plane"]["min_ground_points"],
+        **config_keys(
+            "objects.principal_plane.max_points",
+            "objects.principal_plane.ground_scale_m",
+            "objects.principal_plane.fallback_scale_m",
+            "objects.principal_plane.min_ground_points",
+        ),
     script:
         "../scripts/principal_plane.py"
 
@@ -55,15 +57,15 @@ rule reproduction_audit:
     input:
         unpack(audit_inputs),
     output:
-        parquet="results/tables/reference_map_reproduction.parquet",
+        parquet=paths.table("reference_map_reproduction"),
         markdown=report(
-            "results/tables/reference_map_reproduction.md",
+            paths.table("reference_map_reproduction", "md"),
             caption="../report/reference_map_reproduction.rst",
             category="Tables",
         ),
-        latex="results/tables/reference_map_reproduction.tex",
+        latex=paths.table("reference_map_reproduction", "tex"),
         png=report(
-            "results/tables/reference_map_reproduction.png",
+            paths.table("reference_map_reproduction", "png"),
             caption="../report/reference_map_reproduction_figure.rst",
             category="Reference maps",
         ),
@@ -77,7 +79,7 @@ rule reproduction_audit:
     resources:
         **rule_resources("reproduction_audit"),
     params:
-        scenes=class_cloud_scenes(benchmark_scenes()),
-        radius_m=config["objects"]["audit_radius_m"],
+        **config_keys("objects.audit_radius_m"),
+        scene_ids=class_cloud_scenes(benchmark_scenes()),
     script:
         "../scripts/reproduction_audit.py"

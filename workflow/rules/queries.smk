@@ -7,9 +7,9 @@ include: "inputs/queries.smk"
 rule recover:
     input:
         unpack(scene_data_inputs),
-        ingest="results/{scene}/ingest/ingest.json",
+        ingest=paths.ingest(),
     output:
-        recovered="results/{scene}/queries/recovered.parquet",
+        recovered=paths.recovered(),
     log:
         "logs/recover/{scene}.log",
     benchmark:
@@ -20,8 +20,8 @@ rule recover:
     resources:
         **rule_resources("recover"),
     params:
+        **config_keys("recover.tol_m"),
         root=str(FLAT_ROOT),
-        tol_m=config["recover"]["tol_m"],
     script:
         "../scripts/recover.py"
 
@@ -30,7 +30,7 @@ rule queries:
     input:
         unpack(queries_inputs),
     output:
-        queries="results/{scene}/queries/queries.parquet",
+        queries=paths.queries(),
     log:
         "logs/queries/{scene}.log",
     benchmark:
@@ -41,22 +41,21 @@ rule queries:
     resources:
         **rule_resources("queries"),
     params:
+        **config_keys("seed", "split"),
+        **config_keys("images.min_objects", "images.min_points", "images.depth", reads=images_scene_reads),
         source=scene_source,
         root=str(FLAT_ROOT),
-        seed=config["seed"],
-        split=config["split"],
-        images=queries_images_params,
     script:
         "../scripts/queries.py"
 
 
 rule plot_reference_map:
     input:
-        reference_map="results/{scene}/maps/reference_map.parquet",
-        queries="results/{scene}/queries/queries.parquet",
+        reference_map=paths.reference_map(),
+        queries=paths.queries(),
     output:
         png=report(
-            "results/{scene}/maps/reference_map.png",
+            paths.reference_map(ext="png"),
             caption="../report/reference_map.rst",
             category="Reference maps",
             labels={"scene": "{scene}"},

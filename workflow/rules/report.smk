@@ -7,10 +7,10 @@ include: "inputs/report.smk"
 
 rule figures_training:
     input:
-        coarse=expand("results/coarse/{loss}/training.parquet", loss=coarse_losses()),
-        fine=[f"results/fine/models/{m}_{t}_{r}/history.parquet" for m, t, r in fine_trained_models()],
+        coarse=[paths.coarse_training(loss) for loss in coarse_losses()],
+        fine=[paths.fine_model(m, t, r, "history.parquet") for m, t, r in fine_trained_models()],
     output:
-        png=report("results/figures/training_curves.png", caption="../report/training_curves.rst", category="Training"),
+        png=report(paths.figure("training_curves.png"), caption="../report/training_curves.rst", category="Training"),
     log:
         "logs/figures_training/all.log",
     conda:
@@ -19,24 +19,22 @@ rule figures_training:
     resources:
         **rule_resources("figures_training"),
     params:
-        coarse_labels=coarse_losses(),
-        fine_labels=[
-            f"{m} ({t} maps, {'GT-BB' if r == 'gtbb' else 'coarse'} training)" for m, t, r in fine_trained_models()
-        ],
+        **config_keys("coarse.losses"),
+        fine_labels=fine_training_labels(),
     script:
         "../scripts/figures_training.py"
 
 
 rule figures_fine_errors:
     input:
-        errors=expand("results/fine/{run}/errors.parquet", run=fine_runs()),
-        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        errors=run_files(fine_runs(), "errors.parquet"),
+        queries=per_scene(paths.queries(), benchmark_scenes()),
     output:
         cdf=report(
-            "results/figures/fine_error_cdf.png", caption="../report/fine_error_cdf.rst", category="Fine localization"
+            paths.figure("fine_error_cdf.png"), caption="../report/fine_error_cdf.rst", category="Fine localization"
         ),
         vs_objects=report(
-            "results/figures/fine_error_vs_objects.png",
+            paths.figure("fine_error_vs_objects.png"),
             caption="../report/fine_error_vs_objects.rst",
             category="Fine localization",
         ),
@@ -55,13 +53,13 @@ rule figures_fine_errors:
 
 rule figures_coarse_heatmap:
     input:
-        models=expand("results/coarse/{loss}/model.pt", loss=coarse_losses()),
-        reference_map="results/{scene}/maps/reference_map.parquet",
-        queries="results/{scene}/queries/queries.parquet",
-        similarity="results/{scene}/coarse/target.parquet",
+        models=[paths.coarse_model(loss) for loss in coarse_losses()],
+        reference_map=paths.reference_map(),
+        queries=paths.queries(),
+        similarity=paths.coarse_target(),
     output:
         png=report(
-            "results/figures/coarse_scores_{scene}.png",
+            paths.figure("coarse_scores_{scene}.png"),
             caption="../report/coarse_scores.rst",
             category="Coarse localization",
             labels={"scene": "{scene}"},
@@ -74,20 +72,19 @@ rule figures_coarse_heatmap:
     resources:
         **rule_resources("figures_coarse_heatmap"),
     params:
-        losses=coarse_losses(),
-        map_type=config["report"]["heatmap_map_type"],
+        **config_keys("coarse.losses", "report.heatmap_map_type"),
     script:
         "../scripts/figures_coarse_heatmap.py"
 
 
 rule query_figures:
     input:
-        reference_map="results/{scene}/maps/reference_map.parquet",
-        queries="results/{scene}/queries/queries.parquet",
-        errors=expand("results/fine/{run}/errors.parquet", run=fine_runs()),
+        reference_map=paths.reference_map(),
+        queries=paths.queries(),
+        errors=run_files(fine_runs(), "errors.parquet"),
     output:
         figures=report(
-            directory("results/{scene}/queries/figures"),
+            directory(paths.query_figures()),
             patterns=["{token}.png"],
             caption="../report/query_figures.rst",
             category="Queries",
@@ -95,7 +92,7 @@ rule query_figures:
             labels={"scene": "{scene}", "query": "{token}"},
         ),
         worst=report(
-            "results/{scene}/queries/worst_queries.png",
+            paths.worst_queries(),
             caption="../report/worst_queries.rst",
             category="Worst queries",
             labels={"scene": "{scene}"},
@@ -118,7 +115,7 @@ rule viewer:
         unpack(viewer_inputs),
     output:
         html=report(
-            "results/{scene}/maps/viewer.html",
+            paths.viewer(),
             caption="../report/viewer.rst",
             category="Map viewer",
             labels={"scene": "{scene}"},

@@ -9,24 +9,22 @@ include: "inputs/solver.smk"
 
 rule solver_priors:
     input:
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        reference_maps=per_scene(paths.reference_map(), benchmark_scenes()),
+        queries=per_scene(paths.queries(), benchmark_scenes()),
     output:
-        priors="results/solver/priors/{region}.json",
+        priors=paths.solver_priors(),
     log:
         "logs/solver_priors/{region}.log",
     benchmark:
         "logs/benchmarks/solver_priors/{region}.tsv"
     wildcard_constraints:
-        region="|".join(SOLVER_PRIOR_REGIONS),
+        region="|".join(vocabulary.PRIOR_REGIONS),
     conda:
         "../envs/flatlandia.yaml"
     threads: rule_threads("solver_priors")
     resources:
         **rule_resources("solver_priors"),
     params:
-        solver=config["solver"],
-        beyond={k: v for k, v in config["beyond"].items() if k not in ("city_scenes", "city_objects")},
-        seed=config["seed"],
+        **config_keys("solver", "beyond", "seed", exclude=BEYOND_CITIES),
     script:
         "../scripts/solver_priors.py"

@@ -6,14 +6,14 @@ include: "inputs/tables.smk"
 
 rule dataset_stats:
     input:
-        reference_maps=per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        queries=per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        reference_maps=per_scene(paths.reference_map(), benchmark_scenes()),
+        queries=per_scene(paths.queries(), benchmark_scenes()),
         tokens=tokens_files(),
     output:
-        parquet="results/tables/dataset_stats.parquet",
-        per_scene="results/tables/dataset_stats_per_scene.parquet",
-        markdown=report("results/tables/dataset_stats.md", caption="../report/dataset_stats.rst", category="Tables"),
-        latex="results/tables/dataset_stats.tex",
+        parquet=paths.table("dataset_stats"),
+        per_scene=paths.BENCHMARK_RECORD,
+        markdown=report(paths.table("dataset_stats", "md"), caption="../report/dataset_stats.rst", category="Tables"),
+        latex=paths.table("dataset_stats", "tex"),
     log:
         "logs/dataset_stats/all.log",
     conda:
@@ -29,11 +29,11 @@ rule dataset_stats:
 
 rule recovery_table:
     input:
-        recovered=per_scene("results/{scene}/queries/recovered.parquet", benchmark_scenes()),
+        recovered=per_scene(paths.recovered(), benchmark_scenes()),
     output:
-        parquet="results/tables/recovery.parquet",
-        markdown=report("results/tables/recovery.md", caption="../report/recovery.rst", category="Tables"),
-        latex="results/tables/recovery.tex",
+        parquet=paths.table("recovery"),
+        markdown=report(paths.table("recovery", "md"), caption="../report/recovery.rst", category="Tables"),
+        latex=paths.table("recovery", "tex"),
     log:
         "logs/recovery_table/all.log",
     conda:
@@ -47,10 +47,10 @@ rule recovery_table:
 
 rule availability_table:
     input:
-        reports=per_scene("results/{scene}/ingest/ingest.json", benchmark_scenes()),
+        reports=per_scene(paths.ingest(), benchmark_scenes()),
     output:
-        parquet="results/tables/availability.parquet",
-        markdown="results/tables/availability.md",
+        parquet=paths.table("availability"),
+        markdown=paths.table("availability", "md"),
     log:
         "logs/availability_table/all.log",
     conda:
@@ -74,7 +74,7 @@ rule manifest:
     input:
         benchmark_products() + report_figures(),
     output:
-        parquet="results/manifest.parquet",
+        parquet=paths.manifest(),
     log:
         "logs/manifest/all.log",
     conda:

@@ -14,17 +14,17 @@ from flatlandia.fine import evaluation
 
 
 def main(smk, log):
-    beyond = dict(smk.params.beyond)
+    beyond = dict(smk.params["beyond"])
     kind, n = smk.wildcards.map.split("-")
     settings = evaluate.settings_grid(beyond, True)
     learned = solver.LearnedPriors.read(smk.input.priors)
     common = dict(
         settings=settings,
-        solver_settings=dict(smk.params.solver),
-        search_settings=dict(smk.params.search),
+        solver_settings=dict(smk.params["solver"]),
+        search_settings=dict(smk.params["city.search"]),
         beyond=beyond,
         learned=learned,
-        seed=int(smk.params.seed),
+        seed=int(smk.params["seed"]),
         split=beyond["split"],
         log=log,
     )
@@ -40,14 +40,14 @@ def main(smk, log):
         )
         objects = int(round(maps.groupby("city").size().mean()))
     else:
-        scenes = list(smk.params.scenes)
+        scenes = list(smk.params.scene_ids)
         errors = evaluate.simulated_city_errors(
             scenes,
             {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.reference_maps)},
             {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.queries)},
             int(n),
-            dict(smk.params.simulate),
-            float(smk.params.spacing_m),
+            dict(smk.params["city.simulate"]),
+            float(smk.params["city.spacing_m"]),
             **common,
         )
         objects = int(errors.attrs.get("objects", n))

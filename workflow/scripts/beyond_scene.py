@@ -11,7 +11,7 @@ from flatlandia.fine import evaluation
 
 
 def main(smk, log):
-    beyond = dict(smk.params.beyond)
+    beyond = dict(smk.params["beyond"])
     camera = smk.wildcards.prior == "on"
     refs = [pd.read_parquet(p) for p in smk.input.reference_maps]
     scenes = list(zip(refs, [pd.read_parquet(p) for p in smk.input.queries]))
@@ -20,10 +20,10 @@ def main(smk, log):
     errors = evaluate.scene_errors(
         scenes,
         settings,
-        dict(smk.params.solver),
+        dict(smk.params["solver"]),
         beyond,
         solver.LearnedPriors.read(smk.input.priors),
-        int(smk.params.seed),
+        int(smk.params["seed"]),
         beyond["split"],
         log=log,
     )

@@ -15,7 +15,7 @@ from flatlandia.beyond import table as beyond_table
 def main(smk, log):
     rows = [r for p in smk.input.summaries for r in json.loads(Path(p).read_text())]
     df = beyond_table.table(rows)
-    note = beyond_table.note(smk.params.split, dict(smk.params.beyond))
+    note = beyond_table.note(smk.params["beyond.split"], dict(smk.params["beyond"]))
     tables.write_table(df, "beyond_one_frame", smk.output.parquet, note=note)  # schema-checked
     text = beyond_table.markdown(df, note)
     io.write_text(text, smk.output.markdown)
@@ -25,7 +25,7 @@ def main(smk, log):
         if smk.input.errors
         else pd.DataFrame()
     )
-    figures.plot_risk_coverage(errors, float(smk.params.threshold), smk.output.risk_coverage)
+    figures.plot_risk_coverage(errors, float(smk.params["solver.answer_probability"]), smk.output.risk_coverage)
     figures.plot_reliability(errors, smk.output.reliability)
 
 

@@ -16,7 +16,7 @@ from flatlandia.fine import evaluation
 
 
 def main(smk, log):
-    method, cfg = smk.wildcards.method, search.SearchConfig.from_dict(smk.params.search)
+    method, cfg = smk.wildcards.method, search.SearchConfig.from_dict(smk.params["city.search"])
     index_dir = Path(smk.input.index) if method == "index" else None
 
     def index_of(city: str) -> ViewIndex:
@@ -27,15 +27,15 @@ def main(smk, log):
         pd.read_parquet(smk.input.queries),
         int(smk.wildcards.n),
         method,
-        smk.params.split,
+        smk.params["city.split"],
         cfg,
-        dict(smk.params.solver),
+        dict(smk.params["solver"]),
         solver.LearnedPriors.read(smk.input.priors),
         index_of=index_of,
         built=json.loads((index_dir / "build.json").read_text()) if index_dir else None,
         log=log,
     )
-    meta = {"method": method, "split": smk.params.split, "search": cfg.to_dict()}
+    meta = {"method": method, "split": smk.params["city.split"], "search": cfg.to_dict()}
     io.write_parquet(errors, smk.output.errors, meta)
     io.write_json(evaluation.json_safe(out), smk.output.summary)
     log.info("summary: %s", out)

@@ -11,15 +11,15 @@ from flatlandia.city import tiling
 
 
 def main(smk, log):
-    refs = {s: pd.read_parquet(p) for s, p in zip(smk.params.scenes, smk.input.reference_maps)}
-    qs = {s: pd.read_parquet(p) for s, p in zip(smk.params.scenes, smk.input.queries)}
+    refs = {s: pd.read_parquet(p) for s, p in zip(smk.params.scene_ids, smk.input.reference_maps)}
+    qs = {s: pd.read_parquet(p) for s, p in zip(smk.params.scene_ids, smk.input.queries)}
     maps, queries = [], []
-    for k, group in enumerate(tiling.groups(list(smk.params.scenes), int(smk.wildcards.n))):
-        ref, q = tiling.tile([refs[s] for s in group], [qs[s] for s in group], float(smk.params.spacing_m))
+    for k, group in enumerate(tiling.groups(list(smk.params.scene_ids), int(smk.wildcards.n))):
+        ref, q = tiling.tile([refs[s] for s in group], [qs[s] for s in group], float(smk.params["city.spacing_m"]))
         maps.append(ref.drop(columns=["geometry"], errors="ignore").assign(city=k))
         queries.append(q.assign(city=k))
         log.info("city %d: scenes %s, %d objects, %d queries", k, group, len(ref), len(q))
-    meta = {"scenes_per_city": int(smk.wildcards.n), "spacing_m": float(smk.params.spacing_m)}
+    meta = {"scenes_per_city": int(smk.wildcards.n), "spacing_m": float(smk.params["city.spacing_m"])}
     io.write_parquet(pd.concat(maps, ignore_index=True), smk.output.map, meta)
     io.write_parquet(pd.concat(queries, ignore_index=True), smk.output.queries, meta)
 

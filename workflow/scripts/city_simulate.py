@@ -15,19 +15,19 @@ from flatlandia.fine import evaluation
 
 
 def main(smk, log):
-    scenes = list(smk.params.scenes)
-    n_objects, split, sim = int(smk.wildcards.objects), smk.params.split, smk.params.simulate
+    scenes = list(smk.params.scene_ids)
+    n_objects, split, sim = int(smk.wildcards.objects), smk.params["city.split"], smk.params["city.simulate"]
     errors, out = evaluate.simulated_errors(
         scenes,
         {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.reference_maps)},
         {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.queries)},
         n_objects,
-        float(smk.params.spacing_m),
+        float(smk.params["city.spacing_m"]),
         sim,
-        int(smk.params.seed),
+        int(smk.params["seed"]),
         split,
-        search.SearchConfig.from_dict(smk.params.search),
-        dict(smk.params.solver),
+        search.SearchConfig.from_dict(smk.params["city.search"]),
+        dict(smk.params["solver"]),
         solver.LearnedPriors.read(smk.input.priors),
         log=log,
     )

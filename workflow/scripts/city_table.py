@@ -10,10 +10,11 @@ from flatlandia.city import table as city_table
 
 def main(smk, log):
     df = city_table.table([json.loads(Path(p).read_text()) for p in smk.input.summaries])
+    split, spacing_m = smk.params["city.split"], smk.params["city.spacing_m"]
     note = (
-        f"Depth local maps, {smk.params.split} split, no proposal; CPU per query on one core (index, region "
+        f"Depth local maps, {split} split, no proposal; CPU per query on one core (index, region "
         "priors and solver for the city search; the solver alone for the whole-map row). `tiled`: the benchmark "
-        f"scenes cut into cities of `scenes` consecutive scenes, each tiled {smk.params.spacing_m:g} m apart "
+        f"scenes cut into cities of `scenes` consecutive scenes, each tiled {spacing_m:g} m apart "
         "(geometry unchanged, ids unique, training views carried along); `simulated`: each scene among synthetic "
         "tiles (the other scenes mirrored, turned, jittered) up to `objects`. Wrong scene: a pose more than 500 m "
         "off (no pose is counted apart)."

@@ -14,16 +14,18 @@ def main(smk, log):
     names = [img.name for img in rec.images.values()]
     maps = classify_points.load_class_maps(Path(smk.input.classes), names)
     pts = classify_points.point_votes(rec, maps)
-    inst = classify_points.point_instances(rec, classify_points.load_instance_maps(smk.params.instances_dir, names))
+    inst = classify_points.point_instances(
+        rec, classify_points.load_instance_maps(smk.params["segment.instances_dir"], names)
+    )
     io.write_parquet(pts, smk.output.points)
-    io.write_parquet(inst, smk.output.instances, {"instances_dir": str(smk.params.instances_dir)})
+    io.write_parquet(inst, smk.output.instances, {"instances_dir": str(smk.params["segment.instances_dir"])})
     classify_points.write_classified_ply(pts, Path(smk.output.ply))
     n_obj = int((pts["class_id"] != 255).sum())
     log.info(
         "%d observations on %d instances (segment.instances_dir %s)",
         len(inst),
         inst["key"].nunique(),
-        smk.params.instances_dir,
+        smk.params["segment.instances_dir"],
     )
     log.info(
         "%d points, %d on objects (%s)",

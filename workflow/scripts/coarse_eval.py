@@ -21,7 +21,8 @@ def main(smk, log):
     torch.set_num_threads(int(smk.threads))
     device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
     log.info("device: %s", device_module.describe(device))
-    losses = list(smk.params.losses)
+    losses = list(smk.params["coarse.losses"])
+    seed = int(smk.params["seed"]) + int(smk.params["coarse.seed_offset"])  # the random baseline's, as training's
     models = {
         retrieval.LOSSES[loss]: checkpoints.load_checkpoint(path, retrieval.CoarseTrainConfig, retrieval.build_model)
         for loss, path in zip(losses, smk.input.models)
@@ -31,7 +32,7 @@ def main(smk, log):
         for r, q, s in zip(smk.input.reference_maps, smk.input.queries, smk.input.similarity)
     ]
     solver_rows = pd.read_parquet(smk.input.solver)
-    out = evaluation.evaluate_models(models, scenes, solver_rows, int(smk.params.seed), log, device=device)
+    out = evaluation.evaluate_models(models, scenes, solver_rows, seed, log, device=device)
     for loss, path in zip(losses, smk.output.proposals):
         label = retrieval.LOSSES[loss]
         io.write_parquet(

@@ -16,8 +16,8 @@ from flatlandia.coarse import solver_proposals
 
 
 def main(smk, log):
-    settings = dict(smk.params.solver)
-    cfg = solver_proposals.SolverProposalConfig.from_dict(smk.params.proposals)
+    settings = dict(smk.params["solver"])
+    cfg = solver_proposals.SolverProposalConfig.from_dict(smk.params["coarse.solver"])
     solver_cfg = solver.SolverConfig.from_dict(settings)
     learned = solver.LearnedPriors.read(smk.input.solver_priors)
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]

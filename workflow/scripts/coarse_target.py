@@ -13,7 +13,7 @@ from flatlandia.coarse import target
 
 
 def main(smk, log):
-    cfg = target.SimilarityConfig.from_dict(smk.params.similarity)
+    cfg = target.SimilarityConfig.from_dict(smk.params["coarse.similarity"])
     ref = pd.read_parquet(smk.input.reference_map)
     queries = pd.read_parquet(smk.input.queries)
     scene = str(smk.wildcards.scene)

@@ -17,7 +17,9 @@ def main(smk, log):
     torch.set_num_threads(int(smk.threads))
     device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
     log.info("device: %s", device_module.describe(device))
-    cfg = retrieval.CoarseTrainConfig.from_dict({**dict(smk.params.train), "loss": smk.wildcards.loss})
+    p = smk.params  # training seed: the master seed + coarse.seed_offset
+    seed = int(p["seed"]) + int(p["coarse.seed_offset"])
+    cfg = retrieval.CoarseTrainConfig.from_dict({**dict(p["coarse.train"]), "seed": seed, "loss": smk.wildcards.loss})
     scenes = [
         (pd.read_parquet(r), pd.read_parquet(q), pd.read_parquet(s))
         for r, q, s in zip(smk.input.reference_maps, smk.input.queries, smk.input.similarity)

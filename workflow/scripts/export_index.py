@@ -15,7 +15,7 @@ def main(smk, log):
             "meta": io.read_parquet_metadata(ref),
             "queries": pd.read_parquet(q),
         }
-        for scene, ref, q in zip(smk.params.scenes, smk.input.reference_maps, smk.input.queries, strict=True)
+        for scene, ref, q in zip(smk.params.scene_ids, smk.input.reference_maps, smk.input.queries, strict=True)
     ]
     out = export.index_export(scenes, list(smk.params.sources))
     io.write_text(out["readme"], smk.output.readme)

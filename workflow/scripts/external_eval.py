@@ -4,19 +4,19 @@ scored from its poses file (config ``external``) with the functions of rule fine
 
 import pandas as pd
 
-from flatlandia import runlog, score
+from flatlandia import runlog, score, vocabulary
 
 
 def main(smk, log):
-    p = smk.params.p
+    w = smk.wildcards
+    key = vocabulary.strategy_key(w.proposal)  # a coarse proposal's strategy (config keys in params)
     scenes = {}
     for r, q in zip(smk.input.reference_maps, smk.input.queries):
         s = score.read_scene(r, q)
         scenes[s.scene] = s
     coarse = pd.read_parquet(smk.input.coarse) if smk.input.get("coarse") else None
-    run, warnings = score.external_run(
-        smk.input.poses, scenes, p["method"], smk.wildcards.map_type, p["proposal"], coarse, p.get("strategy")
-    )
+    strategy = str(smk.params[key]) if key else None
+    run, warnings = score.external_run(smk.input.poses, scenes, w.method, w.map_type, w.proposal, coarse, strategy)
     for w in warnings:
         log.warning("%s", w)
     run.write(smk.output.errors, smk.output.summary)

@@ -7,20 +7,21 @@ from flatlandia.data import fetch
 
 
 def main(smk, log):
-    scenes = pd.read_csv(smk.params.scenes, sep="\t", dtype=str, keep_default_na=False)
+    scenes = pd.read_csv(smk.params.scene_sheet, sep="\t", dtype=str, keep_default_na=False)
     scenes = scenes[scenes["source"] == "flatlandia"]
-    log.info("fetching %s into %s", smk.params.url, smk.params.dest)
-    log.info("pinned sha256: %s; caps %s", smk.params.sha256 or "none", smk.params.limits)
+    cfg = smk.params["fetch"]
+    log.info("fetching %s into %s", cfg["url"], smk.params.dest)
+    log.info("pinned sha256: %s; settings %s", cfg["sha256"] or "none", cfg)
     if fetch.fetched_before(smk.params.dest):  # only a folder this run's fetch wrote, unchanged, is replaced
         log.info("replacing the earlier fetch in %s", smk.params.dest)
     try:
         dest = fetch.fetch_flatlandia(
             smk.params.dest,
             scenes,
-            smk.params.url,
-            smk.params.timeout_s,
-            sha256=smk.params.sha256,
-            limits=fetch.Limits.from_config(smk.params.limits),
+            cfg["url"],
+            cfg["timeout_s"],
+            sha256=cfg["sha256"],
+            limits=fetch.Limits.from_config(cfg),
             data_folder=smk.params.data_folder,
         )
     except fetch.FetchError as e:

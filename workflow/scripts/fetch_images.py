@@ -5,17 +5,17 @@ from flatlandia.data import fetch
 
 
 def main(smk, log):
-    src = smk.params.source
+    src, cfg = smk.params.source, smk.params["fetch"]
     log.info("fetching %s (%s) into %s", src["url"], src["subfolder"], smk.output.images)
-    log.info("pinned sha256: %s; caps %s", src.get("sha256") or "none", smk.params.limits)
+    log.info("pinned sha256: %s; settings %s", src.get("sha256") or "none", cfg)
     try:
         fetch.fetch_images(
             src["url"],
             src["subfolder"],
             smk.output.images,
-            smk.params.timeout_s,
+            cfg["timeout_s"],
             sha256=src.get("sha256", ""),
-            limits=fetch.Limits.from_config(smk.params.limits),
+            limits=fetch.Limits.from_config(cfg),
         )
     except fetch.FetchError as e:
         log.error("%s", e)

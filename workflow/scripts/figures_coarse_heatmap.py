@@ -12,14 +12,14 @@ def main(smk, log):
     ref, q, sim = (pd.read_parquet(p) for p in (smk.input.reference_map, smk.input.queries, smk.input.similarity))
     models = {
         retrieval.LOSSES[loss]: checkpoints.load_checkpoint(p, retrieval.CoarseTrainConfig, retrieval.build_model)
-        for loss, p in zip(smk.params.losses, smk.input.models)
+        for loss, p in zip(smk.params["coarse.losses"], smk.input.models)
     }
     cfg0 = next(iter(models.values()))[1]
     ds = retrieval.build_dataset([(ref, q, sim)], cfg0, splits=("test",))
     if not ds.samples:
         ds = retrieval.build_dataset([(ref, q, sim)], cfg0, splits=("train", "val", "test"))
     sample = sorted(ds.samples, key=lambda s: (-s.n_objects, s.token))[0]
-    mt = smk.params.map_type
+    mt = smk.params["report.heatmap_map_type"]
     scores = {label: retrieval.score_samples(model, ds, [sample], mt)[0] for label, (model, _) in models.items()}
     row = q.set_index(q["token"].astype(str)).loc[sample.token]
     figures.plot_score_heatmap(

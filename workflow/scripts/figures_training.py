@@ -7,7 +7,7 @@ from flatlandia import figures, runlog
 
 def main(smk, log):
     curves = {}
-    for label, path in zip(smk.params.coarse_labels, smk.input.coarse):
+    for label, path in zip(smk.params["coarse.losses"], smk.input.coarse):
         curves[f"coarse {label}"] = pd.read_parquet(path)
     for label, path in zip(smk.params.fine_labels, smk.input.fine):
         curves[f"fine {label}"] = pd.read_parquet(path)

@@ -3,34 +3,39 @@
 Methods: ``solver`` (the geometric solver with the training split's priors and, on depth maps,
 rule solver_priors' scale prior and verifier) or a trained model checkpoint. Proposals: ``gtbb``
 (oracle), ``whole`` (whole reference map), or a coarse proposal table (columns scene, token,
-strategy, proposal) filtered on the configured strategy (flatlandia.fine.evaluation).
+strategy, proposal) filtered on the configured strategy (flatlandia.fine.evaluation). The config
+keys it reads are its params (rules/fine.smk); a key the run does not read is {}.
 """
 
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, proposals, runlog, solver
+from flatlandia import io, proposals, runlog, solver, vocabulary
 from flatlandia.fine import evaluation
 
 
 def main(smk, log):
-    p, mt = smk.params.p, smk.wildcards.map_type
-    strategy = p.get("strategy")  # absent: not a coarse proposal (the params hold what applies only)
-    crop_m = float(p.get("crop_m", 0.0))  # absent: not trained on simulated coarse proposals
-    method, run = p["method"], f"{smk.wildcards.method}_{mt}_{smk.wildcards.proposal}"
+    p, w = smk.params, smk.wildcards
+    method, mt, proposal = w.method, w.map_type, w.proposal
+    key = vocabulary.strategy_key(proposal)
+    strategy = str(p[key]) if key else None  # None: not a coarse proposal
+    regime = crop_m = None
+    if method in vocabulary.LEARNED_METHODS:
+        regime = vocabulary.train_regime(proposal, strategy, bool(p["fine.coarse_training.enabled"]))
+        crop_m = float(p["fine.coarse_training.crop_m"]) if regime == "coarse" else 0.0
+    run = vocabulary.run_name(method, mt, proposal)
+    label = vocabulary.strategy_label(proposal, strategy)
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
     coarse = pd.read_parquet(smk.input.coarse) if smk.input.get("coarse") else None
-    settings = dict(smk.params.solver)
+    settings = dict(p["solver"])
     model = cfg = None
-    if method in ("solver", "solver-noprior"):
+    if method in vocabulary.SOLVER_METHODS:
         if method == "solver-noprior":  # the solver without the training split's cameras
             settings["camera_prior"] = False
         learned = solver.LearnedPriors.read(smk.input.solver_priors) if smk.input.get("solver_priors") else None
         log.info("learned priors: %s", learned)
         progress = lambda what: runlog.progress(log, what)  # noqa: E731
-        errors = evaluation.solver_errors(
-            scenes, mt, p["proposal"], settings, learned, coarse, strategy, progress=progress
-        )
+        errors = evaluation.solver_errors(scenes, mt, proposal, settings, learned, coarse, strategy, progress=progress)
     else:  # torch only here: the solver's runs start 4 s faster without it
         import torch
 
@@ -43,13 +48,13 @@ def main(smk, log):
         log.info("device: %s", device_module.describe(device))
         model, cfg = checkpoints.load_checkpoint(smk.input.checkpoint, models.FineTrainConfig, models.build_model)
         model.to(device)
-        errors = evaluation.model_errors(scenes, model, cfg, p["proposal"], coarse, strategy, crop_m)
-    errors["strategy"] = p["strategy_label"]
+        errors = evaluation.model_errors(scenes, model, cfg, proposal, coarse, strategy, crop_m)
+    errors["strategy"] = label
     meta = {
         "run": run,
         "method": method,
         "map_type": mt,
-        "proposal": p["proposal"],
+        "proposal": proposal,
         "solver": settings if method.startswith("solver") else None,
         "model_config": cfg.to_dict() if cfg else None,
     }
@@ -59,13 +64,13 @@ def main(smk, log):
         method=str(errors["method"].iloc[0]),
         method_slug=method,
         map_type=mt,
-        proposal=p["proposal"],
-        strategy=p["strategy_label"],
+        proposal=proposal,
+        strategy=label,
         run=run,
         ref_map_kb=float(np.mean([evaluation.ref_map_kb(ref) for ref, _ in scenes])) if scenes else float("nan"),
         train_s=0.0,
         epochs=0,
-        trained_on=proposals.training_label(p.get("train_regime", ""), crop_m),
+        trained_on=proposals.training_label(regime or "", crop_m or 0.0),
     )
     if model is not None:
         from flatlandia import checkpoints

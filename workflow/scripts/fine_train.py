@@ -11,7 +11,7 @@ more, sharing that training), keeps the best-on-validation weights and saves the
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io, runlog
+from flatlandia import checkpoints, io, proposals, runlog
 from flatlandia import device as device_module
 from flatlandia.fine import learned, training
 
@@ -20,15 +20,16 @@ def main(smk, log):
     torch.set_num_threads(int(smk.threads))
     device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
     log.info("device: %s", device_module.describe(device))
-    cfg = learned.FineTrainConfig.from_dict(
-        {**dict(smk.params.train), "model": smk.params.model, "map_type": smk.wildcards.map_type}
-    )
+    p, regime = smk.params, smk.wildcards.train
+    coarse_training = dict(p["fine.coarse_training"])
+    train = proposals.training_settings(p["fine.train"], p["fine.train_overrides.{model}"], coarse_training, regime)
+    cfg = learned.FineTrainConfig.from_dict({**train, "model": p.model, "map_type": smk.wildcards.map_type})
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
     res, history, meta = training.train_model(
         scenes,
         cfg,
-        smk.wildcards.train,
-        dict(smk.params.coarse_training),
+        regime,
+        coarse_training,
         init=smk.input.get("init") or None,
         log=log,
         progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"),

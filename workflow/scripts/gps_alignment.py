@@ -18,8 +18,8 @@ def main(smk, log):
         scene,
         pycolmap.Reconstruction(smk.input.model),
         pd.read_parquet(smk.input.cameras),
-        dict(smk.params.align),
-        smk.params.seed,
+        dict(smk.params["images.align"]),
+        smk.params["seed"],
         source=str(smk.input.cameras),
         log=log,
     )

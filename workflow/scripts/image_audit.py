@@ -7,12 +7,14 @@ from flatlandia.images import image_audit
 def main(smk, log):
     df = image_audit.audit_table(
         smk.input.images,
-        smk.params.dedup_threshold,
-        smk.params.missing_gps,
-        min_side_px=int(smk.params.min_side_px),
-        max_megapixels=float(smk.params.max_megapixels),
+        smk.params["images.dedup_threshold"],
+        smk.params["images.missing_gps"],
+        min_side_px=int(smk.params["images.min_side_px"]),
+        max_megapixels=float(smk.params["images.max_megapixels"]),
     )
-    image_audit.check_alignment_inputs(df, smk.input.images, smk.params.align_mode)  # before SfM, not after it
+    image_audit.check_alignment_inputs(
+        df, smk.input.images, smk.params["images.align.mode"]
+    )  # before SfM, not after it
     io.write_parquet(df, smk.output.table)
     log.info(
         "%d images, %d kept; dropped: %s",

@@ -5,7 +5,7 @@ from flatlandia.data import ingest
 
 
 def main(smk, log):
-    rep = ingest.ingest_scene(smk.params.root, smk.wildcards.scene, verify_hash=smk.params.verify_sha256)
+    rep = ingest.ingest_scene(smk.params.root, smk.wildcards.scene, verify_hash=smk.params["ingest.verify_sha256"])
     for f in rep["files"]:
         log.info(
             "%-28s %-8s %s",

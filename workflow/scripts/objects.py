@@ -14,7 +14,7 @@ from flatlandia.objects import cloud, clustering, scene
 
 
 def main(smk, log):
-    name, cluster = smk.wildcards.scene, dict(smk.params.cluster)
+    name, cluster = smk.wildcards.scene, dict(smk.params["objects.cluster"])
     if smk.params.source == "images":
         out = scene.images_objects(
             name,

@@ -18,10 +18,10 @@ def main(smk, log):
         pts,
         labels,
         io.read_transformations(smk.input.transformations),
-        max_points=int(smk.params.max_points),
-        min_ground_points=int(smk.params.min_ground_points),
-        ground_scale_m=float(smk.params.ground_scale_m),
-        fallback_scale_m=float(smk.params.fallback_scale_m),
+        max_points=int(smk.params["objects.principal_plane.max_points"]),
+        min_ground_points=int(smk.params["objects.principal_plane.min_ground_points"]),
+        ground_scale_m=float(smk.params["objects.principal_plane.ground_scale_m"]),
+        fallback_scale_m=float(smk.params["objects.principal_plane.fallback_scale_m"]),
         source=str(smk.input.cloud),
     )
     io.write_json(out, smk.output.json)

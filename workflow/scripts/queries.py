@@ -21,7 +21,13 @@ def main(smk, log):
     if smk.params.source == "images":
         import pycolmap
 
-        images = dict(smk.params.images)
+        p = smk.params
+        images = {
+            "min_objects": p["images.min_objects"],
+            "min_points": p["images.min_points"],
+            "depth": p["images.depth"],
+            "images_dir": smk.input.images,
+        }
         q, meta = image_queries.images_scene_queries(
             scene,
             pycolmap.Reconstruction(smk.input.model),
@@ -30,8 +36,8 @@ def main(smk, log):
             pd.read_parquet(smk.input.objects),
             pd.read_parquet(smk.input.members),
             images,
-            smk.params.seed,
-            smk.params.split,
+            smk.params["seed"],
+            smk.params["split"],
             device=smk.config["device"],
         )
         io.write_parquet(q, smk.output.queries, meta)
@@ -50,8 +56,8 @@ def main(smk, log):
         ref,
         io.read_parquet_metadata(smk.input.reference_map),
         io.read_local_maps(Path(smk.params.root) / "local_maps.json", scene),
-        smk.params.seed,
-        smk.params.split,
+        smk.params["seed"],
+        smk.params["split"],
     )
     io.write_parquet(q, smk.output.queries, meta)
     log.info("scene %s: %d queries, split %s", scene, len(q), q["split"].value_counts().to_dict())

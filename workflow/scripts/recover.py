@@ -15,10 +15,15 @@ def main(smk, log):
     local = io.read_local_maps(root / "local_maps.json", scene)
     t0 = time.perf_counter()
     rec = recover.recover_scene(
-        scene, lonlat, classes, local, tol_m=smk.params.tol_m, progress=runlog.progress(log, f"recover scene {scene}")
+        scene,
+        lonlat,
+        classes,
+        local,
+        tol_m=smk.params["recover.tol_m"],
+        progress=runlog.progress(log, f"recover scene {scene}"),
     )
     dt = time.perf_counter() - t0
-    io.write_parquet(rec, smk.output.recovered, {"scene": scene, "tol_m": smk.params.tol_m, "seconds": dt})
+    io.write_parquet(rec, smk.output.recovered, {"scene": scene, "tol_m": smk.params["recover.tol_m"], "seconds": dt})
     ok = rec["recovered"].sum()
     log.info(
         "scene %s: %d/%d queries recovered in %.3f s; max residual %.2e m; ambiguous %d (%s)",

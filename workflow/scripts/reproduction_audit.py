@@ -10,7 +10,7 @@ from flatlandia.objects import audit, cloud
 def main(smk, log):
     rows, panels = [], []
     for scene, obj_path, cloud_path, tr, ref_path in zip(
-        smk.params.scenes, smk.input.objects, smk.input.clouds, smk.input.transformations, smk.input.reference_maps
+        smk.params.scene_ids, smk.input.objects, smk.input.clouds, smk.input.transformations, smk.input.reference_maps
     ):
         ours = pd.read_parquet(obj_path)
         row, ref_xy = audit.audit_objects(
@@ -19,13 +19,13 @@ def main(smk, log):
             cloud.read_classified_cloud(cloud_path),
             io.read_transformations(tr),
             io.read_reference_map(ref_path),
-            radius_m=float(smk.params.radius_m),
+            radius_m=float(smk.params["objects.audit_radius_m"]),
         )
         rows.append(row)
         title = f"scene {scene}: {row['within_0.5m']}/{row['published']} within 0.5 m"  # escaped where drawn
         panels.append((title, ours[["x_m", "y_m"]].to_numpy(), ref_xy))
         log.info("%s", row)
-    df, total, note = audit.reproduction_table(rows, float(smk.params.radius_m))
+    df, total, note = audit.reproduction_table(rows, float(smk.params["objects.audit_radius_m"]))
     tables.write_table(
         df,
         "reference_map_reproduction",

@@ -26,8 +26,8 @@ def main(smk, log):
         ref,
         queries,
         models,
-        list(smk.params.map_types),
-        dict(smk.params.solver),
+        list(smk.params["fine.runs.map_types"]),
+        dict(smk.params["solver"]),
         progress=runlog.progress(log, f"scene {scene}"),
     )
     io.write_parquet(rows, smk.output.parquet, meta)

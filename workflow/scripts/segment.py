@@ -13,7 +13,9 @@ def main(smk, log):
     table = pd.read_parquet(smk.input.table)
     names = list(table.loc[table["kept"], "name"])
     p = smk.params
-    backend = segment.make_backend(p.backend, p.weights, p.labels_dir, device=smk.config["device"])
+    backend = segment.make_backend(
+        p["segment.backend"], p["segment.weights"], p["segment.labels_dir"], device=smk.config["device"]
+    )
     log.info("backend %s on %d images", backend.name, len(names))
     if backend.name == "transformers":
         missing = segment.missing_classes(backend.names)
@@ -22,7 +24,9 @@ def main(smk, log):
     with io.atomic_dir(smk.output.masks) as masks, io.atomic_dir(smk.output.classes) as classes:
         for name in runlog.progress(log, "segment")(names):
             ids, labels = backend.labels(Path(smk.input.images) / name)
-            mask, cls, shares = segment.mask_and_classes(ids, labels, smk.params.watermark_box, smk.params.dilate_px)
+            mask, cls, shares = segment.mask_and_classes(
+                ids, labels, p["segment.watermark_box"], p["segment.dilate_px"]
+            )
             Image.fromarray(mask).save(masks / f"{name}.png")
             Image.fromarray(cls).save(classes / f"{name}.png")
             rows.append({"name": name, "backend": backend.name, **shares})

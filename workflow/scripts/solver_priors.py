@@ -11,7 +11,7 @@ from flatlandia.solver import calibration_fit, learned, verify
 def main(smk, log):
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
     region = smk.wildcards.region
-    fitted = learned.fit(scenes, dict(smk.params.solver), region if region in learned.REGIONS else None)
+    fitted = learned.fit(scenes, dict(smk.params["solver"]), region if region in learned.REGIONS else None)
     log.info("depth scale prior (log metres per unit): %s", fitted.scale)
     if fitted.verifier is not None:
         weights = {f: round(float(w), 3) for f, w in zip(verify.FEATURES, fitted.verifier.weights)}
@@ -29,7 +29,7 @@ def main(smk, log):
         )
     if region in learned.REGIONS and fitted.verifier is not None:
         fitted, answers = calibration_fit.calibrated(
-            scenes, dict(smk.params.solver), fitted, region, dict(smk.params.beyond), int(smk.params.seed)
+            scenes, dict(smk.params["solver"]), fitted, region, dict(smk.params["beyond"]), int(smk.params["seed"])
         )
         log.info("calibration on %d validation answers: %s", len(answers), fitted.calibration.to_dict())
     fitted.write(smk.output.priors)

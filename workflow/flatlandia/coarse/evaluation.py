@@ -18,11 +18,11 @@ import pandas as pd
 import torch
 
 from flatlandia import device as device_module
-from flatlandia import escape, paper, proposals, tables
+from flatlandia import escape, paper, proposals, tables, vocabulary
 from flatlandia.coarse import retrieval
 from flatlandia.proposals import proposal_metrics  # noqa: F401  (this module's API too)
 
-STRATEGIES = ["N_LM", "2N_LM", "R_30", "GT-BB"]
+STRATEGIES = [*vocabulary.COARSE_STRATEGIES, vocabulary.ORACLE_STRATEGY]
 
 #: Columns of results/tables/coarse_localization.parquet: (name, unit, meaning), from its schema.
 TABLE_COLUMNS = [(c.name, c.unit, c.meaning) for c in tables.SCHEMAS["coarse_localization"]]

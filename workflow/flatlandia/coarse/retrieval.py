@@ -21,12 +21,12 @@ import pandas as pd
 import torch
 from torch import nn
 
-from flatlandia import config
+from flatlandia import config, vocabulary
 from flatlandia.classes import N_CLASSES
 from flatlandia.coarse import graphs
 from flatlandia.pyg import Batch, GATConv, GATv2Conv, add_self_loops, global_mean_pool
 
-LOSSES = {"sim": "Sim", "trip": "Trip", "simtrip": "Sim+Trip"}
+LOSSES = vocabulary.COARSE_LOSSES
 MAP_TYPES = ["gt", "depth"]
 
 

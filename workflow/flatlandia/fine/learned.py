@@ -34,13 +34,13 @@ import pandas as pd
 import torch
 from torch import nn
 
-from flatlandia import config
+from flatlandia import config, vocabulary
 from flatlandia import device as device_module
 from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
 from flatlandia.pyg import Batch, Data, GATv2Conv, scatter, to_dense_batch
 
-MODELS = ("MLP", "MLP+ATT", "GAT", "GAT+ATT")
+MODELS = tuple(vocabulary.LEARNED_METHODS.values())
 
 
 @config.settings("fine.train")

@@ -13,12 +13,12 @@ from collections.abc import Callable
 
 import pandas as pd
 
-from flatlandia import escape, proposals
+from flatlandia import escape, proposals, vocabulary
 from flatlandia.fine import evaluation
 
 #: proposals a new scene is evaluated on: the oracle box and the whole map (coarse proposals
 #: need the coarse model's retrieval over the scene, which the benchmark tables cover)
-SCENE_PROPOSALS = {"gtbb": "GT-BB", "whole": "whole map"}
+SCENE_PROPOSALS = {p: vocabulary.strategy_label(p) for p in vocabulary.MAP_PROPOSALS}
 
 ROW_COLUMNS = ["scene", "method", "method_slug", "map_type", "proposal", "strategy"]
 
@@ -39,7 +39,7 @@ def scene_rows(
         return pd.DataFrame(columns=ROW_COLUMNS + ["queries", "median_m", "median_deg"])
     no_prior = {**solver_config, "camera_prior": False, "scale_prior": False}
     for proposal, label in SCENE_PROPOSALS.items():
-        make = proposals.gtbb_proposals if proposal == "gtbb" else proposals.whole_map_proposals
+        make = proposals.gtbb_proposals if proposal == vocabulary.GTBB else proposals.whole_map_proposals
         props = make(ref, queries)
         for map_type in map_types:
             errors = evaluation.evaluate_solver(

@@ -8,19 +8,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, paper, tables
+from flatlandia import escape, paper, tables, vocabulary
 from flatlandia.fine import evaluation
 
-#: method slugs (rule wildcards) and their display names; an external method (config ``external``,
-#: ``flatlandia score``) is shown by its summary's ``method``, its name
-METHOD_LABELS = {
-    "solver": "geometric solver",
-    "solver-noprior": "geometric solver, no camera prior",
-    "mlp": "MLP",
-    "mlp_att": "MLP+ATT",
-    "gat": "GAT",
-    "gat_att": "GAT+ATT",
-}
+#: method slugs (rule wildcards) and their display names (vocabulary.METHOD_LABELS); an external
+#: method (config ``external``, ``flatlandia score``) is shown by its summary's ``method``, its name
+METHOD_LABELS = vocabulary.METHOD_LABELS
 
 
 def paper_row(label: str, map_type: str, strategy: str):
@@ -89,7 +82,7 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
             # a summary without the key is a learned model's of an older run (GT-BB); the solver's and an
             # external method's are '' (not trained here)
             trained_on=str(
-                s.get("trained_on") or ("GT-BB" if method in METHOD_LABELS and not method.startswith("solver") else "")
+                s.get("trained_on") or (vocabulary.ORACLE_STRATEGY if method in vocabulary.LEARNED_METHODS else "")
             ),
         )
         row.update({c: f(c) for c in evaluation.PAPER_UNIT_THRESHOLD_COLUMNS})
@@ -269,12 +262,11 @@ def per_scene_runs(df: pd.DataFrame) -> list[str]:
     """The runs of the per-scene table: per map type the solver on GT-BB and on the whole map, and the
     learned run on GT-BB with the lowest median position error over every scene."""
     runs = []
-    for mt in ("gt", "depth"):
+    for mt in vocabulary.MAP_TYPES:
         mine = df[df["map_type"] == mt]
-        runs += [r for r in (f"solver_{mt}_gtbb", f"solver_{mt}_whole") if r in set(mine["run"])]
-        learned = mine[
-            (mine["proposal"] == "gtbb") & mine["method"].isin(set(METHOD_LABELS) - {"solver", "solver-noprior"})
-        ]
+        solver_runs = (vocabulary.run_name("solver", mt, p) for p in (vocabulary.GTBB, vocabulary.WHOLE))
+        runs += [r for r in solver_runs if r in set(mine["run"])]
+        learned = mine[(mine["proposal"] == vocabulary.GTBB) & mine["method"].isin(set(vocabulary.LEARNED_METHODS))]
         if len(learned):
             runs.append(str(learned.sort_values("median_m", kind="stable")["run"].iloc[0]))
     return runs

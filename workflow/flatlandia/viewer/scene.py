@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo, io
+from flatlandia import geo, io, vocabulary
 from flatlandia.data import localmaps
 from flatlandia.data import reference_map as reference_map_module
-from flatlandia.figures import SOLVER_METHODS, Run
+from flatlandia.figures import Run
 
 #: the solver's match of each local-map object (reference ``obj_idx``, -1: none), where the run's
 #: errors table stores it; without it an estimate's objects are linked to their true positions
@@ -53,7 +53,7 @@ class Estimate:
         if not self.has_pose:
             return "no pose"
         text = f"{self.error_m:.2f} m, {self.error_deg:.1f}°"
-        if self.run.method in SOLVER_METHODS:
+        if self.run.method in vocabulary.SOLVER_METHODS:
             text += f" ({self.n_inliers} inliers, {self.n_correct_inliers} correct)"
         return text
 
@@ -113,7 +113,9 @@ def featured_runs(errors: dict[str, pd.DataFrame]) -> tuple[str, ...]:
         same = [r for r in builtin if (r.map_type, r.proposal) == (map_type, proposal)]
         solver = [r.name for r in same if r.method == "solver"]
         learned = sorted(
-            (float(np.median(errors[r.name]["error_m"])), r.name) for r in same if r.method not in SOLVER_METHODS
+            (float(np.median(errors[r.name]["error_m"])), r.name)
+            for r in same
+            if r.method not in vocabulary.SOLVER_METHODS
         )
         if solver or (learned and not has_solver):
             featured, chosen = solver[:1] + [name for _, name in learned[:1]], (map_type, proposal)

@@ -5,9 +5,9 @@
 def beyond_scene_inputs(wildcards=None):
     """The benchmark scenes' reference maps and queries, and the solver's learned priors."""
     return {
-        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
-        "priors": "results/solver/priors/whole.json",
+        "reference_maps": per_scene(paths.reference_map(), benchmark_scenes()),
+        "queries": per_scene(paths.queries(), benchmark_scenes()),
+        "priors": paths.solver_priors(vocabulary.WHOLE),
     }
 
 
@@ -15,21 +15,12 @@ def beyond_city_inputs(wildcards):
     """A tiled city's map, queries and index (`city-N`), or the scenes a simulated city is drawn
     from (`simulated-N`, as rule city_simulate); the solver's learned priors."""
     kind, n = wildcards.map.split("-")
-    inp = {"priors": "results/solver/priors/whole.json"}
+    inp = {"priors": paths.solver_priors(vocabulary.WHOLE)}
     if kind == "city":
-        inp.update(
-            map=f"results/city/{n}/map.parquet",
-            queries=f"results/city/{n}/queries.parquet",
-            index=f"results/city/{n}/index",
-        )
+        inp.update(map=paths.city(n), queries=paths.city(n, "queries.parquet"), index=paths.city(n, "index"))
     else:
         inp.update(city_scene_inputs())
     return inp
-
-
-#: what the beyond rules read of config `beyond`: the protocol and the solver's settings, not which
-#: cities the city rows use (those name the rules' outputs), so another city does not rerun them
-BEYOND_PROTOCOL = {k: v for k, v in config["beyond"].items() if k not in ("city_scenes", "city_objects")}
 
 
 def beyond_scene_priors():
@@ -49,27 +40,33 @@ def beyond_city_maps():
     return maps
 
 
-def beyond_summaries(wildcards):
-    """The table's inputs: the scene rows, and for `beyond_one_frame_city` the city rows too."""
+def _beyond_rows(wildcards, kind):
+    """The scene rows' files (``summary`` or ``errors``), and for `beyond_one_frame_city` the city rows' too."""
     if not benchmark_scenes():
         return []
-    scene = expand("results/beyond/scene/summary_{prior}.json", prior=beyond_scene_priors())
+    scene = [paths.beyond_scene(prior, kind) for prior in beyond_scene_priors()]
     if wildcards.part == "one_frame":
         return scene
-    return scene + [f"results/beyond/{m}/summary.json" for m in beyond_city_maps()]
+    ext = "json" if kind == "summary" else "parquet"
+    return scene + [paths.beyond_city(m, f"{kind}.{ext}") for m in beyond_city_maps()]
+
+
+def beyond_summaries(wildcards):
+    """The table's inputs: the rows' summaries."""
+    return _beyond_rows(wildcards, "summary")
 
 
 def beyond_errors(wildcards):
     """The figures' inputs: the per-anchor rows of the table's summaries."""
-    return [p.replace("summary", "errors").replace(".json", ".parquet") for p in beyond_summaries(wildcards)]
+    return _beyond_rows(wildcards, "errors")
 
 
 def _beyond_part(part):
     return [
-        f"results/tables/beyond_{part}.parquet",
-        f"results/tables/beyond_{part}.md",
-        f"results/figures/beyond_{part}_risk_coverage.png",
-        f"results/figures/beyond_{part}_reliability.png",
+        paths.table(f"beyond_{part}"),
+        paths.table(f"beyond_{part}", "md"),
+        paths.figure(f"beyond_{part}_risk_coverage.png"),
+        paths.figure(f"beyond_{part}_reliability.png"),
     ]
 
 

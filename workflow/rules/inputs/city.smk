@@ -1,26 +1,25 @@
 # Input functions and settings of the rules in rules/city.smk (kept apart: Snakemake's linter
 # wants rules and functions in separate files). No lambdas in rules.
 
-CITY_METHODS = ["solver", "index"]
-
 
 def city_scene_inputs(wildcards=None):
     """The benchmark scenes' reference maps and queries, in the scenes' order (tiles follow it)."""
     return {
-        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        "reference_maps": per_scene(paths.reference_map(), benchmark_scenes()),
+        "queries": per_scene(paths.queries(), benchmark_scenes()),
     }
 
 
 def city_eval_inputs(wildcards):
     """A city size's maps and queries, the shared priors, and for the city search its indexes."""
+    n = wildcards.n
     inp = {
-        "map": f"results/city/{wildcards.n}/map.parquet",
-        "queries": f"results/city/{wildcards.n}/queries.parquet",
-        "priors": "results/solver/priors/whole.json",
+        "map": paths.city(n),
+        "queries": paths.city(n, "queries.parquet"),
+        "priors": paths.solver_priors(vocabulary.WHOLE),
     }
     if wildcards.method == "index":
-        inp["index"] = f"results/city/{wildcards.n}/index"
+        inp["index"] = paths.city(n, "index")
     return inp
 
 
@@ -30,9 +29,8 @@ def city_summaries():
     scenes = benchmark_scenes()
     sizes = [n for n in config["city"]["scene_counts"] if n <= len(scenes)]
     simulated = config["city"]["simulate"]["objects"] if len(scenes) >= 2 else []
-    return expand("results/city/{n}/summary_{method}.json", n=sizes, method=CITY_METHODS) + expand(
-        "results/city/simulated/{objects}/summary.json", objects=simulated
-    )
+    tiled = [paths.city_result(n, method) for n in sizes for method in vocabulary.CITY_METHODS]
+    return tiled + [paths.simulated_city(objects) for objects in simulated]
 
 
 def city_products():
@@ -40,4 +38,4 @@ def city_products():
     (rules/beyond.smk)."""
     if not benchmark_scenes():
         return []
-    return ["results/tables/city_scale.parquet", "results/tables/city_scale.md"] + beyond_city_products()
+    return [paths.table("city_scale"), paths.table("city_scale", "md")] + beyond_city_products()

@@ -2,7 +2,6 @@
 # wants rules and functions in separate files). No lambdas in rules.
 
 
-COARSE_LOSSES = ["sim", "trip", "simtrip"]
 COARSE = config["coarse"]
 #: CPU seconds per coarse training epoch on one core (benchmarks/bench_paper_config.py: 0.95-1.01 s)
 COARSE_EPOCH_S = 1.0
@@ -11,11 +10,6 @@ COARSE_EPOCH_S = 1.0
 def coarse_train_runtime(wildcards):
     """A coarse_train job's runtime bound in minutes: its epochs x1.5 for a slower node, plus 10."""
     return int(COARSE_EPOCH_S * COARSE["train"]["epochs"] * 1.5 / 60) + 10
-
-
-# training / baseline seed: the master seed + coarse.seed_offset
-COARSE_SEED = int(config["seed"]) + int(COARSE["seed_offset"])
-COARSE_TRAIN = {**COARSE["train"], "seed": COARSE_SEED}
 
 
 def coarse_losses():

@@ -1,9 +1,6 @@
 # Input functions and settings of the rules in rules/data.smk (kept apart: Snakemake's linter
 # wants rules and functions in separate files). No lambdas in rules.
 
-#: Caps on every download and unpacking (config `fetch`): rules fetch_flatlandia and fetch_images.
-FETCH_LIMITS = {key: config["fetch"][key] for key in ("max_download_mb", "max_unpacked_mb", "max_members")}
-
 
 def fetch_dest(wildcards, output):
     """fetch.dest, where the data is unpacked, beside the fetch's flag (FETCH_FLAG: dest's name with
@@ -14,5 +11,5 @@ def fetch_dest(wildcards, output):
 def reference_map_inputs(wildcards):
     """A published scene's map is built from the published files; an images scene's from its objects."""
     if scene_source(wildcards) == "images":
-        return {"objects": f"results/{wildcards.scene}/objects/objects.parquet"}
-    return {**scene_data_inputs(wildcards), "ingest": f"results/{wildcards.scene}/ingest/ingest.json"}
+        return {"objects": paths.objects(wildcards.scene)}
+    return {**scene_data_inputs(wildcards), "ingest": paths.ingest(wildcards.scene)}

@@ -8,12 +8,14 @@
 
 
 def export_coarse_tables():
-    """{source: proposal table} of every coarse source of this run (config coarse.losses and the
-    solver's), present or not, in the order of flatlandia.export.COARSE_SOURCES."""
-    order = ["sim", "trip", "simtrip"]
-    tables = {f"coarse-{loss}": f"results/coarse/{loss}/proposals.parquet" for loss in order if loss in coarse_losses()}
-    tables["coarse-solver"] = "results/coarse/solver/proposals.parquet"
-    return tables
+    """{proposal: its table} of every coarse proposal of this run (config coarse.losses and the
+    solver's), present or not, in the vocabulary's order (flatlandia.export.COARSE_SOURCES)."""
+    losses = set(coarse_losses())
+    return {
+        p: paths.proposal_table(p)
+        for p in vocabulary.COARSE_PROPOSALS
+        if vocabulary.coarse_source(p) in losses or vocabulary.coarse_source(p) not in vocabulary.COARSE_LOSSES
+    }
 
 
 def export_present_sources(wildcards=None):
@@ -30,8 +32,8 @@ def export_proposal_files(wildcards=None):
 def export_scene_inputs(wildcards):
     """A benchmark scene's reference map and queries, and the coarse proposal tables present."""
     return {
-        "reference_map": f"results/{wildcards.scene}/maps/reference_map.parquet",
-        "queries": f"results/{wildcards.scene}/queries/queries.parquet",
+        "reference_map": paths.reference_map(wildcards.scene),
+        "queries": paths.queries(wildcards.scene),
         "proposals": export_proposal_files(),
     }
 
@@ -40,8 +42,8 @@ def export_index_inputs(wildcards):
     """Every benchmark scene's reference map and queries (scenes.csv, the template), and the coarse
     proposal tables present (the README says which sources the export holds)."""
     return {
-        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        "reference_maps": per_scene(paths.reference_map(), benchmark_scenes()),
+        "queries": per_scene(paths.queries(), benchmark_scenes()),
         "proposals": export_proposal_files(),
     }
 
@@ -62,6 +64,6 @@ def export_products():
     """The `export` target (not in `all`): results/export/ for every benchmark scene."""
     if not benchmark_scenes():
         return []
-    return [f"results/export/{f}" for f in EXPORT_INDEX_FILES] + [
-        f"results/export/{scene}/{f}" for scene in benchmark_scenes() for f in EXPORT_SCENE_FILES
+    return [paths.export(f) for f in EXPORT_INDEX_FILES] + [
+        paths.export(f, scene) for scene in benchmark_scenes() for f in EXPORT_SCENE_FILES
     ]

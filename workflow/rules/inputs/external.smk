@@ -21,19 +21,9 @@ def external_eval_inputs(wildcards):
     """The poses file, the benchmark scenes' maps and queries, and for coarse proposals their table."""
     inp = {
         "poses": external_poses(wildcards.method),
-        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        "reference_maps": per_scene(paths.reference_map(), benchmark_scenes()),
+        "queries": per_scene(paths.queries(), benchmark_scenes()),
     }
-    if wildcards.proposal in FINE_COARSE:
-        loss = wildcards.proposal.split("-", 1)[1]
-        inp["coarse"] = f"results/coarse/{loss}/proposals.parquet"
+    if vocabulary.coarse_source(wildcards.proposal):
+        inp["coarse"] = paths.proposal_table(wildcards.proposal)
     return inp
-
-
-def external_eval_params(wildcards):
-    """What external_eval reads, and only that: the method's name and proposal, the coarse table's strategy
-    for coarse proposals (an external method is not trained and runs no solver)."""
-    out = {"method": wildcards.method, "proposal": wildcards.proposal}
-    if wildcards.proposal in FINE_COARSE:
-        out["strategy"] = fine_coarse_strategy(wildcards.proposal)
-    return out

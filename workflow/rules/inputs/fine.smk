@@ -1,14 +1,9 @@
 import math
 
+from flatlandia.proposals import training_settings
+
 # Input functions and settings of the rules in rules/fine.smk (kept apart: Snakemake's linter
 # wants rules and functions in separate files). No lambdas in rules.
-
-
-#: the geometric solver's methods: with the training split's cameras, and without them (the camera
-#: prior off for that run: what the whole-map figures owe to the cameras)
-SOLVER_METHODS = ["solver", "solver-noprior"]
-FINE_MODELS = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
-FINE_COARSE = {"coarse-sim": "Sim", "coarse-trip": "Trip", "coarse-simtrip": "Sim+Trip", "coarse-solver": "Solver"}
 
 
 def _external_methods():
@@ -31,70 +26,68 @@ def external_methods():
 
 def external_runs():
     """The external methods' runs {name}_{map_type}_{proposal} (rule external_eval scores them)."""
-    return [f"{e['name']}_{t}_{p}" for e in external_methods() for t in e["map_types"] for p in e["proposals"]]
+    return [
+        vocabulary.run_name(e["name"], t, p) for e in external_methods() for t in e["map_types"] for p in e["proposals"]
+    ]
 
 
 def fine_runs():
     """Run names {method}_{map_type}_{proposal} from config fine.runs (methods x map types x proposals),
-    then the external methods' runs (config external)."""
+    then the external methods' runs (config external); paths.run_file finds each run's files."""
     runs = config["fine"]["runs"]
-    grid = [f"{m}_{t}_{p}" for m in runs["methods"] for t in runs["map_types"] for p in runs["proposals"]]
+    grid = [vocabulary.run_name(m, t, p) for m in runs["methods"] for t in runs["map_types"] for p in runs["proposals"]]
     return grid + [r for r in runs["extra"] if r not in grid] + external_runs()
 
 
+def run_files(runs, part):
+    """The files ``part`` (errors.parquet, summary.json) of fine runs, built-in and external."""
+    return [paths.run_file(run, part) for run in runs]
+
+
 def fine_eval_inputs(wildcards):
+    method, proposal = wildcards.method, wildcards.proposal
     inp = {
-        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        "reference_maps": per_scene(paths.reference_map(), benchmark_scenes()),
+        "queries": per_scene(paths.queries(), benchmark_scenes()),
     }
-    if wildcards.method not in SOLVER_METHODS:
-        regime = fine_train_regime(wildcards.proposal)
-        inp["checkpoint"] = f"results/fine/models/{wildcards.method}_{wildcards.map_type}_{regime}/checkpoint.pt"
+    if method in vocabulary.LEARNED_METHODS:
+        inp["checkpoint"] = paths.fine_model(method, wildcards.map_type, fine_train_regime(proposal))
     elif wildcards.map_type == "depth":  # without cameras no verifier: the scale prior alone
-        inp["solver_priors"] = solver_priors_file(wildcards.proposal if wildcards.method == "solver" else "scale")
-    if wildcards.proposal in FINE_COARSE:
-        loss = wildcards.proposal.split("-", 1)[1]
-        inp["coarse"] = f"results/coarse/{loss}/proposals.parquet"
+        inp["solver_priors"] = paths.proposal_priors(proposal) if method == "solver" else paths.solver_priors("scale")
+    if vocabulary.coarse_source(proposal):
+        inp["coarse"] = paths.proposal_table(proposal)
     return inp
 
 
 def fine_train_regime(proposal):
-    """Training proposals of the learned model a run evaluates: ``coarse`` (simulated coarse
-    proposals) for runs on coarse proposals when fine.coarse_training.enabled, else ``gtbb``; the
-    solver's box proposals (strategy BB) are what the GT-BB-trained model knows (on them it is
-    7.2 m against 10.5 m for the coarse-trained one, depth maps, validation split)."""
-    on = config["fine"]["coarse_training"]["enabled"]
-    box = fine_coarse_strategy(proposal) == "BB"
-    return "coarse" if proposal in FINE_COARSE and on and not box else "gtbb"
+    """Training proposals of the learned model a run evaluates (vocabulary.train_regime): ``coarse``
+    (simulated coarse proposals) for runs on coarse proposals when fine.coarse_training.enabled, else
+    ``gtbb``; the solver's box proposals (strategy BB) are what the GT-BB-trained model knows (on them
+    it is 7.2 m against 10.5 m for the coarse-trained one, depth maps, validation split)."""
+    strategy = vocabulary.coarse_strategy(proposal, config)
+    return vocabulary.train_regime(proposal, strategy, config["fine"]["coarse_training"]["enabled"])
 
 
-def fine_coarse_strategy(proposal):
-    """The strategy of a coarse proposal table that feeds the fine runs: coarse.solver.fine_strategy
-    for the solver's proposals (the box the learned models train on), fine.coarse_strategy otherwise."""
-    if proposal == "coarse-solver":
-        return config["coarse"]["solver"]["fine_strategy"]
-    return config["fine"]["coarse_strategy"]
+def fine_eval_reads(wildcards):
+    """The config keys one fine_eval job reads (the others of its config_keys are {} for it): the
+    solver's settings for the solver's runs; the strategy key of a coarse proposal
+    (vocabulary.strategy_key); for a learned model on coarse proposals whether it was trained on
+    them, and if so the radius its proposals are cut to."""
+    method, proposal = wildcards.method, wildcards.proposal
+    keys = {"solver"} if method in vocabulary.SOLVER_METHODS else set()
+    if vocabulary.strategy_key(proposal):
+        keys.add(vocabulary.strategy_key(proposal))
+        if method in vocabulary.LEARNED_METHODS:
+            keys.add("fine.coarse_training.enabled")
+            if fine_train_regime(proposal) == "coarse":
+                keys.add("fine.coarse_training.crop_m")
+    return keys
 
 
-def fine_eval_params(wildcards):
-    """What rule fine_eval reads for one run, and only that (the provenance record lists these as
-    the run's settings): the coarse table's strategy for coarse proposals; how a learned model was
-    trained (``train_regime``, and ``crop_m`` for coarse training), not for the solver."""
-    p = wildcards.proposal
-    out = {"method": wildcards.method, "proposal": p}
-    if p in FINE_COARSE:
-        out["strategy"] = fine_coarse_strategy(p)
-    out["strategy_label"] = {"gtbb": "GT-BB", "whole": "whole map"}.get(p) or f"{FINE_COARSE[p]} {out['strategy']}"
-    if wildcards.method not in SOLVER_METHODS:
-        out["train_regime"] = fine_train_regime(p)
-        if out["train_regime"] == "coarse":
-            out["crop_m"] = float(config["fine"]["coarse_training"]["crop_m"])
-    return out
-
-
-def fine_eval_solver(wildcards):
-    """The solver's settings, for the solver's runs only (a learned model reads none of them)."""
-    return config["solver"] if wildcards.method in SOLVER_METHODS else {}
+def strategy_reads(wildcards):
+    """The strategy key of a coarse proposal (external_eval reads nothing else of the config)."""
+    key = vocabulary.strategy_key(wildcards.proposal)
+    return {key} if key else set()
 
 
 #: the order of ready trainings: the longest first (a clean default run: GAT+ATT 110 s, GAT 85 s,
@@ -112,7 +105,9 @@ FINE_EPOCH_S = {"mlp": 0.26, "mlp_att": 1.3, "gat": 12.2, "gat_att": 13.6}
 def fine_train_runtime(wildcards):
     """A fine_train job's runtime bound in minutes (the cluster's time limit): its epochs at the
     paper sizes' speed, x2 on coarse proposals, x1.5 for a slower node, plus 10 minutes."""
-    epochs = fine_train_params(wildcards)["epochs"]
+    fine = config["fine"]
+    train = fine["train_overrides"][wildcards.model]
+    epochs = training_settings(fine["train"], train, fine["coarse_training"], wildcards.train)["epochs"]
     slow = 2.0 if wildcards.train == "coarse" else 1.0
     return int(math.ceil(epochs * FINE_EPOCH_S[wildcards.model] * slow * 1.5 / 60)) + 10
 
@@ -120,7 +115,7 @@ def fine_train_runtime(wildcards):
 def fine_eval_gpus(wildcards):
     """GPUs for a fine_eval job with config device: cuda (rules/resources.yaml): 1 for a learned
     model's run, none for the solver's (no model)."""
-    return 1 if wildcards.method in FINE_MODELS else 0
+    return 1 if wildcards.method in vocabulary.LEARNED_METHODS else 0
 
 
 def fine_train_priority(wildcards):
@@ -128,28 +123,18 @@ def fine_train_priority(wildcards):
 
 
 def fine_model_name(wildcards):
-    return FINE_MODELS[wildcards.model]
-
-
-def fine_train_params(wildcards):
-    """fine.train, updated by fine.train_overrides[{model}] (e.g. fewer epochs for the slower GATs),
-    and for training on simulated coarse proposals by fine.coarse_training.epochs."""
-    p = {**config["fine"]["train"], **config["fine"]["train_overrides"][wildcards.model]}
-    epochs = config["fine"]["coarse_training"]["epochs"]
-    if wildcards.train == "coarse" and epochs:
-        p["epochs"] = epochs
-    return p
+    return vocabulary.LEARNED_METHODS[wildcards.model]
 
 
 def fine_train_inputs(wildcards):
     """The benchmark scenes' maps and queries; for training on simulated coarse proposals with
     fine.coarse_training.warm_start, the GT-BB-trained model it starts from."""
     inp = {
-        "reference_maps": per_scene("results/{scene}/maps/reference_map.parquet", benchmark_scenes()),
-        "queries": per_scene("results/{scene}/queries/queries.parquet", benchmark_scenes()),
+        "reference_maps": per_scene(paths.reference_map(), benchmark_scenes()),
+        "queries": per_scene(paths.queries(), benchmark_scenes()),
     }
     if wildcards.train == "coarse" and config["fine"]["coarse_training"]["warm_start"]:
-        inp["init"] = f"results/fine/models/{wildcards.model}_{wildcards.map_type}_gtbb/checkpoint.pt"
+        inp["init"] = paths.fine_model(wildcards.model, wildcards.map_type, "gtbb")
     return inp
 
 
@@ -159,12 +144,12 @@ def scene_localization_inputs(wildcards):
     s = wildcards.scene
     runs = config["fine"]["runs"]
     return {
-        "reference_map": f"results/{s}/maps/reference_map.parquet",
-        "queries": f"results/{s}/queries/queries.parquet",
+        "reference_map": paths.reference_map(s),
+        "queries": paths.queries(s),
         "checkpoints": [
-            f"results/fine/models/{m}_{t}_gtbb/checkpoint.pt"
+            paths.fine_model(m, t, "gtbb")
             for m in runs["methods"]
-            if m not in SOLVER_METHODS
+            if m in vocabulary.LEARNED_METHODS
             for t in runs["map_types"]
         ],
     }

@@ -8,9 +8,9 @@ def objects_inputs(wildcards):
     s = wildcards.scene
     if scene_source(wildcards) == "images":
         return {
-            "points": f"results/{s}/sfm/classified_points.parquet",
-            "instances": f"results/{s}/sfm/point_instances.parquet",
-            "alignment": f"results/{s}/sfm/gps_alignment.json",
+            "points": paths.classified_points(s),
+            "instances": paths.point_instances(s),
+            "alignment": paths.gps_alignment(s),
         }
     return {
         "cloud": flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply"),
@@ -31,14 +31,10 @@ def principal_plane_inputs(wildcards):
     }
 
 
-def objects_cluster_params(wildcards):
-    return dict(config["objects"]["cluster"])
-
-
 def audit_inputs(wildcards):
     scenes = class_cloud_scenes(benchmark_scenes())
     return {
-        "objects": expand("results/{scene}/objects/objects.parquet", scene=scenes),
+        "objects": [paths.objects(s) for s in scenes],
         "clouds": [flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply") for s in scenes],
         "transformations": [flatlandia_file(f"maps/{s}/transformations.json") for s in scenes],
         "reference_maps": [flatlandia_file(f"individual_reference_maps/map_{s}.json") for s in scenes],

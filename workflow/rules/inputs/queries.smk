@@ -11,30 +11,26 @@ def queries_gpus(wildcards):
 
 def queries_inputs(wildcards):
     """Published scenes: the recovered published local maps; images scenes: the GPS-aligned SfM
-    model and the objects its points belong to."""
+    model, the objects its points belong to and the photos (their depth maps)."""
     s = wildcards.scene
     if scene_source(wildcards) == "images":
         return {
-            "model": f"results/{s}/sfm/model",
-            "alignment": f"results/{s}/sfm/gps_alignment.json",
-            "objects": f"results/{s}/objects/objects.parquet",
-            "members": f"results/{s}/objects/point_objects.parquet",
-            "reference_map": f"results/{s}/maps/reference_map.parquet",
+            "model": paths.sfm(s, "model"),
+            "alignment": paths.gps_alignment(s),
+            "objects": paths.objects(s),
+            "members": paths.point_objects(s),
+            "reference_map": paths.reference_map(s),
+            "images": images_dir(wildcards),
         }
     return {
         **scene_data_inputs(wildcards),
-        "recovered": f"results/{s}/queries/recovered.parquet",
-        "reference_map": f"results/{s}/maps/reference_map.parquet",
+        "recovered": paths.recovered(s),
+        "reference_map": paths.reference_map(s),
     }
 
 
-def queries_images_params(wildcards):
-    """Settings of an images scene's queries (config images); none for a published scene."""
+def images_scene_reads(wildcards):
+    """The config keys of section images an images scene's queries read; none for a published scene."""
     if scene_source(wildcards) != "images":
-        return {}
-    return {
-        "min_objects": config["images"]["min_objects"],
-        "min_points": config["images"]["min_points"],
-        "depth": config["images"]["depth"],
-        "images_dir": images_dir(wildcards),
-    }
+        return set()
+    return {"images.min_objects", "images.min_points", "images.depth"}

@@ -6,11 +6,17 @@ def fine_trained_models():
     """(model, map_type, training proposals) of every learned fine run of the config (the solver needs no training)."""
     out = []
     for run in fine_runs():
-        method, map_type, proposal = run.rsplit("_", 2)
+        method, map_type, proposal = vocabulary.split_run(run)
         key = (method, map_type, fine_train_regime(proposal))
-        if method in FINE_MODELS and key not in out:  # not the solver, nor an external method
+        if method in vocabulary.LEARNED_METHODS and key not in out:  # not the solver, nor an external method
             out.append(key)
     return out
+
+
+def fine_training_labels():
+    """The training curves' legend of each learned model (fine_trained_models' order)."""
+    oracle = vocabulary.ORACLE_STRATEGY
+    return [f"{m} ({t} maps, {oracle if r == 'gtbb' else 'coarse'} training)" for m, t, r in fine_trained_models()]
 
 
 def heatmap_scene():
@@ -25,18 +31,14 @@ def report_figures():
     figure per test query and a gallery of its worst queries."""
     if not benchmark_scenes():
         return []
-    out = [
-        "results/figures/training_curves.png",
-        "results/figures/fine_error_cdf.png",
-        "results/figures/fine_error_vs_objects.png",
-    ]
-    out += [f"results/figures/coarse_scores_{heatmap_scene()}.png"]
-    return out + per_scene("results/{scene}/queries/worst_queries.png", benchmark_scenes())
+    out = [paths.figure(f) for f in ("training_curves.png", "fine_error_cdf.png", "fine_error_vs_objects.png")]
+    out += [paths.figure(f"coarse_scores_{heatmap_scene()}.png")]
+    return out + [paths.worst_queries(s) for s in benchmark_scenes()]
 
 
 def scene_viewers():
     """A map viewer per selected scene (those of the benchmark show its runs' estimates)."""
-    return per_scene("results/{scene}/maps/viewer.html", selected_scenes())
+    return [paths.viewer(s) for s in selected_scenes()]
 
 
 def viewer_runs(wildcards):
@@ -47,7 +49,7 @@ def viewer_runs(wildcards):
 def viewer_inputs(wildcards):
     s = wildcards.scene
     return {
-        "reference_map": f"results/{s}/maps/reference_map.parquet",
-        "queries": f"results/{s}/queries/queries.parquet",
-        "errors": [f"results/fine/{run}/errors.parquet" for run in viewer_runs(wildcards)],
+        "reference_map": paths.reference_map(s),
+        "queries": paths.queries(s),
+        "errors": run_files(viewer_runs(wildcards), "errors.parquet"),
     }

@@ -1,13 +1,11 @@
 # Input functions and settings of the rules in rules/solver.smk (kept apart: Snakemake's linter
 # wants rules and functions in separate files). No lambdas in rules.
+#
+# The regions the solver's priors are fitted for (vocabulary.PRIOR_REGIONS): a verifier learns on the
+# whole map or on the GT-BB box (the region the test queries get); `scale` holds the scale prior alone
+# (the regions no verifier learns on: coarse proposals, the coarse stage's own solver). Which region
+# a run on a proposal reads: vocabulary.prior_region, paths.proposal_priors.
 
-#: the regions the solver's priors are fitted for: a verifier learns on the whole map or on the
-#: GT-BB box (the region the test queries get); `scale` holds the scale prior alone (the regions
-#: no verifier learns on: coarse proposals, the coarse stage's own solver)
-SOLVER_PRIOR_REGIONS = ["whole", "gtbb", "scale"]
-
-
-def solver_priors_file(proposal):
-    """The learned priors a depth-map run on ``proposal`` reads (rule solver_priors)."""
-    region = proposal if proposal in ("whole", "gtbb") else "scale"
-    return f"results/solver/priors/{region}.json"
+#: the keys of config `beyond` that name the city rows' maps, not the protocol: the rules that read
+#: the protocol leave them out, so another city does not rerun them
+BEYOND_CITIES = ["beyond.city_scenes", "beyond.city_objects"]
