@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import compare_tables  # noqa: E402
 import machine  # noqa: E402
 
-from flatlandia import batch, score  # noqa: E402
+from flatlandia import batch, paths, score  # noqa: E402
 from flatlandia.fine import table as fine_table  # noqa: E402
 
 NAME_COLUMNS = {"run", "method", "method_label"}
@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", help="keep the poses and scores here (default: a temporary folder)")
     args = ap.parse_args(argv)
     results = Path(args.results)
-    builtin = pd.read_parquet(results / "tables" / "fine_localization.parquet")
+    builtin = pd.read_parquet(paths.within(results, paths.table("fine_localization")))
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="bench_batch_"))
     print(f"machine: {machine.describe()}")
     failed = 0

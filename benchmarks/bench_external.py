@@ -29,6 +29,8 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import machine  # noqa: E402
 
+from flatlandia import paths  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -38,11 +40,12 @@ def main(argv=None) -> int:
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--keep", action="store_true", help="keep the copy")
     args = ap.parse_args(argv)
-    if not (args.run / "results" / "fine" / "solver_depth_whole" / "errors.parquet").exists():
-        sys.exit(f"ERROR: {args.run}: no finished run there (results/fine/solver_depth_whole/errors.parquet)")
+    solver_run = paths.fine_run("solver", "depth", "whole")
+    if not (args.run / solver_run).exists():
+        sys.exit(f"ERROR: {args.run}: no finished run there ({solver_run})")
     folder = Path(tempfile.mkdtemp(prefix="flatlandia_external_"))
-    subprocess.run(["cp", "-a", str(args.run / "results"), str(folder / "results")], check=True)
-    solver = pd.read_parquet(folder / "results" / "fine" / "solver_depth_whole" / "errors.parquet")
+    subprocess.run(["cp", "-a", str(args.run / paths.RESULTS), str(folder / paths.RESULTS)], check=True)
+    solver = pd.read_parquet(folder / solver_run)
     posed = solver[np.isfinite(solver["x"])]
     posed[["scene", "token", "x", "y", "theta_deg"]].rename(columns={"x": "x_m", "y": "y_m"}).to_csv(
         folder / "mine.csv", index=False

@@ -34,7 +34,7 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
-from flatlandia import localize  # noqa: E402
+from flatlandia import localize, paths  # noqa: E402
 from flatlandia.data import localmaps  # noqa: E402
 from flatlandia.geo import pose_errors  # noqa: E402
 
@@ -109,7 +109,7 @@ def timing(e: pd.DataFrame, loads: list[float]) -> str:
 
 def same_as_benchmark(e: pd.DataFrame, results: Path) -> str:
     """Do the depth poses equal rule fine_eval's whole-map run, query by query?"""
-    path = results / "fine" / "solver_depth_whole" / "errors.parquet"
+    path = paths.within(results, paths.fine_run("solver", "depth", "whole"))
     if not path.exists():
         return f"(no {path} to compare with)"
     ref = pd.read_parquet(path).set_index(["scene", "token"])
@@ -118,7 +118,7 @@ def same_as_benchmark(e: pd.DataFrame, results: Path) -> str:
     d_theta = np.abs((ref["theta_deg"].to_numpy() - e["theta_deg"].to_numpy() + 180) % 360 - 180)
     matches = all(list(a) == list(b) for a, b in zip(ref["matched_obj_idx"], e["matched"]))
     errors = np.allclose(ref["error_m"], e["error_m"], rtol=0, atol=1e-9)
-    table = results / "tables" / "fine_localization.parquet"
+    table = paths.within(results, paths.table("fine_localization"))
     row = ""
     if table.exists():
         t = pd.read_parquet(table).set_index("run")

@@ -267,3 +267,18 @@ def test_a_new_proposal_type_is_two_edits(tmp_path):
     )
     res = subprocess.run([sys.executable, "-c", check], env={**os.environ, **env}, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-2000:]
+
+
+def test_a_key_with_a_wildcard_is_the_jobs_entry(tmp_path):
+    """fine_train reads fine.train_overrides.{model}: the job's model's entry, recorded under that name."""
+    from flatlandia import debug, provenance
+
+    job = debug.mock_snakemake(
+        "fine_train", workdir=tmp_path, configfiles=[TINY], model="gat", map_type="gt", train="coarse"
+    )
+    settings = provenance.rule_settings(job)
+    overrides = config.section_defaults("fine")["train_overrides"]
+    assert {"fine.train", "fine.train_overrides.{model}", "fine.coarse_training"} <= set(settings)
+    if overrides["gat"]:
+        assert settings["fine.train_overrides.{model}"] == overrides["gat"]
+    assert job.params.model == vocabulary.LEARNED_METHODS["gat"]

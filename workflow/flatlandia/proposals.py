@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from flatlandia import vocabulary
+
 PROPOSAL_COLUMNS = ["scene", "token", "strategy", "proposal"]
 
 
@@ -64,9 +66,9 @@ def for_queries(
     """The proposals of one scene's ``queries`` of a kind: ``gtbb``, ``whole``, or any other kind
     (a coarse stage's) read from ``coarse``, a proposal table with ``map_type`` and ``strategy``
     columns, keeping the rows of this scene, ``map_type`` and ``strategy``."""
-    if kind == "gtbb":
+    if kind == vocabulary.GTBB:
         return gtbb_proposals(ref, queries)
-    if kind == "whole":
+    if kind == vocabulary.WHOLE:
         return whole_map_proposals(ref, queries)
     if coarse is None:
         raise ValueError(f"proposals {kind!r} need a coarse proposal table")

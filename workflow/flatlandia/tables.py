@@ -101,7 +101,12 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("paper_images", "float", "", "the paper's Table 2"),
     ],
     "fine_localization": [
-        Column("run", "str", "", "{method}_{map_type}_{proposal}: results/fine/{run}/"),
+        Column(
+            "run",
+            "str",
+            "",
+            "{method}_{map_type}_{proposal}: results/fine/{run}/ (an external method's: results/external/{run}/)",
+        ),
         Column(
             "method",
             "str",

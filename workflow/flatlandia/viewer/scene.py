@@ -23,7 +23,7 @@ from flatlandia.figures import Run
 MATCH_COLUMN = "matched_obj_idx"
 #: the setting whose runs the figures feature and the viewer shows first: (map type, proposal),
 #: in order of preference (depth local maps on GT-BB proposals: the paper's realistic case)
-FEATURED_SETTINGS = [("depth", "gtbb"), ("gt", "gtbb"), ("depth", "whole"), ("gt", "whole")]
+FEATURED_SETTINGS = [(t, p) for p in (vocabulary.GTBB, vocabulary.WHOLE) for t in ("depth", "gt")]
 
 
 @dataclass(frozen=True)

@@ -134,7 +134,7 @@ def fine_train_inputs(wildcards):
         "queries": per_scene(paths.queries(), benchmark_scenes()),
     }
     if wildcards.train == "coarse" and config["fine"]["coarse_training"]["warm_start"]:
-        inp["init"] = paths.fine_model(wildcards.model, wildcards.map_type, "gtbb")
+        inp["init"] = paths.fine_model(wildcards.model, wildcards.map_type, vocabulary.GTBB)
     return inp
 
 
@@ -147,7 +147,7 @@ def scene_localization_inputs(wildcards):
         "reference_map": paths.reference_map(s),
         "queries": paths.queries(s),
         "checkpoints": [
-            paths.fine_model(m, t, "gtbb")
+            paths.fine_model(m, t, vocabulary.GTBB)
             for m in runs["methods"]
             if m in vocabulary.LEARNED_METHODS
             for t in runs["map_types"]

@@ -10,4 +10,4 @@ def tokens_files():
 
 def result_tables():
     """Every result table of the run (Parquet); `snakemake tables` builds just these."""
-    return [p for p in products_of_the_run() if p.startswith(paths.tables_dir() + "/") and p.endswith(".parquet")]
+    return [p for p in products_of_the_run() if Path(p).parent == Path(paths.tables_dir()) and p.endswith(".parquet")]
