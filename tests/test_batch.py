@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 from conftest import TINY_ROOT, TINY_SCENE, benchmark_module
 
-from flatlandia import batch, cli, config, export, geo, io, score
+from flatlandia import batch, cli, config, export, geo, io, paths, score
 from flatlandia.city import index, tiling
 from flatlandia.classes import CLASSES
 from flatlandia.data import queries, recover, reference_map
@@ -289,8 +289,9 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
     settings = config.section_defaults("solver")
     learned = {}
     for region in ("whole", "gtbb"):  # rule solver_priors: a verifier per region
-        solver.learned.fit(scenes, settings, region).write(results / batch.priors_file(region))
-        learned[region] = solver.LearnedPriors.read(results / batch.priors_file(region))  # as rule fine_eval reads it
+        priors = paths.within(results, paths.proposal_priors(region))  # as rule fine_eval reads them
+        solver.learned.fit(scenes, settings, region).write(priors)
+        learned[region] = solver.LearnedPriors.read(priors)
     stats = []
     for ref, q in scenes:
         s = str(ref["scene"].iloc[0])
@@ -345,7 +346,7 @@ def test_the_learned_priors_are_those_rule_fine_eval_reads(tmp_path):
     fine_eval job on that proposal, as Snakemake resolves its input."""
     from conftest import REPO
 
-    from flatlandia import debug, paths, vocabulary
+    from flatlandia import debug, vocabulary
 
     tiny = [REPO / "config" / "test" / "tiny.yaml"]
     for proposal in (vocabulary.WHOLE, vocabulary.GTBB, "coarse-simtrip"):

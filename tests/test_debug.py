@@ -23,7 +23,7 @@ def test_mock_snakemake_resolves_the_job(repo, flat_root, tmp_path):
     assert s.script == repo / "workflow/scripts/reference_map.py"
     # a config file over the default, as --configfile: paper.yaml changes the training epochs
     paper = debug.mock_snakemake("coarse_train", workdir=tmp_path, configfiles=[repo / "config/paper.yaml"], loss="sim")
-    assert paper.params.train["epochs"] == 800 and paper.output.model == "results/coarse/sim/model.pt"
+    assert paper.params["coarse.train"]["epochs"] == 800 and paper.output.model == "results/coarse/sim/model.pt"
 
 
 def test_mock_snakemake_names_what_is_wrong(tmp_path):

@@ -128,7 +128,14 @@ def test_tiny_images_are_dropped_and_segment_refuses_them(tmp_path, capsys):
         output=SimpleNamespace(
             masks=str(out / "masks"), classes=str(out / "classes"), stats=str(out / "stats.parquet")
         ),
-        params=SimpleNamespace(backend="offline", weights=None, labels_dir=None, watermark_box=None, dilate_px=0),
+        params={
+            "segment.backend": "offline",
+            "segment.weights": None,
+            "segment.labels_dir": None,
+            "segment.watermark_box": None,
+            "segment.dilate_px": 0,
+        },
+        config={"device": "cpu"},
         log=[str(tmp_path / "segment.log")],
     )
     errors = _run_script("segment.py", smk_, capsys)
@@ -186,13 +193,13 @@ def test_the_audit_rule_stops_with_one_line_when_nothing_usable_is_left(tmp_path
     smk_ = SimpleNamespace(
         input=SimpleNamespace(images=str(photos)),
         output=SimpleNamespace(table=str(table)),
-        params=SimpleNamespace(
-            dedup_threshold=0.02,
-            missing_gps="keep",
-            align_mode="gps",
-            min_side_px=IMAGES["min_side_px"],
-            max_megapixels=IMAGES["max_megapixels"],
-        ),
+        params={  # the config keys rule image_audit names
+            "images.dedup_threshold": 0.02,
+            "images.missing_gps": "keep",
+            "images.align.mode": "gps",
+            "images.min_side_px": IMAGES["min_side_px"],
+            "images.max_megapixels": IMAGES["max_megapixels"],
+        },
         config={"images": IMAGES},
         log=[str(tmp_path / "audit.log")],
     )
@@ -244,13 +251,13 @@ def test_a_malformed_metadata_csv_is_one_error_naming_line_column_and_value(tmp_
     smk_ = SimpleNamespace(
         input=SimpleNamespace(images=str(photos)),
         output=SimpleNamespace(table=str(table)),
-        params=SimpleNamespace(
-            dedup_threshold=0.02,
-            missing_gps="keep",
-            align_mode="gps",
-            min_side_px=IMAGES["min_side_px"],
-            max_megapixels=IMAGES["max_megapixels"],
-        ),
+        params={  # the config keys rule image_audit names
+            "images.dedup_threshold": 0.02,
+            "images.missing_gps": "keep",
+            "images.align.mode": "gps",
+            "images.min_side_px": IMAGES["min_side_px"],
+            "images.max_megapixels": IMAGES["max_megapixels"],
+        },
         config={"images": IMAGES},
         log=[str(tmp_path / "audit.log")],
     )

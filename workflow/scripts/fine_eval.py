@@ -20,8 +20,8 @@ def main(smk, log):
     key = vocabulary.strategy_key(proposal)
     strategy = str(p[key]) if key else None  # None: not a coarse proposal
     regime = crop_m = None
-    if method in vocabulary.LEARNED_METHODS:
-        regime = vocabulary.train_regime(proposal, strategy, bool(p["fine.coarse_training.enabled"]))
+    if method in vocabulary.LEARNED_METHODS:  # on a coarse proposal: was the model trained on such?
+        regime = vocabulary.train_regime(proposal, strategy, bool(key and p["fine.coarse_training.enabled"]))
         crop_m = float(p["fine.coarse_training.crop_m"]) if regime == "coarse" else 0.0
     run = vocabulary.run_name(method, mt, proposal)
     label = vocabulary.strategy_label(proposal, strategy)
