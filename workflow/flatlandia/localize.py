@@ -287,6 +287,7 @@ class ObjectMap:
     cameras: int = 0  # training cameras among the priors
     learned: solver.LearnedPriors | None = None
     learned_path: Path | None = None
+    map_size_path: Path | None = None  # city: the map-size correction of the probability (rule city_calibration)
     priors: dict = field(default_factory=dict)  # map type -> solver.TrainingPriors over the rows
     index: ViewIndex | None = None
     search: SearchConfig | None = None
@@ -305,6 +306,11 @@ class ObjectMap:
             "learned_from": str(self.learned_path) if lp is not None and self.learned_path else None,
             "scale_prior": bool(lp is not None and lp.scale is not None),
             "verifier": bool(lp is not None and lp.verifier is not None and self.cameras > 0),
+            **(
+                {"map_size_from": str(self.map_size_path) if lp is not None and self.map_size_path else None}
+                if self.kind == "city"
+                else {}
+            ),
         }
 
 
@@ -548,6 +554,11 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
     auto = city_dir.parent.parent / "solver" / "priors" / "whole.json"
     m.learned_path = (auto if auto.is_file() else None) if learned == "auto" else (Path(learned) if learned else None)
     m.learned = solver.LearnedPriors.read(m.learned_path) if m.learned_path else None
+    correction = city_dir.parent / "calibration.json"  # results/city/calibration.json (rule city_calibration)
+    if m.learned is not None and path.parent.name == "index" and correction.is_file():
+        from flatlandia.solver.learned import read_map_size
+
+        m.learned, m.map_size_path = m.learned.with_map_size(read_map_size(correction)), correction
     table = city_dir / "map.parquet"
     if path.parent.name == "index" and table.is_file():
         import pandas as pd

@@ -73,10 +73,39 @@ rule city_eval:
         "../scripts/city_eval.py"
 
 
+rule city_calibration:
+    input:
+        unpack(city_calibration_inputs),
+    output:
+        calibration=CITY_CALIBRATION,
+        answers="results/city/calibration_answers.parquet",
+    log:
+        "logs/city_calibration/all.log",
+    benchmark:
+        "logs/benchmarks/city_calibration/all.tsv"
+    conda:
+        "../envs/flatlandia.yaml"
+    threads: rule_threads("city_calibration")
+    resources:
+        **rule_resources("city_calibration"),
+    params:
+        maps=beyond_city_maps(),
+        scenes=benchmark_scenes(),
+        seed=config["seed"],
+        solver=config["solver"],
+        search=config["city"]["search"],
+        simulate=config["city"]["simulate"],
+        spacing_m=config["city"]["spacing_m"],
+        beyond=BEYOND_PROTOCOL,
+    script:
+        "../scripts/city_calibration.py"
+
+
 rule city_simulate:
     input:
         unpack(city_scene_inputs),
         priors="results/solver/priors/whole.json",
+        calibration=CITY_CALIBRATION,
     output:
         errors="results/city/simulated/{objects}/errors.parquet",
         summary="results/city/simulated/{objects}/summary.json",

@@ -11,6 +11,12 @@ a dozen poses, not every place, and the keys are not exact likelihoods), so a lo
 (:class:`Calibration`, scikit-learn) maps its log-odds and the number of objects seen to the
 probability of being within (5 m, 5 deg), fitted on the validation split (rule solver_priors, one
 fit for single frames and one for sequences) and written with the learned priors.
+
+A city is not a scene map: the index ranks every place of the city, and the pool the solver refines
+holds only what the best few regions offered, so the more places compete the likelier a confident
+pool is a chance fit. :class:`MapSize` lowers the log-odds by a slope (one for single frames, one
+for sequences) times the log of how many more objects the search ranked than a scene map has,
+fitted on the cities' validation answers (rule city_calibration, :func:`fit_map_size`).
 """
 
 from __future__ import annotations
@@ -81,13 +87,71 @@ class Logistic:
         return 1.0 / (1.0 + np.exp(-z))
 
 
+#: the largest map-size slope fitted (log-odds per e-fold of the map; 1 would divide the odds by the
+#: map's growth)
+MAX_SLOPE = 2.0
+
+
+def logit(p) -> np.ndarray:
+    """log(p / (1 - p)), p clipped into (0, 1) so that a sure answer stays finite."""
+    p = np.clip(np.asarray(p, float), 1e-12, 1.0 - 1e-12)
+    return np.log(p) - np.log1p(-p)
+
+
+@dataclass(frozen=True)
+class MapSize:
+    """The map-size correction: logit P' = logit P - slope * max(0, log(map objects /
+    ``reference_objects``)), the slope ``frame`` for one frame and ``sequence`` for several;
+    ``reference_objects`` is a scene map's size (the median of the maps :class:`Calibration` was
+    fitted on), so a scene map, or a smaller search (a fix's region), is left as it is."""
+
+    reference_objects: float
+    frame: float
+    sequence: float
+    answers: int  # validation answers of the cities it was fitted on
+
+    def __post_init__(self):
+        ok = math.isfinite(self.reference_objects) and self.reference_objects >= 1
+        if not ok or not all(math.isfinite(v) and 0 <= v <= MAX_SLOPE for v in (self.frame, self.sequence)):
+            raise ValueError(
+                f"a map-size correction needs reference_objects >= 1 and slopes in [0, {MAX_SLOPE:g}], got {self}"
+            )
+
+    def shift(self, objects: float, frames: int = 1) -> float:
+        """The log-odds taken off an answer searched among ``objects`` map objects with ``frames``."""
+        slope = self.frame if frames <= 1 else self.sequence
+        return slope * max(0.0, math.log(max(float(objects), 1.0) / self.reference_objects))
+
+    def adjust(self, probability, objects: float, frames: int = 1) -> np.ndarray:
+        """(N,) the probabilities of answers searched among ``objects`` map objects."""
+        p = np.asarray(probability, float).ravel()
+        shift = self.shift(objects, frames)
+        if shift == 0.0:
+            return p
+        out = 1.0 / (1.0 + np.exp(-(logit(p) - shift)))
+        return np.where(np.isfinite(p), out, p)
+
+    def to_dict(self) -> dict:
+        return {
+            "reference_objects": self.reference_objects,
+            "frame": self.frame,
+            "sequence": self.sequence,
+            "answers": self.answers,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> MapSize:
+        return cls(float(d["reference_objects"]), float(d["frame"]), float(d["sequence"]), int(d["answers"]))
+
+
 @dataclass(frozen=True)
 class Calibration:
     """The fitted maps of single frames and of sequences (either None: the pool's share is used as
-    it is)."""
+    it is), and the cities' map-size correction (None: none; :meth:`in_map` applies it)."""
 
     frame: Logistic | None = None
     sequence: Logistic | None = None
+    map_size: MapSize | None = None
 
     def probability(self, mass, objects, frames: int = 1, agreement=1.0) -> np.ndarray:
         """(N,) P(within (5 m, 5 deg)) of answers with pool shares ``mass`` and ``objects`` seen, of
@@ -96,11 +160,19 @@ class Calibration:
         mass = np.clip(np.asarray(mass, float).ravel(), 0.0, 1.0)
         return mass if fit is None else fit(features(mass, objects, frames, agreement))
 
+    def in_map(self, probability, map_objects: float, frames: int = 1) -> np.ndarray:
+        """(N,) ``probability`` of answers whose search ranked ``map_objects`` objects (a city's
+        index), lowered by the map-size correction (unchanged without one)."""
+        p = np.asarray(probability, float).ravel()
+        return p if self.map_size is None else self.map_size.adjust(p, map_objects, frames)
+
     def to_dict(self) -> dict:
         out = {"features": list(FEATURES)}
         for k in KINDS:
             f = getattr(self, k)
             out[k] = None if f is None else {"intercept": f.intercept, "weights": list(f.weights), "answers": f.answers}
+        if self.map_size is not None:
+            out["map_size"] = self.map_size.to_dict()
         return out
 
     @classmethod
@@ -115,6 +187,8 @@ class Calibration:
                 if v is None
                 else Logistic(float(v["intercept"]), tuple(float(w) for w in v["weights"]), int(v["answers"]))
             )
+        if d.get("map_size") is not None:
+            parts["map_size"] = MapSize.from_dict(d["map_size"])
         return cls(**parts)
 
 
@@ -136,6 +210,34 @@ def fit_logistic(mass, objects, frames, agreement, right) -> Logistic | None:
         return None
     lr = LogisticRegression(C=1.0, max_iter=5000).fit(features(mass, objects, frames, agreement), y)
     return Logistic(float(lr.intercept_[0]), tuple(float(w) for w in lr.coef_.ravel()), int(len(y)))
+
+
+def fit_map_size(answers, reference_objects: float) -> MapSize:
+    """The map-size correction fitted on a city's validation answers (columns ``probability``: the
+    calibrated probability before the correction, ``map_objects``: the objects the search ranked,
+    ``frames``, ``right``): per kind (one frame, sequences), the slope in [0, :data:`MAX_SLOPE`] that
+    maximizes the answers' Bernoulli likelihood (scipy's bounded scalar minimization: deterministic);
+    0 for a kind with fewer than 20 answers in maps larger than ``reference_objects``, or a single
+    outcome."""
+    from scipy.optimize import minimize_scalar
+
+    frames = np.asarray(answers["frames"], int)
+    z = logit(answers["probability"])
+    x = np.maximum(0.0, np.log(np.maximum(np.asarray(answers["map_objects"], float), 1.0) / reference_objects))
+    y = np.asarray(answers["right"], bool)
+    slopes = {}
+    for kind, sel in (("frame", frames <= 1), ("sequence", frames > 1)):
+        sel = sel & (x > 0) & np.isfinite(z)
+        if sel.sum() < 20 or y[sel].all() or not y[sel].any():
+            slopes[kind] = 0.0
+            continue
+        zs, xs, ys = z[sel], x[sel], y[sel]
+
+        def loss(b, zs=zs, xs=xs, ys=ys):
+            return float(np.sum(np.logaddexp(0.0, np.where(ys, -1.0, 1.0) * (zs - b * xs))))
+
+        slopes[kind] = float(minimize_scalar(loss, bounds=(0.0, MAX_SLOPE), method="bounded").x)
+    return MapSize(float(reference_objects), slopes["frame"], slopes["sequence"], int(len(y)))
 
 
 def expected_calibration_error(probability, right, bins: int = 10) -> float:
