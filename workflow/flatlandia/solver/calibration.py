@@ -13,10 +13,10 @@ probability of being within (5 m, 5 deg), fitted on the validation split (rule s
 fit for single frames and one for sequences) and written with the learned priors.
 
 A city is not a scene map: the index ranks every place of the city, and the pool the solver refines
-holds only what the best few regions offered, so the more places compete the likelier a confident
-pool is a chance fit. :class:`MapSize` lowers the log-odds by a slope (one for single frames, one
-for sequences) times the log of how many more objects the search ranked than a scene map has,
-fitted on the cities' validation answers (rule city_calibration, :func:`fit_map_size`).
+holds only what the best few regions offered, so the more places compete the likelier a middling
+pool is a chance fit. :class:`MapSize` lowers such an answer's log-odds in proportion to the log of
+how many more objects the index ranked than a scene map has (one term for single frames, one for
+sequences), fitted on the cities' validation answers (rule city_calibration, :func:`fit_map_size`).
 """
 
 from __future__ import annotations
@@ -87,9 +87,10 @@ class Logistic:
         return 1.0 / (1.0 + np.exp(-z))
 
 
-#: the largest map-size slope fitted (log-odds per e-fold of the map; 1 would divide the odds by the
-#: map's growth)
-MAX_SLOPE = 2.0
+#: bounds of a map-size term (:class:`MapSize`): the log-odds taken off an even answer per e-fold
+#: of the map (1 would divide its odds by the map's growth), and how much of that each unit of
+#: log-odds spares
+MAX_SHIFT, MAX_PER_LOG_ODDS = 2.0, 1.0
 
 
 def logit(p) -> np.ndarray:
@@ -99,49 +100,69 @@ def logit(p) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class MapTerm:
+    """One kind's map-size term: an answer of log-odds z loses ``max(0, shift - per_log_odds * z)``
+    per e-fold of the map beyond a scene map's size."""
+
+    shift: float
+    per_log_odds: float
+
+    def __post_init__(self):
+        if not (math.isfinite(self.shift) and 0 <= self.shift <= MAX_SHIFT):
+            raise ValueError(f"a map-size shift must lie in [0, {MAX_SHIFT:g}], got {self.shift}")
+        if not (math.isfinite(self.per_log_odds) and 0 <= self.per_log_odds <= MAX_PER_LOG_ODDS):
+            raise ValueError(f"a map-size per_log_odds must lie in [0, {MAX_PER_LOG_ODDS:g}], got {self.per_log_odds}")
+
+    def loss(self, z: np.ndarray, efolds: np.ndarray) -> np.ndarray:
+        return efolds * np.maximum(0.0, self.shift - self.per_log_odds * z)
+
+
+@dataclass(frozen=True)
 class MapSize:
-    """The map-size correction: logit P' = logit P - slope * max(0, log(map objects /
-    ``reference_objects``)), the slope ``frame`` for one frame and ``sequence`` for several;
-    ``reference_objects`` is a scene map's size (the median of the maps :class:`Calibration` was
-    fitted on), so a scene map, or a smaller search (a fix's region), is left as it is."""
+    """The map-size correction of a city's answers: logit P' = logit P - e * max(0, shift -
+    per_log_odds * logit P), e = max(0, log(map objects / ``reference_objects``)) the e-folds by
+    which the index's map outgrows a scene map (the median of the maps :class:`Calibration` was
+    fitted on), one :class:`MapTerm` for single frames (``frame``) and one for sequences. The more
+    places compete, the likelier a middling answer is a chance fit, while a pool sure of itself
+    stays sure (validation split, docs/results.md); a scene map, or a smaller search (a fix's
+    region), is left as it is, and no answer is ever raised or reordered within a map."""
 
     reference_objects: float
-    frame: float
-    sequence: float
+    frame: MapTerm
+    sequence: MapTerm
     answers: int  # validation answers of the cities it was fitted on
 
     def __post_init__(self):
-        ok = math.isfinite(self.reference_objects) and self.reference_objects >= 1
-        if not ok or not all(math.isfinite(v) and 0 <= v <= MAX_SLOPE for v in (self.frame, self.sequence)):
-            raise ValueError(
-                f"a map-size correction needs reference_objects >= 1 and slopes in [0, {MAX_SLOPE:g}], got {self}"
-            )
+        if not (math.isfinite(self.reference_objects) and self.reference_objects >= 1):
+            raise ValueError(f"a map-size correction needs reference_objects >= 1, got {self.reference_objects}")
 
-    def shift(self, objects: float, frames: int = 1) -> float:
-        """The log-odds taken off an answer searched among ``objects`` map objects with ``frames``."""
-        slope = self.frame if frames <= 1 else self.sequence
-        return slope * max(0.0, math.log(max(float(objects), 1.0) / self.reference_objects))
+    def efolds(self, objects: float) -> float:
+        """By how many e-folds a map of ``objects`` objects outgrows a scene map (0 if it does not)."""
+        return max(0.0, math.log(max(float(objects), 1.0) / self.reference_objects))
 
     def adjust(self, probability, objects: float, frames: int = 1) -> np.ndarray:
         """(N,) the probabilities of answers searched among ``objects`` map objects."""
         p = np.asarray(probability, float).ravel()
-        shift = self.shift(objects, frames)
-        if shift == 0.0:
+        e = self.efolds(objects)
+        if e == 0.0:
             return p
-        out = 1.0 / (1.0 + np.exp(-(logit(p) - shift)))
-        return np.where(np.isfinite(p), out, p)
+        z = logit(p)
+        loss = (self.frame if frames <= 1 else self.sequence).loss(z, e)
+        out = 1.0 / (1.0 + np.exp(-(z - loss)))
+        return np.where(np.isfinite(p) & (loss > 0), np.minimum(out, p), p)
 
     def to_dict(self) -> dict:
         return {
             "reference_objects": self.reference_objects,
-            "frame": self.frame,
-            "sequence": self.sequence,
+            "frame": {"shift": self.frame.shift, "per_log_odds": self.frame.per_log_odds},
+            "sequence": {"shift": self.sequence.shift, "per_log_odds": self.sequence.per_log_odds},
             "answers": self.answers,
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> MapSize:
-        return cls(float(d["reference_objects"]), float(d["frame"]), float(d["sequence"]), int(d["answers"]))
+        terms = [MapTerm(float(d[k]["shift"]), float(d[k]["per_log_odds"])) for k in ("frame", "sequence")]
+        return cls(float(d["reference_objects"]), *terms, int(d["answers"]))
 
 
 @dataclass(frozen=True)
@@ -213,31 +234,32 @@ def fit_logistic(mass, objects, frames, agreement, right) -> Logistic | None:
 
 
 def fit_map_size(answers, reference_objects: float) -> MapSize:
-    """The map-size correction fitted on a city's validation answers (columns ``probability``: the
-    calibrated probability before the correction, ``map_objects``: the objects the search ranked,
-    ``frames``, ``right``): per kind (one frame, sequences), the slope in [0, :data:`MAX_SLOPE`] that
-    maximizes the answers' Bernoulli likelihood (scipy's bounded scalar minimization: deterministic);
-    0 for a kind with fewer than 20 answers in maps larger than ``reference_objects``, or a single
-    outcome."""
-    from scipy.optimize import minimize_scalar
+    """The map-size correction fitted on cities' validation answers (columns ``probability``: the
+    calibrated probability before the correction, ``map_objects``: the objects the index ranked,
+    ``frames``, ``right``): per kind (one frame, sequences), the :class:`MapTerm` within its bounds
+    that maximizes the answers' Bernoulli likelihood (scipy's L-BFGS-B from no correction:
+    deterministic); no correction for a kind with fewer than 20 answers in maps larger than
+    ``reference_objects``, or a single outcome."""
+    from scipy.optimize import minimize
 
     frames = np.asarray(answers["frames"], int)
     z = logit(answers["probability"])
-    x = np.maximum(0.0, np.log(np.maximum(np.asarray(answers["map_objects"], float), 1.0) / reference_objects))
+    e = np.maximum(0.0, np.log(np.maximum(np.asarray(answers["map_objects"], float), 1.0) / reference_objects))
     y = np.asarray(answers["right"], bool)
-    slopes = {}
+    terms = {}
     for kind, sel in (("frame", frames <= 1), ("sequence", frames > 1)):
-        sel = sel & (x > 0) & np.isfinite(z)
+        sel = sel & (e > 0) & np.isfinite(z)
         if sel.sum() < 20 or y[sel].all() or not y[sel].any():
-            slopes[kind] = 0.0
+            terms[kind] = MapTerm(0.0, 0.0)
             continue
-        zs, xs, ys = z[sel], x[sel], y[sel]
+        zs, es, sign = z[sel], e[sel], np.where(y[sel], -1.0, 1.0)
 
-        def loss(b, zs=zs, xs=xs, ys=ys):
-            return float(np.sum(np.logaddexp(0.0, np.where(ys, -1.0, 1.0) * (zs - b * xs))))
+        def loss(v, zs=zs, es=es, sign=sign):
+            return float(np.sum(np.logaddexp(0.0, sign * (zs - es * np.maximum(0.0, v[0] - v[1] * zs)))))
 
-        slopes[kind] = float(minimize_scalar(loss, bounds=(0.0, MAX_SLOPE), method="bounded").x)
-    return MapSize(float(reference_objects), slopes["frame"], slopes["sequence"], int(len(y)))
+        v = minimize(loss, [0.0, 0.0], method="L-BFGS-B", bounds=[(0.0, MAX_SHIFT), (0.0, MAX_PER_LOG_ODDS)]).x
+        terms[kind] = MapTerm(float(v[0]), float(v[1]))
+    return MapSize(float(reference_objects), terms["frame"], terms["sequence"], int(len(y)))
 
 
 def expected_calibration_error(probability, right, bins: int = 10) -> float:

@@ -92,7 +92,7 @@ def read_map_size(path: str | Path) -> MapSize:
     from flatlandia import validate
 
     d = io.read_json(path)
-    validate.map_size_calibration(d, path, calibration.MAX_SLOPE)
+    validate.map_size_calibration(d, path, calibration.MAX_SHIFT, calibration.MAX_PER_LOG_ODDS)
     return MapSize.from_dict(d["map_size"])
 
 
