@@ -169,7 +169,7 @@ def test_a_fine_training_step_keeps_every_parameter_and_batch_on_the_resolved_de
 
     original_loss = fine_training.pose_loss
 
-    def loss(pred, target, w=1.0):
+    def loss(pred, target, w):
         seen.extend(("loss", t.device) for t in (pred, target))
         return original_loss(pred, target, w)
 

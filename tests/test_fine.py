@@ -238,7 +238,7 @@ def test_models_forward_backward_shapes(name):
     batch = learned.Batch.from_data_list(samples)
     out = model(batch)
     assert out.shape == (5, 3)
-    loss = training.pose_loss(out, batch.y)
+    loss = training.pose_loss(out, batch.y, cfg.angle_weight)
     loss.backward()
     assert all(p.grad is not None for p in model.parameters() if p.requires_grad)
 
@@ -283,7 +283,7 @@ def test_loss_and_angle_wrap():
     b = torch.tensor([math.radians(-179.0)])
     assert training.angle_distance(a, b).item() == pytest.approx(math.radians(2.0), abs=1e-6)
     pred = torch.tensor([[0.3, 0.4, 0.1]])
-    assert training.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]])).item() == pytest.approx(0.5, abs=1e-6)
+    assert training.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]]), 1.0).item() == pytest.approx(0.5, abs=1e-6)
 
 
 def test_augmentation_is_a_rigid_motion_of_region_and_target():
