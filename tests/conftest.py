@@ -26,16 +26,6 @@ TINY_ROOT = REPO / "tests" / "data" / "tiny"
 TINY_SCENE = "0"
 
 
-def benchmark_module(name: str):
-    """A hand-run script of benchmarks/ loaded as a module (its functions shared with the tests)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def data_root() -> Path:
     """The published data: FLATLANDIA_ROOT, else ../shared/flatlandia, else where `make all` fetches
     it (the config's fetch.dest in the repository: resources/flatlandia)."""
@@ -284,18 +274,12 @@ def all_local_maps(flat_root):
 
 def published_scene(flat_root: Path, scene: str):
     """A published scene's reference map and queries, built from the published data as the
-    workflow builds them (split seed 0)."""
-    from flatlandia import geo, io
-    from flatlandia.classes import CLASSES
-    from flatlandia.data import queries, recover, reference_map
+    workflow builds them (the package's recipe, flatlandia.data.scene_inputs; the schema's
+    settings: split seed 0)."""
+    from flatlandia.data import scene_inputs
 
-    lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
-    frame = geo.frame_for(lonlat)
-    ref = reference_map.reference_table(scene, lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(flat_root / "local_maps.json", scene)
-    rec = recover.recover_scene(scene, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=scene)
-    return ref, queries.build_queries(scene, rec, ref, local, frame, split)
+    s = scene_inputs.published_scene(flat_root, scene)
+    return s.ref, s.queries
 
 
 @pytest.fixture(scope="session")

@@ -17,12 +17,12 @@ import socket
 import subprocess
 import sys
 import textwrap
-import zipfile
 from pathlib import Path
 
 import pandas as pd
 import pytest
 from snakemake_runner import smk
+from zip_archives import make_zip
 
 from flatlandia import io
 from flatlandia.data import fetch
@@ -36,13 +36,6 @@ def tree(root: Path) -> set[str]:
     for dirpath, dirnames, filenames in os.walk(root):
         out |= {str(Path(dirpath, n).relative_to(root)) for n in dirnames + filenames}
     return out
-
-
-def make_zip(path: Path, members: dict[str, bytes]) -> Path:
-    with zipfile.ZipFile(path, "w") as z:
-        for name, data in members.items():
-            z.writestr(name, data)
-    return path
 
 
 @pytest.fixture

@@ -2,20 +2,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import geo, io
-from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps, queries, recover, reference_map
+from flatlandia import geo
+from flatlandia.data import localmaps, queries, recover, scene_inputs
 
 
 @pytest.fixture(scope="module")
 def scene9(flat_root):
-    lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
-    frame = geo.frame_for(lonlat)
-    ref = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(flat_root / "local_maps.json", "9")
-    rec = recover.recover_scene("9", lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt="9")
-    return ref, frame, local, queries.build_queries("9", rec, ref, local, frame, split)
+    s = scene_inputs.published_scene(flat_root, "9")
+    return s.ref, s.frame, s.local_maps, s.queries
 
 
 def test_metric_local_maps_are_rigid_copies_of_the_reference(scene9):

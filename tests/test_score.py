@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 import tiny_results as tiny_results_folder
 import yaml
-from conftest import REPO, TINY_SCENE, benchmark_module, smk_dry_run
+from conftest import REPO, TINY_SCENE, smk_dry_run
 from snakemake_runner import smk
 
 from flatlandia import cli, config, figures, geo, io, score, tables
@@ -25,7 +25,6 @@ from flatlandia.fine import evaluation
 from flatlandia.fine import table as fine_table
 from flatlandia.viewer import page, query_figures, scene
 
-compare_tables = benchmark_module("compare_tables")
 #: an errors row's columns that are the solver's own fit, not its pose (an external method has none)
 FIT_COLUMNS = {"confidence", "n_inliers", "n_correct_inliers", "matched_obj_idx"}
 #: radians(degrees(t)) is t to the last bit or two: headings round-trip to 1e-13 deg
@@ -285,9 +284,9 @@ def test_poses_outside_the_split_are_noted_not_scored(tiny_scenes, tmp_path):
 
 def _round_trip_columns(a: pd.DataFrame, b: pd.DataFrame, skip: set) -> list[str]:
     """Columns of two frames that differ (floats to ATOL, NaN equal to NaN), ``skip`` and timing aside."""
-    skip = skip | set(compare_tables.timing_columns(a.columns))
+    skip = skip | set(tables.timing_columns(a.columns))
     assert list(a.columns) == list(b.columns)
-    return [c for c in a.columns if c not in skip and not compare_tables._equal(a[c], b[c], ATOL)]
+    return [c for c in a.columns if c not in skip and not tables.columns_equal(a[c], b[c], ATOL)]
 
 
 def test_round_trip_the_solvers_own_poses_score_as_the_solver(tiny_results, tiny_scenes, tmp_path):

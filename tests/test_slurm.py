@@ -21,8 +21,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import REPO, benchmark_module, smk_dry_run
+from conftest import REPO, smk_dry_run
 from snakemake_runner import SNAKEMAKE, smk
+
+from flatlandia import tables
 
 SLURM_SCRIPTS = REPO / "tests" / "slurm"
 PROFILE = REPO / "workflow" / "profiles" / "slurm"
@@ -30,9 +32,6 @@ RULES = REPO / "workflow" / "rules"
 TEST_CONFIGS = REPO / "config" / "test"
 #: a small cluster node: what every rule's ask must fit (cores, MB)
 SMALL_NODE = (2, 20000)
-
-
-compare_tables = benchmark_module("compare_tables")
 
 
 # ---------------------------------------------------------------- resources, profile (fast)
@@ -255,7 +254,7 @@ def _tensors(obj, prefix=""):
 
 def differences(a: Path, b: Path) -> list[str]:
     """How results/ of run ``a`` and run ``b`` differ: the same files; every Parquet file the same
-    table, exactly, but for its timing columns (benchmarks/compare_tables.py says which); every
+    table, exactly, but for its timing columns (flatlandia.tables.timing_columns says which); every
     trained model's tensors equal (single-threaded, seeded)."""
     import torch
 
@@ -264,7 +263,7 @@ def differences(a: Path, b: Path) -> list[str]:
     for rel in sorted(files[0] & files[1]):
         if rel.suffix == ".parquet":
             ta, tb = pd.read_parquet(a / rel), pd.read_parquet(b / rel)
-            timing = compare_tables.timing_columns(ta.columns)
+            timing = tables.timing_columns(ta.columns)
             try:
                 pd.testing.assert_frame_equal(ta.drop(columns=timing), tb.drop(columns=timing), check_exact=True)
             except AssertionError as err:

@@ -120,15 +120,19 @@ def test_principal_plane_report_of_scene12(scene12_cloud):
 
 
 def test_published_reference_map_and_queries_are_the_workflow_chain(flat_root):
-    ref_by_hand, q_by_hand = published_scene(flat_root, "9")
+    from flatlandia.data import recover
+
     lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
+    frame = geo.frame_for(lonlat)
+    ref_by_hand = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
+    local = io.read_local_maps(flat_root / "local_maps.json", "9")
+    rec = recover.recover_scene("9", lonlat, classes, local)
+    q_by_hand = queries.build_queries(
+        "9", rec, ref_by_hand, local, frame, queries.split_queries(list(rec["token"]), 0, salt="9")
+    )
     ref, meta = reference_map.published_reference_map("9", lonlat, classes)
     pd.testing.assert_frame_equal(ref, ref_by_hand)
     assert meta["frame"] == "gps" and meta["lon0"] == geo.frame_for(lonlat).lon0
-    from flatlandia.data import recover
-
-    local = io.read_local_maps(flat_root / "local_maps.json", "9")
-    rec = recover.recover_scene("9", lonlat, classes, local)
     q, qmeta = queries.published_scene_queries("9", rec, ref, meta, local, 0, SPLIT)
     pd.testing.assert_frame_equal(q, q_by_hand)
     assert qmeta == {**meta, "seed": 0, "split": SPLIT}

@@ -15,7 +15,6 @@ import re
 import shutil
 import stat
 import urllib.request
-import zipfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -23,6 +22,7 @@ import numpy as np
 import pytest
 import torch
 from snakemake_runner import smk
+from zip_archives import make_zip
 
 from flatlandia import checkpoints, runlog
 from flatlandia.data import fetch
@@ -37,21 +37,6 @@ def tree(root: Path) -> set[str]:
     for dirpath, dirnames, filenames in os.walk(root):
         out |= {str(Path(dirpath, n).relative_to(root)) for n in dirnames + filenames}
     return out
-
-
-def add_member(z: zipfile.ZipFile, name: str, data: bytes = b"x", kind: int = stat.S_IFREG) -> None:
-    """A member with unix file type ``kind`` (regular file, symlink, device...)."""
-    info = zipfile.ZipInfo(name)
-    info.create_system = 3  # unix: the type bits below are honoured by unzip tools
-    info.external_attr = (kind | 0o644) << 16
-    z.writestr(info, data, compress_type=zipfile.ZIP_DEFLATED)
-
-
-def make_zip(path: Path, members: list[tuple]) -> Path:
-    with zipfile.ZipFile(path, "w") as z:
-        for m in members:
-            add_member(z, *m)
-    return path
 
 
 @pytest.fixture
