@@ -261,6 +261,7 @@ def test_bad_input_is_one_error_line_and_nothing_written(tiny_run, tmp_path, cap
 # ---------------------------------------------------------------- published scenes (slow)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_path, capsys):
     """Scenes 7, 12 and 16 of the published data (41 test queries) laid out as the workflow writes them, with the learned
     priors of their training split (rule solver_priors' function) and the solver's whole-map runs

@@ -324,6 +324,7 @@ def real_data(flat_root):
     return out
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_similarity_on_real_scene_ranks_matched_objects_first(real_data):
     ref, q, sim = real_data[0]
     best = sim.loc[sim.groupby("token")["S"].idxmax()].set_index("token")["obj_idx"]
@@ -332,6 +333,7 @@ def test_similarity_on_real_scene_ranks_matched_objects_first(real_data):
     assert hit > 0.9
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_path):
     cfg = retrieval.CoarseTrainConfig(loss="simtrip", epochs=8, seed=0)
     ds = retrieval.build_dataset(real_data, cfg)
@@ -372,6 +374,7 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
 
 
 @pytest.mark.parametrize("loss", ["sim", "trip"])
+@pytest.mark.slow  # the published data (flat_root)
 def test_each_loss_trains(real_data, loss):
     cfg = retrieval.CoarseTrainConfig(loss=loss, epochs=3, seed=1, batching="mixed")
     ds = retrieval.build_dataset(real_data[:2], cfg, splits=("train", "val"))

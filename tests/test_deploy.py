@@ -266,6 +266,7 @@ def test_a_bare_clone_plans_and_lints_cleanly(tmp_path):
     assert res.returncode == 0 and "Congratulations" in res.stderr, (res.stdout + res.stderr)[-3000:]
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_lint_is_clean_with_the_published_data(flat_root, tmp_path):
     res = run(REPO, "--lint", "-d", str(tmp_path), "--config", f"flatlandia_root={flat_root}")
     assert res.returncode == 0 and "Congratulations" in res.stderr, (res.stdout + res.stderr)[-3000:]

@@ -337,6 +337,7 @@ def test_dry_run_exports_without_training(repo, tmp_path):
     }
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_export_two_scenes(repo, flat_root, tmp_path):
     """`snakemake export` on scenes 9 and 12 in a fresh folder: no model trained, every file there,
     the coarse sources reported absent, the CSVs equal to the Parquet files."""

@@ -312,6 +312,7 @@ def test_a_fetch_removes_the_temporaries_of_a_killed_fetch_of_the_same_folder(tm
 # ----------------------------------------------------------------------------- through Snakemake
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_workflow_refuses_dest_dotdot_with_one_error_and_deletes_nothing(repo, tmp_path):
     run = tmp_path / "run"
     run.mkdir()
@@ -332,6 +333,7 @@ def test_workflow_refuses_dest_dotdot_with_one_error_and_deletes_nothing(repo, t
     assert before <= tree(tmp_path) and canary.read_text() == "still here"
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_a_run_removes_the_leftovers_of_a_killed_one_and_a_dry_run_does_not(repo, flat_root, tmp_path, archive):
     run = tmp_path / "run"
     (run / "results").mkdir(parents=True)

@@ -359,6 +359,7 @@ def gt_share_within(m, test: pd.DataFrame, tmp: Path, metres: float = 0.5) -> fl
 
 
 @pytest.mark.parametrize("scene", ["7", "19"])
+@pytest.mark.slow  # the published data (flat_root)
 def test_gt_target_on_published_scenes(flat_root, scene, tmp_path):
     """The GT target: >= 95 % of a scene's test queries within 0.5 m (every scene: 99.1 %,
     benchmarks/bench_localize.py)."""
@@ -370,6 +371,7 @@ def test_gt_target_on_published_scenes(flat_root, scene, tmp_path):
     assert len(test) >= 20 and gt_share_within(m, test, tmp_path) >= 0.95
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_gt_target_on_a_city_index(flat_root, tmp_path):
     """Two published scenes tiled into a city, its index as rule city_index builds it: the GT queries
     found through the index, >= 95 % within 0.5 m."""

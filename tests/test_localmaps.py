@@ -12,6 +12,7 @@ def scene9(flat_root):
     return s.ref, s.frame, s.local_maps, s.queries
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_metric_local_maps_are_rigid_copies_of_the_reference(scene9):
     ref, frame, _, q = scene9
     xy = ref[["x_m", "y_m"]].to_numpy()
@@ -28,6 +29,7 @@ def test_metric_local_maps_are_rigid_copies_of_the_reference(scene9):
         assert (gt[:, 0] > -1.0).all()  # objects lie in front of the camera (+x)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_published_maps_carried_into_the_metric_frame(scene9, flat_root):
     """The degree-unit published GT map, carried into metres, is our metric GT map (< 1 cm)."""
     ref, frame, local, q = scene9
@@ -40,6 +42,7 @@ def test_published_maps_carried_into_the_metric_frame(scene9, flat_root):
         assert np.abs(carried - localmaps.xy(qr.gt_local_xy_m)).max() < 0.01
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_depth_maps_normalised_with_metric_bearings(scene9):
     _, frame, local, q = scene9
     errs = []
@@ -53,6 +56,7 @@ def test_depth_maps_normalised_with_metric_bearings(scene9):
     assert np.degrees(np.median(np.concatenate(errs))) < 3.0
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_query_table_schema(scene9):
     _, _, _, q = scene9
     need = {

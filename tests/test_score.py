@@ -624,6 +624,7 @@ def external_workflow(repo, flat_root, tmp_path_factory):
     return {"wd": wd, "before": before, "table_before": table_before, "stderr": second.stderr, "args": args}
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_workflow_scores_external_methods_into_the_table_and_figures(external_workflow):
     wd = external_workflow["wd"]
     res = wd / "results"
@@ -653,6 +654,7 @@ def test_workflow_scores_external_methods_into_the_table_and_figures(external_wo
     assert "mine_depth_whole (depth local maps, whole map proposals)" in log
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_cli_end_to_end_on_a_workflow_results_folder(external_workflow, tmp_path, capsys):
     wd = external_workflow["wd"]
     res = wd / "results"
@@ -666,6 +668,7 @@ def test_cli_end_to_end_on_a_workflow_results_folder(external_workflow, tmp_path
     assert "| theirs (yours) |" in md and "| geometric solver |" in md and "| mine |" in md
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_an_edited_poses_file_rescores_its_runs(external_workflow, repo):
     wd = external_workflow["wd"]
     poses = wd / "mine.csv"

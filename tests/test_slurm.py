@@ -117,6 +117,7 @@ def test_slurm_profile_dry_run_asks_every_job_for_cores_memory_and_time(repo, tm
     assert "Group job scene_prep" in res.stdout  # the light per-scene steps travel as one job
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_slurm_profile_dry_run_of_all_scenes_asks_what_the_table_says(repo, flat_root, tmp_path):
     """`all` on the published scenes and Lund's images (moved here from test_workflow.py): SfM,
     segment and the trainings ask for the table's figures, and no partition is imposed."""

@@ -324,6 +324,7 @@ def test_dry_run_plans_the_maps_of_the_tiny_scene(repo, tmp_path):
     assert not (tmp_path / "results").exists()
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_maps_of_the_tiny_scene_build_without_the_published_data(repo, tmp_path):
     """The per-scene rules for real on the tiny scene (seconds; slow only because it runs jobs)."""
     res = smk(repo, tmp_path, "--cores", "2", "maps", "--configfile", str(TEST_CONFIGS / "tiny.yaml"))

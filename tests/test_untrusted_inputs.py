@@ -153,6 +153,7 @@ def _sheet(tmp_path: Path, url: str, sha256: str = "") -> Path:
 
 
 @pytest.mark.parametrize("case", ["dotdot", "sha256"])
+@pytest.mark.slow  # the published data (flat_root)
 def test_scene_sheet_archive_stops_the_run_with_one_error(repo, flat_root, tmp_path, case):
     if case == "dotdot":
         archive = make_zip(tmp_path / "crafted.zip", attack("dotdot", tmp_path)[0])
@@ -254,6 +255,7 @@ def _photos(src: Path, dest: Path, n: int = 3) -> Path:
 
 
 @pytest.mark.parametrize("name", ["../x.jpg", "/etc/x.jpg", "sub/01.jpg", "..", "a\\b.jpg"])
+@pytest.mark.slow  # the Lund photos
 def test_metadata_csv_names_must_be_plain_file_names(lund, tmp_path, name):
     photos = _photos(lund, tmp_path / "photos")
     (photos / "metadata.csv").write_text(f"name,lat,lon\n01.jpg,55.7,13.19\n{name},55.7,13.19\n")
@@ -261,6 +263,7 @@ def test_metadata_csv_names_must_be_plain_file_names(lund, tmp_path, name):
         image_audit.read_folder_metadata(photos)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_metadata_csv_naming_a_parent_file_stops_the_workflow(repo, flat_root, lund, tmp_path):
     photos = _photos(lund, tmp_path / "photos")
     (photos / "metadata.csv").write_text("name,lat,lon\n../x.jpg,55.7,13.19\n")

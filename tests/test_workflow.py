@@ -18,6 +18,9 @@ from snakemake_runner import job_stats, smk
 
 from flatlandia import io
 
+#: every test here runs Snakemake jobs or reads the published data (the slow lane)
+pytestmark = pytest.mark.slow
+
 TEST_CONFIGS = Path(__file__).resolve().parents[1] / "config" / "test"
 
 
