@@ -94,8 +94,11 @@ ATOL = 1e-9
 
 
 def _row_differences(mine: pd.DataFrame, theirs: pd.DataFrame) -> list[str]:
-    """Columns of two fine-table rows that differ, timings and the run's name aside (floats to ATOL)."""
-    skip = NAME_COLUMNS | set(tables.timing_columns(mine.columns))
+    """Columns of two fine-table rows that differ, timings, the run's name and the solver's answers
+    (its probability: a poses file carries none) aside (floats to ATOL)."""
+    from flatlandia.fine import evaluation
+
+    skip = NAME_COLUMNS | set(tables.timing_columns(mine.columns)) | set(evaluation.ANSWER_COLUMNS)
     assert list(mine.columns) == list(theirs.columns)
     return [c for c in mine.columns if c not in skip and not tables.columns_equal(mine[c], theirs[c], ATOL)]
 

@@ -146,6 +146,40 @@ def test_one_frame_cannot_tell_two_places_and_two_frames_can():
     assert np.allclose(single[0], single[1])  # the same answer for either truth: wrong for one of them
 
 
+@pytest.mark.parametrize("with_model", [False, True])
+def test_two_identical_places_are_ambiguous_until_a_fix_or_a_second_frame(with_model):
+    """One frame of the repeated constellation: the best pose and its first alternative are the two
+    places, each with a probability of about 0.5, so the answer is `ambiguous` with both; a GPS fix
+    or the companion frame leaves one place, `ok` at a probability near 1. With and without the
+    likelihood ratio against chance (a flat model: p_d 0.3 everywhere)."""
+    from test_likelihood import flat_model
+
+    priors = solver.TrainingPriors(likelihood=flat_model()) if with_model else None
+    threshold = config.section_defaults("solver")["answer_probability"]
+    ref_xy, ref_cls, anchor, companion = twin_places(IDENTITY, SEQ_B)
+    f0, f1 = frames_of(IDENTITY)
+    one = solver.localize(*f0, ref_xy, ref_cls, metric=False, priors=priors, alternatives=3)
+    best, runner = one.best, one.alternatives[0]
+    places = sorted(
+        min(pose_error(s.x, s.y, s.theta, p)[0] for s in (best, runner)) for p in (ANCHOR, SEQ_B.pose(ANCHOR))
+    )
+    assert places[1] < 0.01  # the two answers are the two places
+    assert best.probability == pytest.approx(0.5, abs=0.05) and runner.probability == pytest.approx(0.5, abs=0.05)
+    status = localize.answer_status(best, threshold)
+    assert status["status"] == "ambiguous" and status["probability"] == pytest.approx(best.probability)
+
+    fix = solver.Fix(anchor[0] + 15.0, anchor[1] - 10.0, 25.0)
+    fixed = solver.localize(*f0, ref_xy, ref_cls, metric=False, priors=priors, alternatives=3, fix=fix)
+    assert max(pose_error(fixed.best.x, fixed.best.y, fixed.best.theta, anchor)) < 1.0
+    assert fixed.best.probability > 0.95 and localize.answer_status(fixed.best, threshold)["status"] == "ok"
+
+    rel = np.array([np.zeros(3), relative_pose(anchor, companion)])
+    sigma = np.array([[0.0, 0.0], [0.05, math.radians(0.5)]])
+    seq = solver.localize_sequence([f0, f1], rel, ref_xy, ref_cls, None, priors, None, sigma, None, 2)
+    assert max(pose_error(seq.best.x, seq.best.y, seq.best.theta, anchor)) < 1.0
+    assert seq.best.probability > 0.95 and localize.answer_status(seq.best, threshold)["status"] == "ok"
+
+
 def test_a_sequence_tolerates_odometry_noise():
     """The companion's relative pose off by 10 cm and 1 deg (its sigma saying so): still the
     true place, within 1 m / 2 deg."""
@@ -567,6 +601,47 @@ def test_the_markdown_escapes_and_quotes_orienternet_as_another_task():
     assert "| single image with a prior | 1 | 14.4 / 48.7 / 61.7 | 21.0 / 55.0 / 70.2 |" in lines
     assert "| sequential | 10 | 29.7 / 73.3 / 91.2 | 46.6 / 88.3 / 96.5 |" in lines
     assert "30 m" in text and "2 %" in text  # the protocol in the note, from the config
+
+
+def test_the_risk_coverage_and_reliability_figures_draw_each_map_and_frame_count():
+    """Synthetic anchors of two maps at 1 and 5 frames (and rows the figures leave out: a fix, the
+    camera prior off): one line per (map, frames) on each risk panel and on the reliability diagram,
+    the threshold's dot where anchors are answered, labels from the data escaped for mathtext."""
+    from flatlandia.beyond import figures as beyond_figures
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for m in ("scene", "city-$20"):
+        for k, gps, cam in ((1, None, "on"), (5, None, "on"), (1, 25.0, "on"), (5, None, "off")):
+            p = rng.random(50)
+            right = rng.random(50) < p
+            rows.append(
+                pd.DataFrame(
+                    {
+                        "map": m,
+                        "frames": k,
+                        "gps_sigma_m": np.nan if gps is None else gps,
+                        "camera_prior": cam,
+                        "probability": p,
+                        "error_m": np.where(right, 1.0, np.where(rng.random(50) < 0.5, 800.0, 20.0)),
+                        "error_deg": np.where(right, 1.0, 30.0),
+                    }
+                )
+            )
+    errors = pd.concat(rows, ignore_index=True)
+    assert len(beyond_figures.curves(errors)) == 4
+    fig = beyond_figures.risk_coverage_figure(errors, 0.7)
+    for ax in fig.axes:
+        solid = [ln for ln in ax.lines if ln.get_marker() in ("None", None, "")]
+        assert len(solid) == 4 and len([ln for ln in ax.lines if ln.get_marker() == "o"]) == 4
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "city-\\$20, 5 frames" in labels and "scene, 1 frame" in labels
+    scene_only = beyond_figures.risk_coverage_figure(errors[errors["map"] == "scene"], 0.7)
+    assert len(scene_only.axes) == 1 and len(scene_only.axes[0].get_legend().get_texts()) == 2  # no other scene
+    rel = beyond_figures.reliability_figure(errors)
+    assert len(rel.axes[0].lines) == 5  # the diagonal and four curves
+    assert all("ECE" in t.get_text() for t in rel.axes[0].get_legend().get_texts())
+    beyond_figures.figures.pyplot().close("all")
 
 
 # ---------------------------------------------------------------- the published data (slow)

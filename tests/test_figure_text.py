@@ -1,6 +1,6 @@
 """No text over text in any figure the workflow draws, at its saved size: every figure type drawn on
 the tiny scene (training curves, error CDFs, error vs content, the coarse heat map, a query figure,
-the worst-queries gallery, the reference map, the reproduction audit, the SfM summary) is saved as
+the worst-queries gallery, the reference map, the reproduction audit, the SfM summary, the answers' risk-coverage and reliability) is saved as
 its rule saves it, and no two of its visible text boxes overlap (matplotlib's renderer extents, at
 the saved dpi). Fast lane: no published data."""
 
@@ -220,3 +220,33 @@ def test_the_check_finds_text_over_text(saved, tmp_path):
     figures.save(fig, tmp_path / "bad.png")
     ((name, hits),) = saved.items()
     assert "bad.png" in name and [set(h) for h in hits] == [{"one label", "another label"}]
+
+
+def test_the_answers_risk_coverage_and_reliability_figures(saved, tmp_path):
+    """Rule beyond_table's figures of the answers' probability, with the three maps at 1 and 5 frames
+    (the legend's six entries over the lines' start)."""
+    from flatlandia.beyond import figures as beyond_figures
+
+    rng = np.random.default_rng(1)
+    rows = []
+    for m in ("scene", "city-20", "simulated-100000"):
+        for k in (1, 5):
+            p = rng.random(200)
+            right = rng.random(200) < p
+            rows.append(
+                pd.DataFrame(
+                    {
+                        "map": m,
+                        "frames": k,
+                        "gps_sigma_m": np.nan,
+                        "camera_prior": "on",
+                        "probability": p,
+                        "error_m": np.where(right, 1.0, 900.0),
+                        "error_deg": np.where(right, 1.0, 40.0),
+                    }
+                )
+            )
+    errors = pd.concat(rows, ignore_index=True)
+    beyond_figures.plot_risk_coverage(errors, 0.7, tmp_path / "risk_coverage.png")
+    beyond_figures.plot_reliability(errors, tmp_path / "reliability.png")
+    _check(saved)

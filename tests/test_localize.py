@@ -18,7 +18,7 @@ import pytest
 import tiny_results
 from conftest import TINY_SCENE, published_scene
 
-from flatlandia import cli, io, localize, solver
+from flatlandia import cli, config, io, localize, solver
 from flatlandia.city import index, tiling
 from flatlandia.classes import CLASSES
 from flatlandia.data import localmaps, reference_map
@@ -248,6 +248,32 @@ def test_the_command_prints_json_and_writes_it(tiny_scene, tiny_map, tmp_path, c
     )
     assert status == 0 and json.loads(text) == json.loads((tmp_path / "o.json").read_text())
     assert [x["id"] for x in json.loads(text)["results"]] == [str(t) for t in test["token"]]
+
+
+def test_the_answer_carries_its_status_probability_and_alternatives(tiny_scene, tiny_map, tmp_path, capsys):
+    """Every answer of the command says `ok`, `ambiguous` or `no pose`, with the probability of being
+    within (5 m, 5 deg) that decided it (against solver.answer_probability), and each alternative
+    carries its own; today's fields stay."""
+    _, _, q = tiny_scene
+    threshold = config.section_defaults("solver")["answer_probability"]
+    many = tmp_path / "many.json"
+    qs = [localize.query_json(localmaps.local_map(t, "depth"), t.classes, str(t.token)) for t in q.itertuples()]
+    many.write_text(json.dumps({"queries": qs}))
+    status, text = run_cli(capsys, "--map", tiny_map, "--query", many, "--map-type", "depth")
+    assert status == 0
+    answers = json.loads(text)["results"]
+    statuses = set()
+    for out in answers:
+        assert {"found", "x_m", "confidence", "cost", "matches", "alternatives", "status", "probability"} <= set(out)
+        statuses.add(out["status"])
+        if not out["found"]:
+            assert out["status"] == "no pose" and out["probability"] == 0.0
+            continue
+        assert 0.0 <= out["probability"] <= 1.0
+        assert out["status"] == ("ok" if out["probability"] >= threshold else "ambiguous")
+        for a in out["alternatives"]:
+            assert {"x_m", "cost", "behind", "probability"} <= set(a) and 0.0 <= a["probability"] <= 1.0
+    assert "ok" in statuses
 
 
 def bad_inputs(tmp: Path, tiny_map: Path, r) -> dict:

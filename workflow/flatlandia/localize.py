@@ -37,7 +37,8 @@ camera stood in the anchor's camera frame (odometry) and, optionally, that pose'
 Each answer is a dict (:func:`localize`): the pose (lon, lat, x_m, y_m in the map's metric frame,
 heading_deg clockwise from north, theta_deg counter-clockwise from east as the benchmark's tables),
 the depth map's scale, a confidence, which map object each query object matched, the next-best
-distinct poses and the priors used. Bad input raises :class:`flatlandia.errors.InputError`, one
+distinct poses and the priors used, and the answer's ``status`` (``ok``, ``ambiguous`` or ``no pose``)
+with its calibrated ``probability`` of being within (5 m, 5 deg) (each alternative has its own). Bad input raises :class:`flatlandia.errors.InputError`, one
 line naming the file and the problem.
 """
 
@@ -512,7 +513,7 @@ def set_training_priors(m: ObjectMap, training: pd.DataFrame | None, source: Pat
         if training is not None:
             m.priors[map_type] = solver.scene_priors(ref, training, m.settings, lp)
         else:
-            m.priors[map_type] = solver.TrainingPriors(scale=lp.scale) if lp is not None else None
+            m.priors[map_type] = solver.TrainingPriors().with_learned(lp) if lp is not None else None
     cams = m.priors["gt"].cameras if m.priors["gt"] is not None else None
     m.cameras = 0 if cams is None else len(cams)
     m.queries_path = source if training is not None else None
@@ -895,7 +896,8 @@ def localize(
     object -> ``obj_idx``, class, lon/lat), ``alternatives`` (the next-best distinct poses with their
     ``cost`` and ``behind``: how far the ranking puts them behind the best), ``priors`` (what the
     solver knew beyond the query and the map), ``searched`` (map objects searched) and ``seconds``
-    (the solver's time); ``reason`` when nothing was found. ``gps`` (lon, lat, sigma_m) and
+    (the solver's time); ``reason`` when nothing was found; ``status`` and ``probability``
+    (:func:`answer_status`; each alternative has its ``probability``). ``gps`` (lon, lat, sigma_m) and
     ``compass`` (heading_deg clockwise from north, sigma_deg): a phone's fix, weighed as a likelihood
     (:func:`fixes`; not with ``near``). ``rows``: search only these rows of a scene map, in this order
     (a proposal: the objects a coarse stage, or the oracle box, proposes; as rule fine_eval does)."""
@@ -949,11 +951,30 @@ def localize(
     else:
         out.update(_pose(m, best, unit, rows, q), confidence=float(best.confidence), cost=float(best.cost))
         out["alternatives"] = [
-            {**_pose(m, a, unit, rows, q), "cost": float(a.cost), "behind": float(a.behind)} for a in alts
+            {**_pose(m, a, unit, rows, q), "cost": float(a.cost), "behind": float(a.behind), "probability": _p(a)}
+            for a in alts
         ]
+    out.update(answer_status(best, m.settings.answer_probability))
     out.update(frame=m.frame, priors=priors_used, searched=int(len(rows)), seconds=seconds)
     out["warnings"] = prior_warnings(m, gps=gps, near=near, radius_m=radius_m)
     return out
+
+
+def _p(sol) -> float | None:
+    """A pose's probability of being within (5 m, 5 deg), None where it has none."""
+    p = float(sol.probability)
+    return p if math.isfinite(p) else None
+
+
+def answer_status(best, threshold: float) -> dict:
+    """``status`` and ``probability`` of an answer: ``no pose`` (probability 0) without a pose,
+    ``ok`` when the pose's calibrated probability of being within (5 m, 5 deg) is at least
+    ``threshold`` (``solver.answer_probability``), else ``ambiguous``: the alternatives, each with
+    its probability, say where else the camera may be."""
+    if best is None:
+        return {"status": "no pose", "probability": 0.0}
+    p = _p(best)
+    return {"status": "ok" if p is None or p >= threshold else "ambiguous", "probability": p}
 
 
 def _replace(cfg, **changes):
@@ -1095,7 +1116,12 @@ def localize_sequence(
         out.update(_pose(m, found.best, units[0][1], rows, anchor), confidence=float(found.best.confidence))
         out["cost"] = float(found.best.cost)
         out["alternatives"] = [
-            {**_pose(m, a, units[0][1], rows, anchor), "cost": float(a.cost), "behind": float(a.behind)}
+            {
+                **_pose(m, a, units[0][1], rows, anchor),
+                "cost": float(a.cost),
+                "behind": float(a.behind),
+                "probability": _p(a),
+            }
             for a in found.alternatives
         ]
         out["frames"] = []
@@ -1115,6 +1141,7 @@ def localize_sequence(
                     **place(m, p.x, p.y),
                 }
             )
+    out.update(answer_status(found.best, m.settings.answer_probability))
     out.update(frame=m.frame, priors=priors_used, searched=int(len(rows)), seconds=seconds)
     out["warnings"] = prior_warnings(m, gps=gps)
     return out

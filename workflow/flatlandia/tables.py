@@ -36,6 +36,33 @@ RECALL_COLUMNS = [
     Column("recall_5deg", "float", "%", "queries under 5 deg, any position"),
 ]
 
+#: the answers' probability (docs/results.md, "Knowing when it is right"), in the fine, city and
+#: beyond-one-frame tables; NaN for a method without a probability
+ANSWER_COLUMNS = [
+    Column(
+        "answered_pct",
+        "float",
+        "%",
+        "queries answered: status ok, the calibrated probability of being within (5 m, 5 deg) at least solver.answer_probability",
+    ),
+    Column("within_answered_pct", "float", "%", "the answered within (5 m, 5 deg)"),
+    Column("wrong_scene_answered_pct", "float", "%", "the answered more than 500 m off (another tile of a city)"),
+    Column(
+        "answerable_95_pct",
+        "float",
+        "%",
+        "the largest share answerable, surest first, with at least 95 % of the answered within (5 m, 5 deg)",
+    ),
+    Column(
+        "answerable_wrong_1pct",
+        "float",
+        "%",
+        "the largest share answerable, surest first, with at most 1 % of the answered in the wrong scene",
+    ),
+    Column("answerable_wrong_2pct", "float", "%", "the same with at most 2 % in the wrong scene"),
+    Column("ece_points", "float", "points", "expected calibration error of the probability (10 equal bins), 0-100"),
+]
+
 SCHEMAS: dict[str, list[Column]] = {
     "coarse_localization": [
         Column(
@@ -154,6 +181,7 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("paper_median_pu", "float", "paper m", "the paper's median position error (units x 215), Tables 4-5"),
         Column("paper_median_deg", "float", "deg", "the paper's median orientation error, Tables 4-5"),
         Column("paper_query_ms", "float", "ms", "the paper's query time (GPU; MLP only)"),
+        *ANSWER_COLUMNS,
     ],
     "fine_per_scene": [
         Column("scene", "str", "", "benchmark scene id"),
@@ -196,6 +224,7 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("region_hit_pct", "float", "%", "index: the true place among the regions handed to the solver"),
         Column("index_mb", "float", "MB", "index size, mean per city"),
         Column("index_build_s", "float", "s", "index build CPU time, mean per city"),
+        *ANSWER_COLUMNS,
     ],
     "beyond_one_frame": [
         Column(
@@ -228,6 +257,7 @@ SCHEMAS: dict[str, list[Column]] = {
         Column("cpu_p90_ms", "float", "ms", "CPU per sequence on one core, 90th percentile"),
         Column("bound_median_m", "float", "m", "the same sequences with their true matches: median position error"),
         Column("bound_within_5m_5deg", "float", "%", "the same with true matches: anchors within (5 m, 5 deg)"),
+        *ANSWER_COLUMNS,
     ],
     "reference_map_reproduction": [
         Column("scene", "str", "", "class-cloud scene id, or 'all'"),

@@ -2,7 +2,8 @@
 # map (rule beyond_scene, in `all`) and in the cities (rule beyond_city, in `city`), and the tables
 # results/tables/beyond_one_frame.{parquet,md} (the scene rows, in `all`) and
 # results/tables/beyond_one_frame_city.{parquet,md} (the scene and city rows, in `city`): two files,
-# so that `all` never reruns the city rows, nor drops them from a table `city` wrote.
+# so that `all` never reruns the city rows, nor drops them from a table `city` wrote. The table rule
+# draws the answers' risk-coverage and reliability figures from the same rows.
 
 
 include: "inputs/beyond.smk"
@@ -66,9 +67,20 @@ rule beyond_city:
 rule beyond_table:
     input:
         summaries=beyond_summaries,
+        errors=beyond_errors,
     output:
         parquet="results/tables/beyond_{part}.parquet",
         markdown="results/tables/beyond_{part}.md",
+        risk_coverage=report(
+            "results/figures/beyond_{part}_risk_coverage.png",
+            caption="../report/risk_coverage.rst",
+            category="Knowing when it is right",
+        ),
+        reliability=report(
+            "results/figures/beyond_{part}_reliability.png",
+            caption="../report/reliability.rst",
+            category="Knowing when it is right",
+        ),
     log:
         "logs/beyond_table/{part}.log",
     wildcard_constraints:
@@ -81,5 +93,6 @@ rule beyond_table:
     params:
         split=config["beyond"]["split"],
         beyond=BEYOND_PROTOCOL,
+        threshold=config["solver"]["answer_probability"],
     script:
         "../scripts/beyond_table.py"

@@ -1,6 +1,7 @@
 # The geometric solver's learned priors (flatlandia.solver.learned): the depth maps' log-scale
-# prior and the verifier, fitted once per benchmark and region from the training split, read by
-# fine_eval (method solver), coarse_solver and the city rules.
+# prior, the likelihood ratio's model and the verifier, fitted once per benchmark and region from
+# the training split, and the answers' calibration from the validation split; read by fine_eval
+# (method solver), coarse_solver, beyond_scene and the city rules.
 
 
 include: "inputs/solver.smk"
@@ -25,5 +26,7 @@ rule solver_priors:
         **rule_resources("solver_priors"),
     params:
         solver=config["solver"],
+        beyond={k: v for k, v in config["beyond"].items() if k not in ("city_scenes", "city_objects")},
+        seed=config["seed"],
     script:
         "../scripts/solver_priors.py"

@@ -1,10 +1,14 @@
 """Rule beyond_table: results/tables/beyond_{part}.{parquet,md}, the rows of rule beyond_scene
-(`one_frame`) and of beyond_city too (`one_frame_city`) (flatlandia.beyond.table)."""
+(`one_frame`) and of beyond_city too (`one_frame_city`) (flatlandia.beyond.table), and the answers'
+risk-coverage and reliability figures of the same rows (flatlandia.beyond.figures)."""
 
 import json
 from pathlib import Path
 
+import pandas as pd
+
 from flatlandia import io, runlog, tables
+from flatlandia.beyond import figures
 from flatlandia.beyond import table as beyond_table
 
 
@@ -16,6 +20,13 @@ def main(smk, log):
     text = beyond_table.markdown(df, note)
     io.write_text(text, smk.output.markdown)
     log.info("\n%s", text)
+    errors = (
+        pd.concat([pd.read_parquet(p) for p in smk.input.errors], ignore_index=True)
+        if smk.input.errors
+        else pd.DataFrame()
+    )
+    figures.plot_risk_coverage(errors, float(smk.params.threshold), smk.output.risk_coverage)
+    figures.plot_reliability(errors, smk.output.reliability)
 
 
 runlog.run(main, snakemake)  # noqa: F821

@@ -1,10 +1,11 @@
-"""Rule solver_priors: the solver's learned priors of depth maps (scale prior, verifier) from the
-benchmark scenes' training split, for one region (flatlandia.solver.learned)."""
+"""Rule solver_priors: the solver's learned priors of depth maps (scale prior, likelihood model,
+verifier) from the benchmark scenes' training split, and the answers' calibration from their
+validation split, for one region (flatlandia.solver.learned, flatlandia.solver.calibration_fit)."""
 
 import pandas as pd
 
 from flatlandia import runlog
-from flatlandia.solver import learned, verify
+from flatlandia.solver import calibration_fit, learned, verify
 
 
 def main(smk, log):
@@ -15,6 +16,22 @@ def main(smk, log):
     if fitted.verifier is not None:
         weights = {f: round(float(w), 3) for f, w in zip(verify.FEATURES, fitted.verifier.weights)}
         log.info("verifier on %s, weights of the standardised features: %s", region, weights)
+    if fitted.likelihood is not None:
+        lik = fitted.likelihood
+        log.info(
+            "likelihood model: bearing sigma %s deg, log-range sigma %s per range bin; field of view +-%.1f deg, "
+            "range %.1f m; p_d weight of the views' share %.2f",
+            [round(v, 2) for v in lik.bearing_sigma_deg],
+            [round(v, 2) for v in lik.log_range_sigma],
+            lik.fov_half_deg,
+            lik.max_range_m,
+            lik.share_w,
+        )
+    if region in learned.REGIONS and fitted.verifier is not None:
+        fitted, answers = calibration_fit.calibrated(
+            scenes, dict(smk.params.solver), fitted, region, dict(smk.params.beyond), int(smk.params.seed)
+        )
+        log.info("calibration on %d validation answers: %s", len(answers), fitted.calibration.to_dict())
     fitted.write(smk.output.priors)
 
 

@@ -27,7 +27,7 @@ from flatlandia.fine import evaluation
 from flatlandia.solver.sequence import SequenceConfig, true_match_poses
 
 #: a pose farther than this from the truth is in the wrong scene (flatlandia.city.evaluate)
-WRONG_SCENE_M = 500.0
+WRONG_SCENE_M = evaluation.WRONG_SCENE_M
 #: (5 m, 5 deg): the share a user would call localized
 WITHIN_M, WITHIN_DEG = evaluation.WITHIN
 
@@ -105,8 +105,9 @@ def _fix(a: Anchor, s: Setting):
     return protocol.gps_fix(a.truth[0, :2], a.draw, s.gps_sigma_m) if s.gps_sigma_m is not None else None
 
 
-def _row(a: Anchor, s: Setting, k: int, found, cpu: float, wall: float, bound, map_name: str) -> dict:
-    """One anchor's row: its errors, every frame's, the CPU and the bound."""
+def _row(a: Anchor, s: Setting, k: int, found, cpu: float, wall: float, bound, map_name: str, threshold: float) -> dict:
+    """One anchor's row: its errors, every frame's, the CPU, the bound and its answer (probability,
+    answered at ``threshold``: ``solver.answer_probability``)."""
     b = found.best
     if b is None:
         e_m, e_deg, within = np.inf, 180.0, 0
@@ -144,6 +145,10 @@ def _row(a: Anchor, s: Setting, k: int, found, cpu: float, wall: float, bound, m
         "cpu_seconds": float(cpu),
         "seconds": float(wall),
         "solvable": True,
+        "confidence": float(b.confidence) if b is not None else 0.0,
+        "probability": float(b.probability) if b is not None else 0.0,
+        "agreement": float(b.agreement) if b is not None and b.agreement is not None else float("nan"),
+        "answered": bool(b is not None and not b.probability < threshold),
     }
 
 
@@ -187,7 +192,7 @@ def scene_errors(
         ref_xy, ref_cls = ref[["x_m", "y_m"]].to_numpy(float), ref["class_id"].to_numpy()
         pos = {int(o): k for k, o in enumerate(ref["obj_idx"])}
         full = solver.scene_priors(ref, q, solver_settings, learned)
-        off = solver.TrainingPriors(scale=learned.scale if learned is not None else None)
+        off = solver.TrainingPriors().with_learned(learned)
         for a in anchors(q, split, beyond, seed)[::every]:
             cache: dict = {}
             for s in settings:
@@ -199,7 +204,7 @@ def scene_errors(
                 )
                 cpu, wall = time.process_time() - c0, time.perf_counter() - t0
                 bound = _bound(a, s, k, lambda m, xy=ref_xy, pos=pos: xy[[pos[int(o)] for o in m]], cfg, cache)
-                rows.append(_row(a, s, k, found, cpu, wall, bound, "scene"))
+                rows.append(_row(a, s, k, found, cpu, wall, bound, "scene", cfg.answer_probability))
         if log is not None and len(ref):
             log.info("scene %s: %d rows so far", ref["scene"].iloc[0], len(rows))
     return pd.DataFrame(rows)
@@ -246,7 +251,7 @@ def city_anchor_errors(
             )
             cpu, wall = time.process_time() - c0, time.perf_counter() - t0
             bound = _bound(a, s, k, ref_xy_of, solver_cfg, cache)
-            rows.append(_row(a, s, k, found, cpu, wall, bound, map_name))
+            rows.append(_row(a, s, k, found, cpu, wall, bound, map_name, solver_cfg.answer_probability))
     return rows
 
 
@@ -389,6 +394,7 @@ def summary(errors: pd.DataFrame) -> dict:
         bound_median_m=float(np.median(bm)),
         bound_within_5m_5deg=float(100 * np.mean((bm < WITHIN_M) & (bd < WITHIN_DEG))),
     )
+    out.update({k: s[k] for k in evaluation.ANSWER_COLUMNS})
     return out
 
 

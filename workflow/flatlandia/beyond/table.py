@@ -23,7 +23,7 @@ MAP_ORDER = ("scene", "city", "simulated")
 
 def table(summaries: list[dict]) -> pd.DataFrame:
     """The rows: scene map first, then the cities; by camera prior (on first), GPS (none first), frames."""
-    df = pd.DataFrame(summaries)[COLUMNS]
+    df = pd.DataFrame(summaries).reindex(columns=COLUMNS)  # a summary of an older run lacks the answers' figures
     df = df.astype({"objects": int, "frames": int, "queries": int})
     kind = df["map"].str.split("-").str[0].map({m: k for k, m in enumerate(MAP_ORDER)}).fillna(len(MAP_ORDER))
     order = pd.DataFrame(
@@ -59,6 +59,9 @@ def markdown(df: pd.DataFrame, note: str) -> str:
         "% wrong scene",
         "CPU ms median / p90",
         "true matches: median m, % within (5 m, 5°)",
+        "% answered",
+        "answered: % within (5 m, 5°) / % wrong scene",
+        "answerable at ≥ 95 % within / ≤ 1 % wrong scene",
     ]
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for r in df.to_dict("records"):
@@ -78,6 +81,9 @@ def markdown(df: pd.DataFrame, note: str) -> str:
             _cell(r["wrong_scene_pct"]),
             f"{_cell(r['cpu_median_ms'])} / {_cell(r['cpu_p90_ms'])}",
             f"{_cell(r['bound_median_m'], '.2f')}, {_cell(r['bound_within_5m_5deg'])}",
+            _cell(r["answered_pct"]),
+            f"{_cell(r['within_answered_pct'])} / {_cell(r['wrong_scene_answered_pct'])}",
+            f"{_cell(r['answerable_95_pct'])} / {_cell(r['answerable_wrong_1pct'])}",
         ]
         lines.append("| " + " | ".join(cells) + " |")
     single = [paper.ORIENTERNET_MGL_RECALL_M[m] for m in evaluation.RECALL_M] + [
@@ -132,5 +138,8 @@ def note(split: str, beyond: dict) -> str:
         "gate, co-visibility or verifier). `every frame`: % of all the sequences' frames within (5 m, 5°). CPU: "
         "the whole sequence (every frame's search and the joint solve; for a city, the index too) on one core. "
         "Wrong scene: a pose more than 500 m off. The bound: the same sequences refined on their true matches "
-        "from the truth (bearings, the odometry and the fix; no training priors)."
+        "from the truth (bearings, the odometry and the fix; no training priors). Answered: the anchors whose "
+        "calibrated probability of being within (5 m, 5°) is at least `solver.answer_probability` (status ok); "
+        "answerable: the largest share answerable, surest first, with at least 95 % of the answered within "
+        "(5 m, 5°) / at most 1 % in the wrong scene."
     )

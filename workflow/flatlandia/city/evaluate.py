@@ -22,7 +22,7 @@ from flatlandia.fine import evaluation
 
 #: a pose farther than this from the truth is in the wrong scene (scenes are < 300 m across and
 #: tiled 1 km apart)
-WRONG_SCENE_M = 500.0
+WRONG_SCENE_M = evaluation.WRONG_SCENE_M
 
 
 def solver_errors(
@@ -79,6 +79,8 @@ def index_errors(
             fit=fit,
             seconds=dt,
             cpu_seconds=dc,
+            probability=sol.probability if sol is not None else 0.0,
+            answered=evaluation.answered(sol, solver_settings),
         )
         near = np.hypot(*(found.centres - [r.x_m, r.y_m]).T) if len(found.centres) else np.zeros(0)
         row["region_hit"] = bool(np.any(near <= cfg.nms_m))
@@ -88,11 +90,22 @@ def index_errors(
 
 def summary(errors: pd.DataFrame) -> dict:
     """The table's figures of one method at one city size (``fine.evaluation.summarise`` plus the
-    city's own: within (5 m, 5 deg), wrong scene, CPU p90, region hits)."""
+    city's own: within (5 m, 5 deg), wrong scene, CPU p90, region hits; the answers' figures,
+    ``fine.evaluation.answer_summary``)."""
     s = evaluation.summarise(errors)
     em, ed = errors["error_m"].to_numpy(float), errors["error_deg"].to_numpy(float)
     cpu = errors["cpu_seconds"].to_numpy(float)
-    out = {k: s[k] for k in ["queries", "median_m", "median_deg", *evaluation.RECALL_COLUMNS, "no_pose_pct"]}
+    out = {
+        k: s[k]
+        for k in [
+            "queries",
+            "median_m",
+            "median_deg",
+            *evaluation.RECALL_COLUMNS,
+            "no_pose_pct",
+            *evaluation.ANSWER_COLUMNS,
+        ]
+    }
     out.update(
         within_5m_5deg=float(100 * np.mean((em < 5) & (ed < 5))),
         wrong_scene_pct=float(100 * np.mean(np.isfinite(em) & (em > WRONG_SCENE_M))),

@@ -118,7 +118,7 @@ def region_training_priors(ix: ViewIndex, cams: np.ndarray, seen: np.ndarray, le
     """The solver's priors on a search's regions: the training views near them and what they saw
     (:func:`region_priors`), the learned scale prior, and the verifier where there are views."""
     if not len(cams):
-        return solver.TrainingPriors(scale=learned.scale if learned else None)
+        return solver.TrainingPriors().with_learned(learned)
     return solver.TrainingPriors(ix.cam[cams], seen).with_learned(learned)
 
 

@@ -13,7 +13,7 @@ COLUMNS = [c.name for c in tables.SCHEMAS["city_scale"]]
 
 def table(summaries: list[dict]) -> pd.DataFrame:
     """The rows, by map kind, size and method."""
-    df = pd.DataFrame(summaries)[COLUMNS]
+    df = pd.DataFrame(summaries).reindex(columns=COLUMNS)  # a summary of an older run lacks the answers' figures
     df = df.astype({"scenes": int, "cities": int, "objects": int, "queries": int})
     return df.sort_values(["map", "objects", "method"], ascending=[False, True, False], ignore_index=True)
 
@@ -31,6 +31,13 @@ def markdown(df: pd.DataFrame, note: str) -> str:
             "region_hit_pct": "% true place in regions",
             "index_mb": "index MB",
             "index_build_s": "index build s",
+            "answered_pct": "% answered",
+            "within_answered_pct": "answered: % within (5 m, 5 deg)",
+            "wrong_scene_answered_pct": "answered: % wrong scene",
+            "answerable_95_pct": "answerable at >= 95 % within",
+            "answerable_wrong_1pct": "answerable at <= 1 % wrong scene",
+            "answerable_wrong_2pct": "answerable at <= 2 % wrong scene",
+            "ece_points": "calibration error",
         }
     )
     return (

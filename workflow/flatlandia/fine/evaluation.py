@@ -44,6 +44,19 @@ RECALL_COLUMNS = [f"recall_{m:g}m" for m in RECALL_M] + [f"recall_{d:g}deg" for 
 #: headline figure)
 WITHIN = (5.0, 5.0)
 WITHIN_COLUMN = "within_5m_5deg"
+#: a pose farther than this from the truth is in the wrong scene (a city's tiles lie 1 km apart;
+#: scenes are < 300 m across); on a scene map no pose is
+WRONG_SCENE_M = 500.0
+#: summary keys of the answers' probability (:func:`answer_summary`)
+ANSWER_COLUMNS = [
+    "answered_pct",
+    "within_answered_pct",
+    "wrong_scene_answered_pct",
+    "answerable_95_pct",
+    "answerable_wrong_1pct",
+    "answerable_wrong_2pct",
+    "ece_points",
+]
 
 
 def solvable(query_classes, proposal_classes, min_objects: int = geo.MIN_OBJECTS) -> bool:
@@ -75,7 +88,7 @@ def paper_metres(error_m, lat: float):
 
 def summarise(errors: pd.DataFrame) -> dict:
     """Median errors, % under the paper's thresholds, the field's recalls (position and heading
-    apart), F%, gross share, mean/median query time.
+    apart), F%, gross share, mean/median query time, the answers' figures (:func:`answer_summary`).
 
     Failed queries (no pose) count with infinite error and a 180 deg heading: misses at every
     threshold. ``F%`` is the share of queries whose proposal cannot hold a solution (fewer than 3
@@ -101,11 +114,42 @@ def summarise(errors: pd.DataFrame) -> dict:
     out["median_query_s"] = float(e["seconds"].median()) if len(e) else float("nan")
     if "cpu_seconds" in e:  # CPU time of the process: robust to other load on a shared machine
         out["median_query_cpu_s"] = float(e["cpu_seconds"].median()) if len(e) else float("nan")
+    out.update(answer_summary(e))
     if "error_paper_m" in e:  # the paper's convention: local-map units x 215, same thresholds
         pu = e["error_paper_m"].to_numpy(float)
         out["median_pu"] = float(np.median(pu)) if len(e) else float("nan")
         for column, (m, d) in zip(PAPER_UNIT_THRESHOLD_COLUMNS, paper.THRESHOLDS):
             out[column] = float(100 * np.mean((pu < m) & (ed < d))) if len(e) else float("nan")
+    return out
+
+
+def answer_summary(errors: pd.DataFrame) -> dict:
+    """The answers' figures (:data:`ANSWER_COLUMNS`) of rows with ``probability`` (P(within (5 m, 5
+    deg)), NaN: a method without one) and ``answered`` (status ok at the config's threshold): % answered,
+    % within (5 m, 5 deg) and % in the wrong scene among the answered, the largest share answerable
+    (by decreasing probability) with at least 95 % of the answered within and with at most 1 % and 2 %
+    in the wrong scene, and the expected calibration error (10 bins, points). NaN where undefined
+    (no probability, nothing answered)."""
+    from flatlandia.solver import calibration
+
+    nan = float("nan")
+    out = dict.fromkeys(ANSWER_COLUMNS, nan)
+    if not len(errors):
+        return out
+    em, ed = errors["error_m"].to_numpy(float), errors["error_deg"].to_numpy(float)
+    within = (em < WITHIN[0]) & (ed < WITHIN[1])
+    wrong = np.isfinite(em) & (em > WRONG_SCENE_M)
+    answered = errors["answered"].to_numpy(bool) if "answered" in errors else np.ones(len(errors), bool)
+    out["answered_pct"] = float(100 * answered.mean())
+    if answered.any():
+        out["within_answered_pct"] = float(100 * within[answered].mean())
+        out["wrong_scene_answered_pct"] = float(100 * wrong[answered].mean())
+    prob = errors["probability"].to_numpy(float) if "probability" in errors else np.full(len(errors), nan)
+    if np.isfinite(prob).all():
+        out["answerable_95_pct"] = calibration.largest_coverage(prob, ~within, 5.0)
+        out["answerable_wrong_1pct"] = calibration.largest_coverage(prob, wrong, 1.0)
+        out["answerable_wrong_2pct"] = calibration.largest_coverage(prob, wrong, 2.0)
+        out["ece_points"] = calibration.expected_calibration_error(prob, within)
     return out
 
 
@@ -251,9 +295,19 @@ def evaluate_solver(
                 seconds=dt,
                 cpu_seconds=dc,
                 matches=matched,
+                probability=sol.probability if sol is not None else 0.0,
+                answered=answered(sol, cfg),
             )
         )
     return pd.DataFrame(rows)
+
+
+def answered(sol, cfg: solver.SolverConfig) -> bool:
+    """A pose whose probability is at least ``solver.answer_probability`` (status ok); a pose
+    without a probability (NaN) is answered."""
+    if sol is None:
+        return False
+    return bool(not np.isfinite(sol.probability) or sol.probability >= cfg.answer_probability)
 
 
 def evaluate_model(
@@ -321,6 +375,8 @@ def error_row(
     seconds: float,
     cpu_seconds: float,
     matches: list[int] | None = None,
+    probability: float = float("nan"),
+    answered: bool = True,
 ) -> dict:
     """One query's row of an errors table. Why one function: the solver's and the learned models'
     rows must share their columns, which fine_table reads alike.
@@ -328,7 +384,10 @@ def error_row(
     ``query``: the query row; ``pose``: (x, y, heading in radians), NaN without a pose;
     ``errors``: (metres, degrees); ``fit``: the solver's (confidence, inliers, correct inliers);
     ``matches``: the solver's reference ``obj_idx`` per local-map object (-1: unmatched), for the
-    figures and the viewer; empty for learned models, which match nothing.
+    figures and the viewer; empty for learned models, which match nothing; ``probability``: the
+    solver's P(within (5 m, 5 deg)) (NaN: a method without one) and ``answered``: its status is ok
+    at the config's threshold (``solver.answer_probability``; methods without a probability answer
+    every query they place).
     """
     x, y, theta = pose
     error_m, error_deg = errors
@@ -354,4 +413,6 @@ def error_row(
         "seconds": float(seconds),
         "cpu_seconds": float(cpu_seconds),
         "matched_obj_idx": [int(m) for m in (matches or [])],
+        "probability": float(probability),
+        "answered": bool(answered),
     }

@@ -96,6 +96,7 @@ def table_rows(summaries: list[dict]) -> pd.DataFrame:
         row["paper_row"] = name
         row.update({f"paper_{c}": float(v) for c, v in zip(evaluation.THRESHOLD_COLUMNS, p[:4])})
         row.update(paper_median_pu=float(p[4]), paper_median_deg=float(p[5]), paper_query_ms=float(p[6]))
+        row.update({c: f(c) for c in evaluation.ANSWER_COLUMNS})
         rows.append(row)
     cols = [c.name for c in tables.SCHEMAS["fine_localization"]]
     return pd.DataFrame(rows, columns=cols)
@@ -182,6 +183,7 @@ def render_markdown(df: pd.DataFrame, note: str = "") -> str:
         if not part.empty:
             out += [f"## {title}", ""] + _table(part, ACCURACY_COLUMNS, lead) + [""]
     out += recall_markdown(df)
+    out += answers_markdown(df)
     out += [
         "## Cost and failures",
         "",
@@ -227,6 +229,37 @@ def recall_markdown(df: pd.DataFrame) -> list[str]:
         + " | – |"
     )
     return out + [""]
+
+
+#: the answers' columns of the markdown: the solver's probability and what answering at its threshold gives
+ANSWER_MARKDOWN = [
+    ("% answered", "answered_pct", ".1f"),
+    ("% within (5 m, 5°) of the answered", "within_answered_pct", ".1f"),
+    ("% within (5 m, 5°) of all", evaluation.WITHIN_COLUMN, ".1f"),
+    ("answerable at ≥ 95 % within, %", "answerable_95_pct", ".1f"),
+    ("calibration error, points", "ece_points", ".1f"),
+]
+
+
+def answers_markdown(df: pd.DataFrame) -> list[str]:
+    """The runs that give a probability (the solver's): % answered at ``solver.answer_probability``,
+    the answered within (5 m, 5°), and the largest share answerable at ≥ 95 % within. Lines."""
+    rows = df[np.isfinite(df["answerable_95_pct"].to_numpy(float))] if "answerable_95_pct" in df else df.iloc[:0]
+    if rows.empty:
+        return []
+    lead = [("method", "method_label"), ("proposal", "strategy"), ("map", "map_type")]
+    return [
+        "## Knowing when it is right",
+        "",
+        "The solver's answers carry the calibrated probability of being within (5 m, 5°) (docs/results.md, "
+        '"Knowing when it is right"): answered are those at or above `solver.answer_probability` (status ok), the '
+        "rest are `ambiguous`; answerable at ≥ 95 %: the largest share of the queries that can be answered, surest "
+        "first, with at least 95 % of them within (5 m, 5°); calibration error: expected calibration error of "
+        "the probability (10 bins).",
+        "",
+        *_table(_ordered(rows), ANSWER_MARKDOWN, lead),
+        "",
+    ]
 
 
 # ----------------------------------------------------------------------------- per scene

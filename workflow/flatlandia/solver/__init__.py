@@ -8,7 +8,10 @@ are fitted once per benchmark by rule solver_priors.
 Modules, in the order a query meets them: ``problem`` (the query's derived arrays), ``priors``
 (what the training split tells about a pose), ``hypotheses`` (generation, gating, chunked
 scoring, the distinct best), ``scoring`` (MSAC cost, refinement), ``verify`` (the verifier's
-features and score) and ``verify_fit`` (learning it), ``kernels`` (the compiled loops),
+features and score) and ``verify_fit`` (learning it), ``likelihood`` (a pose scored against chance,
+missed objects counted; its compiled loop in ``likelihood_kernels``), ``calibration`` (a pool's
+log-odds as the probability of an answer) and ``calibration_fit`` (fitting it on the validation
+split), ``kernels`` (the compiled loops),
 ``pipeline`` (the steps in order: :func:`localize`, the best pose and its alternatives, and
 :func:`solve`, the best alone), ``sequence`` (several frames tied by relative poses, localized
 together: :func:`localize_sequence`; its compiled loops in ``sequence_kernels``), ``learned`` (the fitted priors as one value,

@@ -191,11 +191,14 @@ class ScoredHypotheses:
             costs.append(scoring.score(self.problem, self.priors, t[window], theta[window], s[window])[0])
         return np.concatenate(costs)
 
-    def arrays(self):
-        """(cost, t, theta, s) of every kept hypothesis, or None when none was kept."""
+    def arrays(self, keep: int | None = None):
+        """(cost, t, theta, s) of every kept hypothesis, or None when none was kept; with ``keep``
+        (at most the scoring's), each chunk's ``keep`` cheapest only: what scoring with that
+        ``keep`` would have kept (a chunk's kept are sorted by cost)."""
         if not self.kept:
             return None
-        return tuple(np.concatenate([k[n] for k in self.kept]) for n in range(4))
+        n = self.keep if keep is None else int(keep)
+        return tuple(np.concatenate([k[i][:n] for k in self.kept]) for i in range(4))
 
 
 def score_hypotheses(problem: Problem, priors: Priors, keep: int) -> ScoredHypotheses:

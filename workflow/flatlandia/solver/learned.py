@@ -1,4 +1,5 @@
-"""The solver's learned priors: the depth maps' log-scale prior and the verifier, as one value.
+"""The solver's learned priors: the depth maps' log-scale prior, the verifier, the likelihood ratio's
+model and the answers' calibration, as one value.
 
 Why one value written once: the fine runs, the coarse stage's proposals and the city search all
 solve depth maps with the same priors learned from the benchmark's training split; rule
@@ -9,14 +10,16 @@ other rules read (fitting took 13-28 s of CPU per rule that needed it).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from flatlandia import io
-from flatlandia.solver import verify, verify_fit
+from flatlandia.solver import calibration, likelihood, verify, verify_fit
+from flatlandia.solver.calibration import Calibration
+from flatlandia.solver.likelihood import LikelihoodModel
 from flatlandia.solver.priors import depth_scale_prior
 from flatlandia.solver.settings import SolverConfig
 
@@ -27,11 +30,14 @@ REGIONS = tuple(verify_fit.REGIONS)
 
 @dataclass(frozen=True)
 class LearnedPriors:
-    """What the solver learns from a benchmark's training split for depth maps; either may be None
-    (off in the settings, or nothing to learn)."""
+    """What the solver learns from a benchmark's training split for depth maps (and, for the
+    answers' probability, its validation split); any may be None (off in the settings, or nothing
+    to learn)."""
 
     scale: tuple[float, float] | None = None  # (mean, std) of log(metres per local unit)
     verifier: verify.Verifier | None = None
+    likelihood: LikelihoodModel | None = None  # the likelihood ratio against chance (training split)
+    calibration: Calibration | None = None  # the answers' probability (validation split)
 
     def to_dict(self) -> dict:
         v = self.verifier
@@ -41,6 +47,8 @@ class LearnedPriors:
             if v is not None
             else None,
             "features": list(verify.FEATURES),
+            "likelihood": self.likelihood.to_dict() if self.likelihood is not None else None,
+            "calibration": self.calibration.to_dict() if self.calibration is not None else None,
         }
 
     @classmethod
@@ -52,7 +60,11 @@ class LearnedPriors:
             if d.get("features", list(verify.FEATURES)) != list(verify.FEATURES):
                 raise ValueError(f"the verifier's features {d.get('features')} are not this solver's {verify.FEATURES}")
             verifier = verify.Verifier(*(np.asarray(v[k], float) for k in ("weights", "mean", "scale")))
-        return cls(scale, verifier)
+            if not all(np.isfinite(getattr(verifier, k)).all() for k in ("weights", "mean", "scale")):
+                raise ValueError("the verifier's weights are not all finite")
+        lik = LikelihoodModel.from_dict(d["likelihood"]) if d.get("likelihood") else None
+        cal = Calibration.from_dict(d["calibration"]) if d.get("calibration") else None
+        return cls(scale, verifier, lik, cal)
 
     def write(self, path: str | Path) -> None:
         io.write_json(self.to_dict(), path)
@@ -77,12 +89,29 @@ def fit(
     **fit_args,
 ) -> LearnedPriors:
     """The learned priors of depth maps from the training split of ``scenes`` (reference map,
-    queries): the log-scale prior and, when ``solver.verify`` and ``camera_prior`` are on (unset
+    queries): the log-scale prior, the likelihood ratio's model (:func:`likelihood.fit`, when
+    ``solver.likelihood_weight`` > 0) and, when ``solver.verify`` and ``camera_prior`` are on (unset
     keys: the schema's defaults) and ``region`` is one of :data:`REGIONS`, the verifier learned on
-    that region. ``fit_args``: ``fraction``, ``rng`` of :func:`verify_fit.fit_verifier`."""
+    that region. No calibration: :func:`with_calibration` adds it from validation answers.
+    ``fit_args``: ``fraction``, ``rng`` of :func:`verify_fit.fit_verifier`."""
     cfg = SolverConfig.of(settings)
     scale = depth_scale_prior([q for _, q in scenes], cfg)
+    lik = likelihood.fit(scenes) if cfg.likelihood_weight > 0 else None
     verifier = None
     if cfg.verify and cfg.camera_prior and region in REGIONS:
         verifier = verify_fit.fit_verifier(scenes, cfg.to_dict(), scale, region, **fit_args)
-    return LearnedPriors(scale, verifier)
+    return LearnedPriors(scale, verifier, lik)
+
+
+def with_calibration(learned: LearnedPriors, answers: pd.DataFrame) -> LearnedPriors:
+    """``learned`` with the answers' calibration fitted on ``answers`` (validation answers of the
+    solver run with ``learned``: columns ``pool_share``, ``objects``, ``frames``, ``agreement``,
+    ``right``), one
+    logistic map for single frames and one for sequences (:func:`calibration.fit_logistic`)."""
+    one = answers[answers["frames"] <= 1]
+    seq = answers[answers["frames"] > 1]
+    cal = Calibration(
+        calibration.fit_logistic(one["pool_share"], one["objects"], one["frames"], one["agreement"], one["right"]),
+        calibration.fit_logistic(seq["pool_share"], seq["objects"], seq["frames"], seq["agreement"], seq["right"]),
+    )
+    return replace(learned, calibration=cal)

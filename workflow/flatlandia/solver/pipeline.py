@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flatlandia.solver import hypotheses, scoring, verify
+from flatlandia.solver import calibration, hypotheses, likelihood, scoring, verify
 from flatlandia.solver.priors import Fix, Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
 from flatlandia.solver.settings import SolverConfig
@@ -67,6 +67,10 @@ class Solution:
     cost: float = float("inf")  # MSAC cost of the returned pose
     n_hypotheses: int = 0
     behind: float = 0.0  # how far the ranking puts it behind the best (0 for the best), a log-likelihood ratio
+    probability: float = float("nan")  # P(within (5 m, 5 deg)): the pool's share of this place, calibrated
+    llr: float | None = None  # the likelihood ratio against chance (None: no model)
+    share: float | None = None  # the pool's share of its place, before the calibration
+    agreement: float | None = None  # a sequence's: the share of frames whose own answer is this place
 
 
 #: alternatives are poses at least this far (metres) or this many degrees from the best and from
@@ -128,8 +132,9 @@ def localize(
     ``verify_top_k``, best), in the order that chose the best: the cost, or the verifier's score.
     Alternatives are at least :data:`DISTINCT_M` metres or :data:`DISTINCT_DEG` degrees from the
     best and from each other; each carries its inliers, its cost, the share of the query's objects
-    it explains as its confidence, and ``behind``: how far the ranking puts it behind the best. The
-    one entry point of the fine stage's runs, the city search and ``flatlandia localize``. With a
+    it explains as its confidence, ``behind``: how far the ranking puts it behind the best, and its
+    ``probability`` of being within (5 m, 5 deg) (:func:`ranking_key`, :mod:`calibration`). The one
+    entry point of the fine stage's runs, the city search and ``flatlandia localize``. With a
     ``fix`` the verifier's score is added the fix's log-likelihood (-cost / 2)."""
     verifier = priors.verifier if priors is not None else None
     pool = candidates(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors, verifier is not None, fix)
@@ -179,11 +184,24 @@ def candidates(
     return Pool(problem, query_priors, t, theta, s, scored.n_hypotheses, verified)
 
 
+def ranking_key(problem: Problem, priors: Priors, key: np.ndarray, t, theta, s) -> tuple[np.ndarray, np.ndarray]:
+    """(key, likelihood ratio) of refined poses: a ranking ``key`` (a negative log-odds: the cost
+    halved, or minus the verifier's score) less ``likelihood_weight`` times the likelihood ratio
+    against chance (:mod:`flatlandia.solver.likelihood`) when the priors carry its model (depth
+    maps); the ratio is nan without one."""
+    w = float(problem.cfg.likelihood_weight)
+    if priors.likelihood is None or w <= 0 or problem.metric:
+        return key, np.full(len(key), np.nan)
+    llr = likelihood.pose_llr(problem, priors, priors.likelihood, problem.cfg.density_radius_m, t, theta, s)[0]
+    return key - w * llr, llr
+
+
 def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Localization:
-    """The best refined pose that stayed finite and near the prior cameras (the cheapest, or the
-    verifier's highest score), with its inliers and a confidence: the share of explained objects,
-    lowered when a distinct pose is nearly as good (cost / 2 or score gap, a log-likelihood ratio);
-    and up to ``alternatives`` next-best distinct poses (:func:`localize`)."""
+    """The best refined pose that stayed finite and near the prior cameras (the lowest key: the
+    cost, or the verifier's score, with the likelihood ratio, :func:`ranking_key`), with its
+    inliers, a confidence (the share of explained objects, lowered when a distinct pose is nearly
+    as good: a log-likelihood ratio) and its probability (the pool's share of its place,
+    calibrated); and up to ``alternatives`` next-best distinct poses (:func:`localize`)."""
     problem, priors, t, theta, s = pool.problem, pool.priors, pool.t, pool.theta, pool.s
     data, cost, inl, match = scoring.score_terms(problem, priors, t, theta, s)
     ok = [k for k in range(len(t)) if np.all(np.isfinite(t[k])) and not priors.too_far(t[k])]
@@ -195,6 +213,11 @@ def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Loc
             key = key + priors.fix_cost(t, theta) / 2.0
     else:
         key = cost / 2.0
+    key, llr = ranking_key(problem, priors, key, t, theta, s)
+    ok_mask = np.zeros(len(t), bool)
+    ok_mask[ok] = True
+    share = calibration.pose_masses(t, theta, key, ok_mask)
+    prob = calibration.probability(priors.calibration, share, problem.m, 1)
     ok.sort(key=lambda k: float(key[k]))
     best = ok[0]
 
@@ -212,6 +235,9 @@ def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Loc
             float(cost[k]),
             pool.n_hypotheses,
             float(key[k]) - float(key[best]),
+            float(prob[k]),
+            float(llr[k]) if np.isfinite(llr[k]) else None,
+            float(share[k]),
         )
 
     conf = len(inliers(best)) / problem.m

@@ -25,7 +25,9 @@ from flatlandia.solver.kernels import CoSeen, PriorTerms
 from flatlandia.solver.settings import SolverConfig
 
 if TYPE_CHECKING:
+    from flatlandia.solver.calibration import Calibration
     from flatlandia.solver.learned import LearnedPriors
+    from flatlandia.solver.likelihood import LikelihoodModel
     from flatlandia.solver.verify import Verifier
 
 
@@ -37,13 +39,18 @@ class TrainingPriors:
     ``cameras``: (P, 3) training cameras, x, y in metres and heading in radians (the camera
     prior's gate and cost); ``seen``: (P, N) booleans, camera p saw candidate row n of the map the
     value is for (co-visibility cost and gate); ``scale``: (mean, std) of log(metres per local
-    unit) of depth maps; ``verifier``: picks among the best hypotheses of a depth map. Metric (GT)
-    local maps use the cameras and co-visibility only."""
+    unit) of depth maps; ``verifier``: picks among the best hypotheses of a depth map;
+    ``likelihood``: the noise model and detection probability of the likelihood ratio against
+    chance (:mod:`flatlandia.solver.likelihood`); ``calibration``: maps a pool's log-odds to the
+    probability of an answer (:mod:`flatlandia.solver.calibration`). Metric (GT) local maps use the
+    cameras and co-visibility only."""
 
     cameras: np.ndarray | None = None
     seen: np.ndarray | None = None
     scale: tuple[float, float] | None = None
     verifier: Verifier | None = None
+    likelihood: LikelihoodModel | None = None
+    calibration: Calibration | None = None
 
     def rows(self, idx) -> TrainingPriors:
         """The same priors for the candidate rows ``idx`` of the map (a proposal's objects)."""
@@ -57,10 +64,17 @@ class TrainingPriors:
         return replace(self, cameras=self.cameras[keep], seen=seen)
 
     def with_learned(self, learned: LearnedPriors | None) -> TrainingPriors:
-        """These priors with a benchmark's learned scale prior and verifier (None: without)."""
+        """These priors with a benchmark's learned scale prior, verifier, likelihood model and
+        calibration (None: without)."""
         if learned is None:
-            return replace(self, scale=None, verifier=None)
-        return replace(self, scale=learned.scale, verifier=learned.verifier)
+            return replace(self, scale=None, verifier=None, likelihood=None, calibration=None)
+        return replace(
+            self,
+            scale=learned.scale,
+            verifier=learned.verifier,
+            likelihood=learned.likelihood,
+            calibration=learned.calibration,
+        )
 
 
 @dataclass(frozen=True)
@@ -271,6 +285,8 @@ class Priors:
         self.cfg = cfg
         self.metric = metric
         self.scale = given.scale  # (mean, std) of log(metres per local unit), or None
+        self.likelihood = given.likelihood  # the likelihood ratio's model, or None
+        self.calibration = given.calibration  # the answers' probability, or None (the pool's share)
         cams = np.asarray(prior_xy, float).reshape(len(prior_xy), -1) if prior_xy is not None else None
         self.gate = prior_gate(cams[:, :2], cfg.prior_radius_m) if cams is not None and len(cams) else None
         self.tree = self.gate.tree if self.gate is not None else None  # prior camera positions, or None
@@ -281,6 +297,7 @@ class Priors:
             self.seen = np.ascontiguousarray(np.asarray(prior_seen, bool).reshape(len(cams), n_ref))
         #: the candidates some prior camera saw together (the hypothesis gate), or None
         self.coseen = coseen(self.seen) if self.seen is not None and not metric else None
+        self._seen_lists = None  # ``seen`` as lists per view (the likelihood ratio's; made when first asked)
 
     # ------------------------------------------------------------------ gating
     def near(self, t) -> np.ndarray:

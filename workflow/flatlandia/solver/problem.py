@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from flatlandia.solver import likelihood_kernels
 from flatlandia.solver.kernels import Candidates, QueryTerms
 
 
@@ -44,6 +45,15 @@ class Problem:
         )
         #: the refinement weighs ranges more weakly than the scoring
         self.refine_terms = self.terms._replace(log_range_sigma=float(cfg.refine_log_range_sigma))
+        self._density: tuple[float, np.ndarray] | None = None
+
+    def log_density(self, radius_m: float) -> np.ndarray:
+        """(N,) log density (per m^2) of each candidate's class within ``radius_m`` of it (computed
+        once per radius): the chance of an object of that class lying there at random."""
+        if self._density is None or self._density[0] != float(radius_m):
+            rc = self.rc.astype(np.int64)
+            self._density = (float(radius_m), likelihood_kernels.class_density(self.rx, self.ry, rc, float(radius_m)))
+        return self._density[1]
 
     def _flat_candidates(self) -> Candidates:
         """The same-class candidates without padding, as the compiled kernels walk them."""

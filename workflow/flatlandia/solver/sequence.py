@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flatlandia import config, geo
-from flatlandia.solver import hypotheses, pipeline, scoring, verify
+from flatlandia.solver import calibration, hypotheses, likelihood, pipeline, scoring, verify
 from flatlandia.solver import sequence_kernels as sk
 from flatlandia.solver.pipeline import DISTINCT_DEG, DISTINCT_M, Solution
 from flatlandia.solver.priors import Fix, Priors, TrainingPriors
@@ -101,6 +101,7 @@ class _Sequence:
 
     def __init__(self, frames, rel_poses, ref_xy, ref_cls, cfg, seq, priors, odometry_sigma, fix):
         self.cfg, self.seq, self.fix = cfg, seq, fix
+        self.frames, self.ref_xy, self.ref_cls = list(frames), ref_xy, ref_cls
         self.problems = [Problem(xy, cls, ref_xy, ref_cls, False, cfg) for xy, cls in frames]
         #: the joint cost's view of the frames: ranges weighed by ``seq.log_range_sigma``
         self.joint = self.problems
@@ -127,21 +128,72 @@ class _Sequence:
     def frame_poses(self, anchor: np.ndarray, f: int) -> np.ndarray:
         return compose(anchor, self.rel[f])
 
+    # ---------------------------------------------------------------- step 0
+    def frame_fix(self, f: int) -> Fix | None:
+        """The fix as frame ``f`` sees it: the anchor's, widened for a companion by its distance."""
+        if self.fix is None or f == 0:
+            return self.fix
+        return self.fix.widened(float(np.hypot(*self.rel[f, :2])))
+
+    def single_answer(self, f: int, scored, pr) -> list[Solution]:
+        """Frame ``f``'s own answer as the single-frame solver gives it (:func:`pipeline.localize`:
+        its verifier and likelihood ratio too), from the frame's search ``scored`` (its priors
+        ``pr``): best first, with up to ``frame_answers - 1`` alternatives; empty where it has none.
+        They join the joint candidates and say how many frames agree with the joint answer (its
+        probability's ``agreement``)."""
+        k = int(self.seq.frame_answers)
+        problem = self.capped[f]
+        verified = self.verifier is not None and verify.usable(problem, pr)
+        keep = self.cfg.verify_top_k if verified else self.cfg.top_k
+        kept = scored.arrays(keep) if k > 0 else None
+        if kept is None:
+            return []
+        cost, t, theta, s = kept
+        chosen = hypotheses.distinct_best(cost, t, theta, keep)
+        t, theta, s = scoring.refine(problem, pr, t[chosen], theta[chosen], s[chosen])
+        pool = pipeline.Pool(problem, pr, t, theta, s, scored.n_hypotheses, verified)
+        found = pipeline._ranked(pool, self.verifier if verified else None, k - 1)
+        return [] if found.best is None else [found.best, *found.alternatives]
+
+    def agreement(self, single: list[list[Solution]], poses: list[np.ndarray]) -> np.ndarray:
+        """(C,) the share of frames whose own best answer lies within (5 m, 5 deg) of the frame's
+        pose in each joint hypothesis (``poses[f]`` (C, 3)); nan without the frames' answers."""
+        if int(self.seq.frame_answers) <= 0:
+            return np.full(len(poses[0]), np.nan)
+        agree = np.zeros(len(poses[0]))
+        for f, answers in enumerate(single):
+            if not answers:
+                continue
+            b = answers[0]
+            near = np.hypot(poses[f][:, 0] - b.x, poses[f][:, 1] - b.y) < calibration.RIGHT_M
+            near &= np.abs(geo.wrap_angle(poses[f][:, 2] - b.theta)) < np.radians(calibration.RIGHT_DEG)
+            agree += near
+        return agree / self.n
+
+    def single_candidates(self, single: list[list[Solution]]) -> np.ndarray:
+        """(H, 3) the frames' own answers mapped to the anchor."""
+        out = [anchor_of(np.array([[a.x, a.y, a.theta]]), self.rel[f]) for f, ans in enumerate(single) for a in ans]
+        return np.vstack(out) if out else np.zeros((0, 3))
+
     # ---------------------------------------------------------------- step 1
-    def frame_hypotheses(self) -> tuple[np.ndarray, int]:
-        """(H, 3) anchor poses of every frame's ``frame_hypotheses`` cheapest distinct hypotheses and
-        the number of hypotheses scored."""
-        out, n_scored = [], 0
+    def frame_hypotheses(self) -> tuple[np.ndarray, int, list[list[Solution]]]:
+        """(H, 3) anchor poses of every frame's ``frame_hypotheses`` cheapest distinct hypotheses, the
+        number of hypotheses scored, and every frame's own answer (:meth:`single_answer`, from the
+        same search: each frame's hypotheses are generated and scored once)."""
+        out, n_scored, single = [], 0, []
+        keep = max(int(self.seq.frame_hypotheses), int(self.cfg.verify_top_k), int(self.cfg.top_k))
         for f, problem in enumerate(self.problems):
             if not problem.solvable():
+                single.append([])
                 continue
             pr = self.priors
             if self.fix is not None:
                 pr = copy.copy(self.priors)
-                pr.fix = self.fix if f == 0 else self.fix.widened(float(np.hypot(*self.rel[f, :2])))
-            scored = hypotheses.score_hypotheses(self.capped[f], pr, self.seq.frame_hypotheses)
+                pr.fix = self.frame_fix(f)
+            scored = hypotheses.score_hypotheses(self.capped[f], pr, keep)
             n_scored += scored.n_hypotheses
-            kept = scored.arrays()
+            single.append(self.single_answer(f, scored, pr))
+            kept = scored.arrays(self.seq.frame_hypotheses)
             if kept is None:
                 continue
             cost, t, theta, s = kept
@@ -150,7 +202,7 @@ class _Sequence:
             if self.seq.refine_frames:
                 t, theta, s = scoring.refine(problem, pr, t, theta, s)
             out.append(anchor_of(np.column_stack([t, theta]), self.rel[f]))
-        return (np.vstack(out) if out else np.zeros((0, 3))), n_scored
+        return (np.vstack(out) if out else np.zeros((0, 3))), n_scored, single
 
     # ---------------------------------------------------------------- step 2
     def scales(self, f: int, poses: np.ndarray) -> np.ndarray:
@@ -278,6 +330,26 @@ class _Sequence:
             float(np.radians(fix.heading_sigma_deg)) if fix is not None and fix.heading is not None else 0.0,
         )
 
+    def likelihood_ratio(self, terms) -> np.ndarray:
+        """(C,) the sum over frames of each frame's likelihood ratio against chance at its pose and
+        scale (:func:`flatlandia.solver.likelihood.pose_llr`): what every frame saw and did not see
+        counts; nan without the model or with ``likelihood_weight`` 0."""
+        c = len(terms[0][0])
+        if self.priors.likelihood is None or self.cfg.likelihood_weight <= 0:
+            return np.full(c, np.nan)
+        total = np.zeros(c)
+        for f, (poses, s, *_) in enumerate(terms):
+            total += likelihood.pose_llr(
+                self.problems[f],
+                self.priors,
+                self.priors.likelihood,
+                self.cfg.density_radius_m,
+                poses[:, :2],
+                poses[:, 2],
+                s,
+            )[0]
+        return total
+
     def verifier_scores(self, terms) -> np.ndarray:
         """(C,) the sum over frames of the single-frame verifier's score at each frame's pose."""
         total = 0.0
@@ -322,7 +394,8 @@ def localize_sequence(
         poses = [FramePose(b.x, b.y, b.theta, b.scale)] if b is not None else []
         return SequenceLocalization(b, found.alternatives, poses)
     sq = _Sequence(frames, rel_poses, ref_xy, ref_cls, cfg, seq, priors, odometry_sigma, fix)
-    anchor, n_scored = sq.frame_hypotheses()
+    anchor, n_scored, single = sq.frame_hypotheses()
+    anchor = np.vstack([anchor, sq.single_candidates(single)])
     if not len(anchor):
         return SequenceLocalization(None)
     keep = sq.fix.near(anchor[:, :2]) if sq.fix is not None else np.ones(len(anchor), bool)
@@ -347,9 +420,19 @@ def localize_sequence(
             key = key + sq.fix.cost(anchor[:, :2], anchor[:, 2]) / 2.0
     else:
         key = cost / 2.0
+    llr = sq.likelihood_ratio(terms)
+    if np.isfinite(llr).all():
+        key = key - float(cfg.likelihood_weight) * llr
+    agree = sq.agreement(single, poses)
+    if np.isfinite(agree).all():  # each frame whose own answer is this place: independent evidence for it
+        key = key - float(seq.agreement_weight) * agree * sq.n
     order = [int(k) for k in np.argsort(np.where(ok, key, np.inf), kind="stable") if ok[k]]
     best = order[0]
     m_total = sum(pb.m for pb in sq.problems)
+    share = calibration.pose_masses(anchor[:, :2], anchor[:, 2], key, ok)
+    prob = calibration.probability(
+        sq.priors.calibration, share, sq.problems[0].m, sq.n, np.where(np.isfinite(agree), agree, 1.0)
+    )
 
     def solution(k: int) -> Solution:
         inl0, match0 = terms[0][4], terms[0][5]
@@ -365,6 +448,10 @@ def localize_sequence(
             float(cost[k]),
             n_scored,
             float(key[k]) - float(key[best]),
+            float(prob[k]),
+            float(llr[k]) if np.isfinite(llr[k]) else None,
+            float(share[k]),
+            float(agree[k]) if np.isfinite(agree[k]) else None,
         )
 
     chosen = [best]

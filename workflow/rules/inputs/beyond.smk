@@ -59,15 +59,29 @@ def beyond_summaries(wildcards):
     return scene + [f"results/beyond/{m}/summary.json" for m in beyond_city_maps()]
 
 
+def beyond_errors(wildcards):
+    """The figures' inputs: the per-anchor rows of the table's summaries."""
+    return [p.replace("summary", "errors").replace(".json", ".parquet") for p in beyond_summaries(wildcards)]
+
+
+def _beyond_part(part):
+    return [
+        f"results/tables/beyond_{part}.parquet",
+        f"results/tables/beyond_{part}.md",
+        f"results/figures/beyond_{part}_risk_coverage.png",
+        f"results/figures/beyond_{part}_reliability.png",
+    ]
+
+
 def beyond_products():
-    """The table (in `all`: the scene rows)."""
+    """The table and the answers' figures (in `all`: the scene rows)."""
     if not benchmark_scenes():
         return []
-    return ["results/tables/beyond_one_frame.parquet", "results/tables/beyond_one_frame.md"]
+    return _beyond_part("one_frame")
 
 
 def beyond_city_products():
-    """The `city` target's share: the table with the city rows."""
+    """The `city` target's share: the table and the figures with the city rows."""
     if not benchmark_scenes():
         return []
-    return ["results/tables/beyond_one_frame_city.parquet", "results/tables/beyond_one_frame_city.md"]
+    return _beyond_part("one_frame_city")
