@@ -54,7 +54,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from flatlandia import validate
+from flatlandia import geo, validate
+from flatlandia.beyond import MIN_SIGMA_DEG, MIN_SIGMA_M
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
@@ -67,8 +68,8 @@ if TYPE_CHECKING:  # the solver loads numba (2 s): only a loaded map needs it
 
 MAP_TYPES = ("gt", "depth")
 #: fewest objects a query needs (a 2-point fit and one object to check it)
-MIN_OBJECTS = 3
-#: next-best distinct poses returned by default
+MIN_OBJECTS = geo.MIN_OBJECTS
+#: next-best distinct poses returned by default (also `flatlandia localize --alternatives`'s default)
 ALTERNATIVES = 3
 #: a depth query whose median object range is within this of 1 is used as given: the benchmark's
 #: depth maps are normalised so (the scale prior is in metres per such unit); any other is scaled
@@ -239,8 +240,8 @@ def parse_sequence(obj: Any, source: str | Path = "<sequence>") -> Sequence:
         x, y = (_number(pose.get(a), source, f"{where} pose {a}", bound=validate.MAX_ODOMETRY_M) for a in ("x", "y"))
         th = _number(pose.get("theta_deg", 0.0), source, f"{where} pose theta_deg", bound=360.0)
         rel.append((x, y, math.radians(th)))
-        sm = f.get("sigma_m", max(0.05, beyond["odometry_distance_pct"] / 100 * math.hypot(x, y)))
-        sd = f.get("sigma_deg", max(0.1, beyond["odometry_heading_deg"] * math.sqrt(k)))
+        sm = f.get("sigma_m", max(MIN_SIGMA_M, beyond["odometry_distance_pct"] / 100 * math.hypot(x, y)))
+        sd = f.get("sigma_deg", max(MIN_SIGMA_DEG, beyond["odometry_heading_deg"] * math.sqrt(k)))
         sigma.append(
             (
                 _number(sm, source, f"{where} sigma_m", True, validate.MAX_ODOMETRY_M),
