@@ -132,6 +132,7 @@ def test_tiny_images_are_dropped_and_segment_refuses_them(tmp_path, capsys):
             masks=str(out / "masks"), classes=str(out / "classes"), stats=str(out / "stats.parquet")
         ),
         params=SimpleNamespace(backend="offline", weights=None, labels_dir=None, watermark_box=None, dilate_px=0),
+        config={"device": "cpu"},
         log=[str(tmp_path / "segment.log")],
     )
     errors = _run_script("segment.py", smk_, capsys)
