@@ -3,7 +3,7 @@
 #   make test   set everything up, then lint (ruff, snakefmt, snakemake --lint) and run the whole test suite
 #               in two pytest workers (TEST_WORKERS=1 for one)
 #   make test-fast  set everything up, then run the tests that need neither the published data nor
-#               Snakemake jobs (pytest -m "not slow"; tests/conftest.py says which are slow)
+#               Snakemake jobs (pytest -m "not slow"; the slow ones carry @pytest.mark.slow, tests/conftest.py checks it)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin

@@ -22,10 +22,9 @@ from pathlib import Path
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import compare_tables  # noqa: E402
 import machine  # noqa: E402
 
-from flatlandia import batch, paths, score  # noqa: E402
+from flatlandia import batch, paths, score, tables  # noqa: E402
 from flatlandia.fine import table as fine_table  # noqa: E402
 
 NAME_COLUMNS = {"run", "method", "method_label"}
@@ -34,8 +33,8 @@ ATOL = 1e-9
 
 
 def differences(mine: pd.DataFrame, theirs: pd.DataFrame) -> list[str]:
-    skip = NAME_COLUMNS | set(compare_tables.timing_columns(mine.columns))
-    return [c for c in mine.columns if c not in skip and not compare_tables._equal(mine[c], theirs[c], ATOL)]
+    skip = NAME_COLUMNS | set(tables.timing_columns(mine.columns))
+    return [c for c in mine.columns if c not in skip and not tables.columns_equal(mine[c], theirs[c], ATOL)]
 
 
 def main(argv=None) -> int:

@@ -1,7 +1,7 @@
 """The targets of "Know when it is right" in one run (docs/results.md, "Knowing when it is right").
 
     python benchmarks/bench_confidence.py --root results [--split test] [--priors whole.json] [--out DIR]
-        [--every 1] [--skip-simulated] [--today]
+        [--every 1] [--skip-simulated] [--today] [--city-calibration results/city/calibration.json]
 
 Fits the solver's learned priors on the training split and the answers' calibration on the
 validation split, as rule solver_priors does (or reads ``--priors``, a results/solver/priors/whole.json),
@@ -12,7 +12,11 @@ frames and a 25 m GPS fix, through the entry functions of rules beyond_scene and
 today) and every row's answers; writes the per-anchor rows (``errors.parquet``: probability,
 answered, errors) and the fitted priors to ``--out``. ``--today``: the same rows with the solver of
 before the issue (no likelihood ratio, no frames' answers) beside, its `confidence` as the
-ranking of the answerable shares. CPU: one core, per query (a sequence: all its frames).
+ranking of the answerable shares. ``--city-calibration``: rule city_calibration's map-size
+correction, applied to the city rows' answers as rules beyond_city and city_eval do. Every row's
+calibration error is printed beside its floor: the median ECE of a perfectly calibrated probability
+on the same answers (outcomes drawn from the probabilities themselves, 200 draws), the error the
+number of anchors alone leaves. CPU: one core, per query (a sequence: all its frames).
 """
 
 from __future__ import annotations
@@ -108,6 +112,16 @@ def summaries(errors: pd.DataFrame) -> dict:
     return out
 
 
+def ece_floor(probability, bins: int = 10, draws: int = 200, seed: int = 0) -> float:
+    """The median ECE (points) of answers whose outcomes are drawn from ``probability`` itself: what
+    a perfectly calibrated probability scores on this many answers."""
+    p = np.asarray(probability, float)
+    rng = np.random.default_rng(seed)
+    return float(
+        np.median([calibration.expected_calibration_error(p, rng.random(len(p)) < p, bins) for _ in range(draws)])
+    )
+
+
 def with_confidence(errors: pd.DataFrame) -> pd.DataFrame:
     """Today's ranking of the answers: `confidence` as the probability (the issue's measurement)."""
     return errors.assign(probability=errors["confidence"])
@@ -122,6 +136,7 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=int, default=1, help="every n-th anchor of each scene")
     ap.add_argument("--skip-simulated", action="store_true")
     ap.add_argument("--today", action="store_true", help="also the solver of before the issue")
+    ap.add_argument("--city-calibration", type=Path, default=None, help="rule city_calibration's record")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     cfg = config.resolve({})
@@ -131,6 +146,9 @@ def main(argv=None) -> int:
     print(f"{len(named)} scenes from {args.root}; split {args.split}")
     t0, c0 = time.perf_counter(), time.process_time()
     lp = priors(scenes, cfg["solver"], beyond, cfg["seed"], args.priors, args.out)
+    if args.city_calibration is not None:
+        lp = lp.with_map_size(learned.read_map_size(args.city_calibration))
+        print(f"map-size correction: {lp.calibration.map_size}")
     runs = {"ours": (cfg["solver"], beyond, lp)}
     if args.today:
         old_beyond = {**beyond, "sequence": {**beyond["sequence"], **TODAY["sequence"]}}
@@ -164,10 +182,15 @@ def main(argv=None) -> int:
         print("| " + " | ".join(cells) + " |")
     print("\nevery row (ours):")
     cols = ["within_5m_5deg", "wrong_scene_pct", *evaluation.ANSWER_COLUMNS, "cpu_median_ms", "cpu_p90_ms"]
-    print("map | frames | GPS | " + " | ".join(cols))
-    for (m, k, g), s in sorted(results["ours"].items(), key=lambda x: (x[0][0], x[0][1], x[0][2] or 0)):
-        print(f"{m} | {k} | {g or ''} | " + " | ".join(f"{s[c]:.1f}" for c in cols))
+    print("map | frames | GPS | " + " | ".join(cols) + " | ECE floor")
     ours = pd.read_parquet(args.out / "errors_ours.parquet")
+    key = ours["gps_sigma_m"].fillna(-1.0)
+    floors = {
+        (str(m), int(k), None if g < 0 else float(g)): ece_floor(e["probability"])
+        for (m, k, g), e in ours.groupby(["map", "frames", key])
+    }
+    for (m, k, g), s in sorted(results["ours"].items(), key=lambda x: (x[0][0], x[0][1], x[0][2] or 0)):
+        print(f"{m} | {k} | {g or ''} | " + " | ".join(f"{s[c]:.1f}" for c in cols) + f" | {floors[(m, k, g)]:.1f}")
     one = ours[(ours["map"] == "scene") & (ours["frames"] == 1) & ours["gps_sigma_m"].isna()]
     within = (one["error_m"] < 5) & (one["error_deg"] < 5)
     bins = np.minimum((one["probability"].to_numpy() * 10).astype(int), 9)

@@ -1,9 +1,10 @@
 """Shared fixtures: the real published data (../shared/flatlandia), the Lund photos
 (../shared/images/lund) and the Berlin photos and masks (../shared/images/berlin), each fetched as
 `make all` fetches it on a clone without ../shared (Berlin from the Lund photos' archive), the
-tiny committed scene (tests/data/tiny) and the repo root; and the `slow` marker, set here for every
-test that needs the published data or runs Snakemake jobs (`make test-fast` runs the others:
-`pytest -m "not slow"`).
+tiny committed scene (tests/data/tiny) and the repo root; and the check of the `slow` mark, which
+every test that needs the published data or runs Snakemake jobs carries (written on the test; a test
+without it is a collection error naming what to add); `make test-fast` runs the others:
+`pytest -m "not slow"`.
 """
 
 from __future__ import annotations
@@ -24,16 +25,6 @@ TESTS = REPO / "tests"
 #: the tiny synthetic scene in the published format, made by tests/data/make_tiny_scene.py
 TINY_ROOT = REPO / "tests" / "data" / "tiny"
 TINY_SCENE = "0"
-
-
-def benchmark_module(name: str):
-    """A hand-run script of benchmarks/ loaded as a module (its functions shared with the tests)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def data_root() -> Path:
@@ -284,18 +275,12 @@ def all_local_maps(flat_root):
 
 def published_scene(flat_root: Path, scene: str):
     """A published scene's reference map and queries, built from the published data as the
-    workflow builds them (split seed 0)."""
-    from flatlandia import geo, io
-    from flatlandia.classes import CLASSES
-    from flatlandia.data import queries, recover, reference_map
+    workflow builds them (the package's recipe, flatlandia.data.scene_inputs; the schema's
+    settings: split seed 0)."""
+    from flatlandia.data import scene_inputs
 
-    lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
-    frame = geo.frame_for(lonlat)
-    ref = reference_map.reference_table(scene, lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(flat_root / "local_maps.json", scene)
-    rec = recover.recover_scene(scene, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=scene)
-    return ref, queries.build_queries(scene, rec, ref, local, frame, split)
+    s = scene_inputs.published_scene(flat_root, scene)
+    return s.ref, s.queries
 
 
 @pytest.fixture(scope="session")
@@ -316,12 +301,16 @@ def smk_dry_run(repo: Path, workdir: Path, *args: str, **kw):
 
 
 # ---------------------------------------------------------------- the slow lane
-# A test is slow when it uses a fixture of the published data (or one built on them: the closure
-# holds them), or when its code, its fixtures' code or the test-module helpers they call reach
-# the published data (conftest.data_root, a module-level Path under it or under ../shared, such as
-# ROOT = data_root()), the OpenSfM photos (lund_images() or berlin_images(), the fixtures lund and
-# berlin, a Path under their fetched folders) or the Snakemake runner (snakemake_runner.smk).
-# Anything else that is slow carries an explicit @pytest.mark.slow.
+# The slow mark is written on the test: `@pytest.mark.slow` above it, or `pytestmark =
+# pytest.mark.slow` for a module whose tests are all slow. Every test that reads the published data
+# or the OpenSfM photos, or runs Snakemake jobs, carries it (so does any other slow test); the fast
+# lane (`make test-fast`: pytest -m "not slow") runs the others. What follows does not set the
+# mark: at collection it refuses a test that touches those without it (pytest_collection_modifyitems,
+# one line per test naming what it touched). A test touches them when it uses a fixture of the
+# published data or photos (or one built on them: the closure holds them), or when its code, its
+# fixtures' code or the test-module helpers they call reach them (conftest.data_root,
+# published_scene, lund_images, berlin_images, a module-level Path under the data, ../shared or the
+# photos' fetched folders, such as ROOT = data_root()) or the Snakemake runner (snakemake_runner.smk).
 DATA_FIXTURES = {"flat_root", "all_local_maps", "scene9", "lund", "berlin"}
 
 
@@ -382,7 +371,8 @@ def _slow_reason(func, seen: set) -> str | None:
 
 
 def item_slow_reason(item) -> str | None:
-    """Why a collected test belongs to the slow lane, or None (explicit marks are not looked at)."""
+    """What a collected test touches that makes it slow (the published data, the photos, Snakemake
+    jobs), or None; its marks are not looked at."""
     used = DATA_FIXTURES & set(getattr(item, "fixturenames", ()))
     if used:
         return f"uses the published data (fixture {sorted(used)[0]})"
@@ -403,28 +393,42 @@ def item_slow_reason(item) -> str | None:
     return None
 
 
+def unmarked_slow_message(unmarked: list[tuple[str, str]]) -> str:
+    """The collection error for tests that touch the slow lane's data or jobs without the mark."""
+    lines = "\n".join(f"  {nodeid}: {reason}" for nodeid, reason in unmarked)
+    return (
+        f"{len(unmarked)} test(s) read the published data or the photos, or run Snakemake jobs, without "
+        f'the slow mark (the fast lane, pytest -m "not slow", would run them):\n{lines}\n'
+        "Add the line `@pytest.mark.slow` directly above each `def test_...` (the module needs "
+        "`import pytest`), or, when every test of a module is slow, `pytestmark = pytest.mark.slow` "
+        "after its imports."
+    )
+
+
 SLOW_COUNTS = pytest.StashKey[dict]()
 
 
-@pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker
+@pytest.hookimpl(tryfirst=True)  # before `-m` deselects by marker: an unmarked test is refused in every lane
 def pytest_collection_modifyitems(config, items):
-    counts = {"published data": 0, "Snakemake jobs": 0, "marked": 0, "of": len(items)}
+    counts = {"published data": 0, "Snakemake jobs": 0, "other": 0, "of": len(items)}
+    unmarked = []
     for item in items:
-        if item.get_closest_marker("slow") is not None:
-            counts["marked"] += 1
-            continue
         reason = item_slow_reason(item)
-        if reason:
-            item.add_marker(pytest.mark.slow)
-            counts["Snakemake jobs" if "Snakemake" in reason else "published data"] += 1
+        if item.get_closest_marker("slow") is None:
+            if reason:
+                unmarked.append((item.nodeid, reason))
+            continue
+        counts["Snakemake jobs" if reason and "Snakemake" in reason else "published data" if reason else "other"] += 1
+    if unmarked:
+        raise pytest.UsageError(unmarked_slow_message(unmarked))
     config.stash[SLOW_COUNTS] = counts
 
 
 def pytest_report_collectionfinish(config, start_path, items):
     c = config.stash.get(SLOW_COUNTS, None)
     if c:
-        slow = c["published data"] + c["Snakemake jobs"] + c["marked"]
+        slow = c["published data"] + c["Snakemake jobs"] + c["other"]
         return (
-            f"slow lane: {slow} of {c['of']} tests (published data {c['published data']}, "
-            f"Snakemake jobs {c['Snakemake jobs']}, @pytest.mark.slow {c['marked']}); fast lane: -m 'not slow'"
+            f"slow lane (@pytest.mark.slow): {slow} of {c['of']} tests (published data or photos "
+            f"{c['published data']}, Snakemake jobs {c['Snakemake jobs']}, other {c['other']}); fast lane: -m 'not slow'"
         )

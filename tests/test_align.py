@@ -121,6 +121,7 @@ def scene12(tmp_path_factory):
     return centres, t
 
 
+@pytest.mark.slow  # the published data (scene12)
 def test_scene12_plane_from_cameras(scene12):
     centres, t = scene12
     assert len(centres) == 49
@@ -129,6 +130,7 @@ def test_scene12_plane_from_cameras(scene12):
     assert angle < 2.0  # measured 0.57 degrees (target: 2)
 
 
+@pytest.mark.slow  # the published data (scene12)
 def test_scene12_similarity_simulated_gps(scene12):
     centres, t = scene12
     ll = geo.sfm_to_lonlat(centres, t)
@@ -174,6 +176,7 @@ def test_ground_plane_bad_input():
         principal_plane.fit_ground_plane(np.zeros((3, 3)), np.array(["sign"] * 3, dtype=object), 0.0)
 
 
+@pytest.mark.slow  # the published data
 def test_ground_plane_all_class_clouds():
     """Our street plane is within 2 degrees of the published one on all 12 class clouds.
 

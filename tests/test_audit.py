@@ -52,6 +52,7 @@ def tiny_run(tmp_path_factory):
     return wd
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_a_record_holds_the_settings_the_rule_reads_and_the_whole_config_once(tiny_run):
     rec = json.loads((tiny_run / "logs/provenance/recover/scene-0.json").read_text())
     assert rec["settings"]["recover.tol_m"] == 0.10 and rec["config_hash"] == provenance.config_hash(rec["settings"])
@@ -62,6 +63,7 @@ def test_a_record_holds_the_settings_the_rule_reads_and_the_whole_config_once(ti
     assert set(rec["inputs"]) and all(len(d) == 64 for d in rec["inputs"].values())
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_audit_of_an_artifact_shows_its_inputs_their_rules_and_the_settings(tiny_run):
     res = smk_cli(tiny_run, "audit", "results/0/queries/queries.parquet")
     assert res.returncode == 0, res.stderr
@@ -72,6 +74,7 @@ def test_audit_of_an_artifact_shows_its_inputs_their_rules_and_the_settings(tiny
     assert "local_maps.json" in tree and "(source)" in tree  # back to the published files
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_audit_check_names_a_file_edited_after_the_run(tiny_run):
     assert smk_cli(tiny_run, "audit", "--check").returncode == 0
     target = tiny_run / "results/0/maps/reference_map.geojson"
@@ -84,6 +87,7 @@ def test_audit_check_names_a_file_edited_after_the_run(tiny_run):
         target.write_bytes(original)
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_the_same_artifact_from_a_selection_carries_the_same_settings_hash(tiny_run, tmp_path):
     res = smk(REPO, tmp_path, "--cores", "1", "maps", "--configfile", str(TINY), "--config", "select=[0]")
     assert res.returncode == 0, res.stderr[-2000:]
@@ -92,6 +96,7 @@ def test_the_same_artifact_from_a_selection_carries_the_same_settings_hash(tiny_
     assert a["config_hash"] == b["config_hash"] and a["config_id"] != b["config_id"]
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_a_changed_setting_is_announced_before_the_first_job(tiny_run):
     res = smk(REPO, tiny_run, "--cores", "1", "maps", "--configfile", str(TINY), "--config", "recover={tol_m: 0.09}")
     assert res.returncode == 0, res.stderr[-2000:]

@@ -17,6 +17,7 @@ def test_missing_file(tmp_path):
         io.read_reference_map(tmp_path / "map_3.json")
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_truncated_json(tmp_path, flat_root):
     src = (flat_root / "individual_reference_maps/map_12.json").read_text()
     p = tmp_path / "map_12.json"
@@ -35,6 +36,7 @@ def test_invalid_json_and_wrong_shape(tmp_path):
         io.read_local_maps(p, "0")
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_unknown_scene(tmp_path, flat_root):
     with pytest.raises(InputError, match="unknown scene id '42'"):
         io.read_local_maps(flat_root / "local_maps.json", "42")
@@ -84,6 +86,7 @@ def _copy_scene(flat_root, dst, scene="12"):
         (dst / rel).write_bytes((flat_root / rel).read_bytes())
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_ingest_reports_availability(flat_root):
     rep = ingest.ingest_scene(flat_root, "12")
     assert rep["n_queries"] == 3
@@ -92,6 +95,7 @@ def test_ingest_reports_availability(flat_root):
     assert rep3["available"]["reference_map"] and not rep3["available"]["sfm_points3D"]
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_ingest_detects_truncation_and_missing_required(tmp_path, flat_root):
     _copy_scene(flat_root, tmp_path)
     tok = tmp_path / "maps/12/tokens.txt"
@@ -104,6 +108,7 @@ def test_ingest_detects_truncation_and_missing_required(tmp_path, flat_root):
         ingest.ingest_scene(tmp_path, "12")
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_ingest_sha256_mismatch(tmp_path, flat_root):
     _copy_scene(flat_root, tmp_path)
     p = tmp_path / "individual_reference_maps/map_12.json"

@@ -14,16 +14,15 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import TINY_ROOT, TINY_SCENE, benchmark_module
+from conftest import TINY_SCENE
+from tiny_results import tiny_scene
 
-from flatlandia import batch, cli, config, export, geo, io, paths, score
+from flatlandia import batch, cli, config, export, geo, io, paths, score, tables
 from flatlandia.city import index, tiling
-from flatlandia.classes import CLASSES
-from flatlandia.data import queries, recover, reference_map
+from flatlandia.data import reference_map
 from flatlandia.fine import evaluation
 from flatlandia.fine import table as fine_table
 
-compare_tables = benchmark_module("compare_tables")
 #: the fine table's columns that are timings (query seconds) or name the run
 NAME_COLUMNS = {"run", "method", "method_label"}
 TEXT = {"scene": str, "token": str}
@@ -56,17 +55,9 @@ def tiny_run(tmp_path_factory):
     export_index write it."""
     root = tmp_path_factory.mktemp("tiny_run")
     results = root / "results"
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
-    frame = geo.MetricFrame(meta["lon0"], meta["lat0"])
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    q = queries.build_queries(TINY_SCENE, rec, ref, local, frame, split)
-    reference_map.write_geoparquet(ref, meta, results / TINY_SCENE / "maps" / "reference_map.parquet")
-    io.write_parquet(q, results / TINY_SCENE / "queries" / "queries.parquet")
+    tiny = tiny_scene()
+    meta, q = tiny.meta, tiny.queries
+    tiny.write(results)
     io.write_parquet(pd.DataFrame({"scene": [TINY_SCENE], "city": ["Flatland"]}), results / score.BENCHMARK_RECORD)
     ref = pd.read_parquet(results / TINY_SCENE / "maps" / "reference_map.parquet")
     summaries = []
@@ -107,9 +98,9 @@ def _row_differences(mine: pd.DataFrame, theirs: pd.DataFrame) -> list[str]:
     (its probability: a poses file carries none) aside (floats to ATOL)."""
     from flatlandia.fine import evaluation
 
-    skip = NAME_COLUMNS | set(compare_tables.timing_columns(mine.columns)) | set(evaluation.ANSWER_COLUMNS)
+    skip = NAME_COLUMNS | set(tables.timing_columns(mine.columns)) | set(evaluation.ANSWER_COLUMNS)
     assert list(mine.columns) == list(theirs.columns)
-    return [c for c in mine.columns if c not in skip and not compare_tables._equal(mine[c], theirs[c], ATOL)]
+    return [c for c in mine.columns if c not in skip and not tables.columns_equal(mine[c], theirs[c], ATOL)]
 
 
 @pytest.mark.parametrize("map_type, proposal", [("gt", "whole"), ("depth", "whole"), ("depth", "gtbb")])
@@ -273,6 +264,7 @@ def test_bad_input_is_one_error_line_and_nothing_written(tiny_run, tmp_path, cap
 # ---------------------------------------------------------------- published scenes (slow)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_path, capsys):
     """Scenes 7, 12 and 16 of the published data (41 test queries) laid out as the workflow writes them, with the learned
     priors of their training split (rule solver_priors' function) and the solver's whole-map runs

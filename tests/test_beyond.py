@@ -645,6 +645,7 @@ def test_the_risk_coverage_and_reliability_figures_draw_each_map_and_frame_count
 
 
 # ---------------------------------------------------------------- the published data (slow)
+@pytest.mark.slow  # the published data (flat_root)
 def test_scene_rows_on_a_published_scene(flat_root):
     """Rule beyond_scene's rows on a few anchors of scene 7 (25 test queries): one frame is the single-frame solver
     with the scene's priors (the benchmark's path), a fix keeps the pose within its gate, the

@@ -115,6 +115,7 @@ def test_catalog_settings_have_the_keys_the_catalog_reads():
     assert (REPO / "config" / "README.md").read_text().strip()
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_catalog_deployment_claims_match_the_rules(rules):
     deployment = yaml.safe_load(CATALOG.read_text())["usage"]["software-stack-deployment"]
     jobs = {name: r for name, r in rules.items() if r["runs_code"]}
@@ -125,6 +126,7 @@ def test_catalog_deployment_claims_match_the_rules(rules):
     assert bool(containers) == uses_containers, containers
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_every_job_rule_runs_in_the_pinned_conda_env(rules):
     targets = {name for name, r in rules.items() if not r["runs_code"]}
     assert {"all", "maps", "benchmark", "tables"} <= targets
@@ -204,6 +206,7 @@ def test_the_rules_conda_env_holds_no_development_tool():
     assert ENV_FILE.parent == REPO / "workflow" / "envs" and not (REPO / "envs" / "flatlandia.yaml").exists()
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_every_figure_is_in_the_report_with_a_caption(rules):
     figures = [
         (name, out) for name, r in rules.items() for out in r["outputs"] if out["path"].endswith(FIGURE_SUFFIXES)
@@ -235,6 +238,7 @@ def test_caption_renders_as_the_report_renders_it(caption):
     assert html.strip() and 1 <= sentences <= 6, (caption.name, sentences)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_every_caption_file_is_used(rules):
     used = {Path(o["caption"]).resolve() for r in rules.values() for o in r["outputs"] if o["caption"]}
     unused = sorted(p.name for p in REPORT_DIR.glob("*.rst") if p.resolve() not in used)

@@ -4,11 +4,11 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from conftest import published_scene
 
-from flatlandia import checkpoints, geo, io, paper, tables
-from flatlandia.classes import CLASSES
+from flatlandia import checkpoints, geo, paper, tables
 from flatlandia.coarse import evaluation, graphs, retrieval, target, training
-from flatlandia.data import localmaps, queries, recover, reference_map
+from flatlandia.data import localmaps
 
 torch.set_num_threads(1)
 
@@ -317,22 +317,14 @@ REAL_SCENES = ["0", "11", "16"]
 @pytest.fixture(scope="module")
 def real_data(flat_root):
     """Three scenes built from the published data: (reference map, queries, similarity table)."""
-    local_all = io.read_json(flat_root / "local_maps.json")
     out = []
     for s in REAL_SCENES:
-        lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{s}.json", len(CLASSES))
-        frame = geo.frame_for(lonlat)
-        ref = reference_map.reference_table(s, lonlat, classes, CLASSES, frame)
-        local = {
-            t: {"GT": np.asarray(m["GT"], float), "depth": np.asarray(m["depth"], float)}
-            for t, m in local_all[s].items()
-        }
-        rec = recover.recover_scene(s, lonlat, classes, local)
-        q = queries.build_queries(s, rec, ref, local, frame, queries.split_queries(list(rec["token"]), 0, salt=s))
+        ref, q = published_scene(flat_root, s)
         out.append((ref, q, target.scene_similarity(ref, q)))
     return out
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_similarity_on_real_scene_ranks_matched_objects_first(real_data):
     ref, q, sim = real_data[0]
     best = sim.loc[sim.groupby("token")["S"].idxmax()].set_index("token")["obj_idx"]
@@ -341,6 +333,7 @@ def test_similarity_on_real_scene_ranks_matched_objects_first(real_data):
     assert hit > 0.9
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_path):
     cfg = retrieval.CoarseTrainConfig(loss="simtrip", epochs=8, seed=0)
     ds = retrieval.build_dataset(real_data, cfg)
@@ -381,6 +374,7 @@ def test_training_reduces_loss_beats_random_and_is_deterministic(real_data, tmp_
 
 
 @pytest.mark.parametrize("loss", ["sim", "trip"])
+@pytest.mark.slow  # the published data (flat_root)
 def test_each_loss_trains(real_data, loss):
     cfg = retrieval.CoarseTrainConfig(loss=loss, epochs=3, seed=1, batching="mixed")
     ds = retrieval.build_dataset(real_data[:2], cfg, splits=("train", "val"))

@@ -105,6 +105,7 @@ def scene(scene9):
     return scene9
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_scene_proposals_on_a_real_scene_feed_table_3(scene):
     """Every query of scene 9 (no priors: the solver alone): on GT maps N_LM is the matched objects;
     the rows have the shape of the retrieval models' proposals and summarise into Table 3 rows."""
@@ -128,6 +129,7 @@ def _jobs(out: str, rule: str) -> int:
     return next((int(ln.split()[1]) for ln in out.splitlines() if ln.split()[:1] == [rule]), 0)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_fine_runs_on_the_solver_proposals_train_nothing_new(repo, flat_root, tmp_path):
     """The MLP on the solver's boxes is the GT-BB-trained one, and the solver's proposals need no
     coarse model: adding `coarse-solver` to the default runs adds no training job."""

@@ -134,6 +134,7 @@ def test_a_settings_class_cannot_declare_a_schema_key_again():
             top_k: int = 6
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_a_typo_in_a_config_file_stops_the_run_before_any_job(repo, flat_root, tmp_path):
     from snakemake_runner import smk
 
@@ -147,6 +148,7 @@ def test_a_typo_in_a_config_file_stops_the_run_before_any_job(repo, flat_root, t
     assert not (tmp_path / "results").exists()
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_nested_command_line_overrides_merge_deeply(repo, flat_root, tmp_path):
     """`--config 'section={key: value}'` changes that key only; a bad value names the allowed ones."""
     from snakemake_runner import smk

@@ -12,6 +12,7 @@ from snakemake_runner import smk
 from flatlandia import cli, debug, io
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_mock_snakemake_resolves_the_job(repo, flat_root, tmp_path):
     s = debug.mock_snakemake("reference_map", workdir=tmp_path, config={"flatlandia_root": str(flat_root)}, scene=12)
     assert s.rule == "reference_map" and s.wildcards.scene == "12"
@@ -38,6 +39,7 @@ def test_mock_snakemake_names_what_is_wrong(tmp_path):
         debug.run_script(s)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_script_run_outside_snakemake_writes_what_the_workflow_writes(repo, flat_root, tmp_path, capsys):
     res = smk(
         repo,

@@ -18,7 +18,7 @@ import pytest
 import yaml
 from checkout_copy import TAG, copy_checkout, tagged_repository
 from conftest import REPO, TINY_ROOT, TINY_SCENE
-from snakemake_runner import SNAKEMAKE
+from snakemake_runner import SNAKEMAKE, job_stats
 
 from flatlandia import __version__, io
 
@@ -68,8 +68,7 @@ def run(cwd: Path, *args: str, env: dict | None = None, timeout: int = 900) -> s
 def job_counts(res: subprocess.CompletedProcess) -> dict[str, int]:
     """Snakemake's "Job stats" table of a run or dry run: rule -> jobs (and 'total')."""
     assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
-    table = res.stdout.split("Job stats:")[1].strip().split("\n\n")[0].splitlines()[2:]
-    return {name: int(n) for name, n in (line.split() for line in table)}
+    return job_stats(res.stdout)
 
 
 def github_env(repository: Path, cache: Path) -> dict:
@@ -267,6 +266,7 @@ def test_a_bare_clone_plans_and_lints_cleanly(tmp_path):
     assert res.returncode == 0 and "Congratulations" in res.stderr, (res.stdout + res.stderr)[-3000:]
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_lint_is_clean_with_the_published_data(flat_root, tmp_path):
     res = run(REPO, "--lint", "-d", str(tmp_path), "--config", f"flatlandia_root={flat_root}")
     assert res.returncode == 0 and "Congratulations" in res.stderr, (res.stdout + res.stderr)[-3000:]

@@ -169,7 +169,7 @@ def test_a_fine_training_step_keeps_every_parameter_and_batch_on_the_resolved_de
 
     original_loss = fine_training.pose_loss
 
-    def loss(pred, target, w=1.0):
+    def loss(pred, target, w):
         seen.extend(("loss", t.device) for t in (pred, target))
         return original_loss(pred, target, w)
 
@@ -372,23 +372,14 @@ runpy.run_path(sys.argv[0], run_name="__main__")
 
 def _tiny_results(folder):
     """The tiny committed scene's reference map, queries and coarse target, as rules write them."""
-    from conftest import TINY_ROOT, TINY_SCENE
+    from conftest import TINY_SCENE
+    from tiny_results import tiny_scene
 
     from flatlandia import io
-    from flatlandia.classes import CLASSES
     from flatlandia.coarse import target
-    from flatlandia.data import queries, recover, reference_map
 
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    frame = geo.frame_for(lonlat)
-    ref = reference_map.reference_table(TINY_SCENE, lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    q = queries.build_queries(
-        TINY_SCENE, rec, ref, local, frame, queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    )
+    tiny = tiny_scene()
+    ref, q = tiny.ref, tiny.queries
     for name, table in (
         ("maps/reference_map", ref),
         ("queries/queries", q),

@@ -6,17 +6,17 @@ objects, theta_deg and heading_deg agree, the proposals are the workflow's. On t
 from __future__ import annotations
 
 import json
-import re
 
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import REPO, TINY_ROOT, TINY_SCENE, smk_dry_run
-from snakemake_runner import smk
+from conftest import REPO, TINY_SCENE, smk_dry_run
+from snakemake_runner import job_stats, smk
+from tiny_results import tiny_scene
 
 from flatlandia import export, geo, io, proposals
 from flatlandia.classes import CLASSES
-from flatlandia.data import queries, recover, reference_map
+from flatlandia.data import reference_map
 from flatlandia.errors import InputError
 
 TEST_CONFIGS = REPO / "config" / "test"
@@ -34,17 +34,10 @@ SCENE_FILES = {
 def tiny_parquet(tmp_path_factory) -> dict:
     """The tiny scene's reference_map.parquet and queries.parquet, written as rules reference_map
     and queries write them, and read back as rule export_scene reads them."""
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    q = queries.build_queries(TINY_SCENE, rec, ref, local, geo.MetricFrame(meta["lon0"], meta["lat0"]), split)
+    tiny = tiny_scene()
     d = tmp_path_factory.mktemp("tiny_parquet")
-    reference_map.write_geoparquet(ref, meta, d / "reference_map.parquet")
-    io.write_parquet(q, d / "queries.parquet", {"scene": TINY_SCENE})
+    reference_map.write_geoparquet(tiny.ref, tiny.meta, d / "reference_map.parquet")
+    io.write_parquet(tiny.queries, d / "queries.parquet", {"scene": TINY_SCENE})
     return {
         "ref": pd.read_parquet(d / "reference_map.parquet"),
         "meta": io.read_parquet_metadata(d / "reference_map.parquet"),
@@ -331,8 +324,7 @@ def test_dry_run_exports_without_training(repo, tmp_path):
     """On a fresh folder the target builds the maps and queries it needs and nothing of the coarse stage."""
     res = smk_dry_run(repo, tmp_path, "export", "--configfile", str(TEST_CONFIGS / "tiny.yaml"))
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
-    stats = res.stdout.split("Job stats:")[1].split("\n\n")[0]
-    planned = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)$", stats, flags=re.M)}
+    planned = job_stats(res.stdout)
     assert planned == {
         "ingest": 1,
         "recover": 1,
@@ -345,6 +337,7 @@ def test_dry_run_exports_without_training(repo, tmp_path):
     }
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_export_two_scenes(repo, flat_root, tmp_path):
     """`snakemake export` on scenes 9 and 12 in a fresh folder: no model trained, every file there,
     the coarse sources reported absent, the CSVs equal to the Parquet files."""

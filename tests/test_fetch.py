@@ -29,6 +29,7 @@ def upstream_zip(tmp_path, flat_root):
     return z
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_fetch_flatlandia_unpacks_data_and_adds_sheets(upstream_zip, tmp_path):
     scenes = pd.DataFrame({"scene": ["12"], "city": ["Paris"], "name": ["ParisRosaPark"]})
     dest = fetch.fetch_flatlandia(tmp_path / "data", scenes, url=upstream_zip.as_uri(), timeout_s=5, workdir=tmp_path)
@@ -38,6 +39,7 @@ def test_fetch_flatlandia_unpacks_data_and_adds_sheets(upstream_zip, tmp_path):
     assert rep["n_queries"] == 3 and rep["available"]["transformations"]
 
 
+@pytest.mark.slow  # the Lund photos
 def test_fetch_images_takes_the_subfolder(tmp_path, lund):
     z = tmp_path / "OpenSfM-main.zip"
     with zipfile.ZipFile(z, "w") as out:
@@ -68,6 +70,7 @@ def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
     assert not (tmp_path / "data").exists()
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_workflow_fetches_when_the_data_folder_is_missing(repo, upstream_zip, tmp_path):
     cfg = tmp_path / "fetch.yaml"
     pin = hashlib.sha256(upstream_zip.read_bytes()).hexdigest()  # a pinned archive that matches unpacks

@@ -17,12 +17,12 @@ import socket
 import subprocess
 import sys
 import textwrap
-import zipfile
 from pathlib import Path
 
 import pandas as pd
 import pytest
 from snakemake_runner import smk
+from zip_archives import make_zip
 
 from flatlandia import io
 from flatlandia.data import fetch
@@ -36,13 +36,6 @@ def tree(root: Path) -> set[str]:
     for dirpath, dirnames, filenames in os.walk(root):
         out |= {str(Path(dirpath, n).relative_to(root)) for n in dirnames + filenames}
     return out
-
-
-def make_zip(path: Path, members: dict[str, bytes]) -> Path:
-    with zipfile.ZipFile(path, "w") as z:
-        for name, data in members.items():
-            z.writestr(name, data)
-    return path
 
 
 @pytest.fixture
@@ -319,6 +312,7 @@ def test_a_fetch_removes_the_temporaries_of_a_killed_fetch_of_the_same_folder(tm
 # ----------------------------------------------------------------------------- through Snakemake
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_workflow_refuses_dest_dotdot_with_one_error_and_deletes_nothing(repo, tmp_path):
     run = tmp_path / "run"
     run.mkdir()
@@ -339,6 +333,7 @@ def test_workflow_refuses_dest_dotdot_with_one_error_and_deletes_nothing(repo, t
     assert before <= tree(tmp_path) and canary.read_text() == "still here"
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_a_run_removes_the_leftovers_of_a_killed_one_and_a_dry_run_does_not(repo, flat_root, tmp_path, archive):
     run = tmp_path / "run"
     (run / "results").mkdir(parents=True)

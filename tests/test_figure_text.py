@@ -11,11 +11,11 @@ import itertools
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import TINY_ROOT, TINY_SCENE
+from conftest import TINY_SCENE
+from tiny_results import tiny_scene
 
-from flatlandia import config, figures, geo, io
-from flatlandia.classes import CLASSES
-from flatlandia.data import queries, recover, reference_map
+from flatlandia import config, figures
+from flatlandia.data import reference_map
 from flatlandia.fine import evaluation
 from flatlandia.viewer import query_figures, scene
 
@@ -110,14 +110,8 @@ def saved(monkeypatch):
 def tiny():
     """The tiny scene's reference map and queries, and the solver's runs on its train split (both
     map types, GT-BB and the whole map) as rule fine_eval's errors tables."""
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    q = queries.build_queries(TINY_SCENE, rec, ref, local, geo.MetricFrame(meta["lon0"], meta["lat0"]), split)
+    tiny = tiny_scene()
+    ref, meta, q = tiny.ref, tiny.meta, tiny.queries
     errors = {}
     settings = config.section_defaults("solver")
     for map_type in ("gt", "depth"):

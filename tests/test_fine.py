@@ -25,6 +25,7 @@ def scene(scene9):
 # ----------------------------------------------------------------------------- solver
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
     ref, q = scene
     props = proposals.gtbb_proposals(ref, q)
@@ -37,6 +38,7 @@ def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
     assert e["error_deg"].median() < 1e-6
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_solver_exact_on_gt_maps_whole_map(scene):
     ref, q = scene
     q = q.iloc[:20]
@@ -131,6 +133,7 @@ def test_covisibility_prior_breaks_a_repeated_pattern(seen_copy):
     assert sorted(m for _, m in s.inliers) == list(range(6 * seen_copy, 6 * seen_copy + 6))
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_training_priors_come_from_the_training_split_only(scene):
     _, q = scene
     prior, seen = solver.priors.training_priors(q, {"covis_weight": 2.0})
@@ -238,7 +241,7 @@ def test_models_forward_backward_shapes(name):
     batch = learned.Batch.from_data_list(samples)
     out = model(batch)
     assert out.shape == (5, 3)
-    loss = training.pose_loss(out, batch.y)
+    loss = training.pose_loss(out, batch.y, cfg.angle_weight)
     loss.backward()
     assert all(p.grad is not None for p in model.parameters() if p.requires_grad)
 
@@ -283,7 +286,7 @@ def test_loss_and_angle_wrap():
     b = torch.tensor([math.radians(-179.0)])
     assert training.angle_distance(a, b).item() == pytest.approx(math.radians(2.0), abs=1e-6)
     pred = torch.tensor([[0.3, 0.4, 0.1]])
-    assert training.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]])).item() == pytest.approx(0.5, abs=1e-6)
+    assert training.pose_loss(pred, torch.tensor([[0.0, 0.0, 0.1]]), 1.0).item() == pytest.approx(0.5, abs=1e-6)
 
 
 def test_augmentation_is_a_rigid_motion_of_region_and_target():
@@ -336,6 +339,7 @@ def test_warm_start_continues_from_the_given_weights(tmp_path):
     assert not np.allclose(learned.predict(cold["model"], val), learned.predict(first["model"], val), atol=1e-2)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_coarse_training_starts_from_the_gtbb_model_unless_told_otherwise(repo, flat_root, tmp_path):
     target = "results/fine/models/mlp_depth_coarse/checkpoint.pt"
     res = smk(repo, tmp_path, "-n", "-p", target, "--config", f"flatlandia_root={flat_root}")
@@ -347,6 +351,7 @@ def test_coarse_training_starts_from_the_gtbb_model_unless_told_otherwise(repo, 
     assert "mlp_depth_gtbb/checkpoint.pt" not in res.stdout
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_learned_model_on_real_scene_samples(scene):
     ref, q = scene
     cfg = learned.FineTrainConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
@@ -358,6 +363,7 @@ def test_learned_model_on_real_scene_samples(scene):
     assert len(e) == 4 and np.isfinite(e["error_m"]).all()
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_external_proposal_table_and_failure_rate(scene):
     """A coarse-style proposal table (scene, token, strategy, proposal): too-small proposals count in F%."""
     ref, q = scene
@@ -372,6 +378,7 @@ def test_external_proposal_table_and_failure_rate(scene):
     assert (e.loc[1:, "error_m"] < 0.1).all() and set(e["strategy"]) == {"2N_LM"}
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_simulated_coarse_proposals_look_like_2n_lm(scene):
     ref, q = scene
     props = proposals.simulated_coarse_proposals(ref, q, np.random.default_rng(0))
@@ -388,6 +395,7 @@ def test_simulated_coarse_proposals_look_like_2n_lm(scene):
     assert 0.3 < np.mean(recall) < 0.75
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_crop_to_densest_keeps_the_densest_group(scene):
     """Two groups of objects 200 m apart: the crop keeps the larger one, whole, and nothing else."""
     ref = pd.DataFrame(
@@ -419,6 +427,7 @@ def test_crop_to_densest_keeps_the_densest_group(scene):
         assert len(p) >= 1 and np.linalg.norm(pts[:, None] - pts[None], axis=-1).max() < 60.0
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_training_proposals_regimes(scene):
     ref, q = scene
     gt = proposals.training_proposals(ref, q, "gtbb", np.random.default_rng(0))
@@ -432,6 +441,7 @@ def test_training_proposals_regimes(scene):
         proposals.training_proposals(ref, q, "whole", np.random.default_rng(0))
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_a_new_scene_is_localized_by_the_benchmark_methods_without_its_own_priors(scene):
     """Rule scene_localization's rows: the solver (no camera or scale prior from the new scene) and
     each given model, on every query, per map type x proposal; no rows for a scene without queries."""

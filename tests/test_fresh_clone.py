@@ -26,6 +26,9 @@ from conftest import (
 
 from flatlandia.data import fetch
 
+#: every test here runs Snakemake jobs or reads the published data (the slow lane)
+pytestmark = pytest.mark.slow
+
 #: the published files one scene's tests read, in the upstream repository's layout (data/...)
 SCENE12 = [
     "local_maps.json",

@@ -20,6 +20,7 @@ def test_metric_frame_round_trip_and_known_distance():
     assert mx / my == pytest.approx(np.cos(np.radians(48.9)), rel=3e-3)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_known_distance_between_two_real_objects(flat_root):
     lonlat, _ = io.read_reference_map(flat_root / "individual_reference_maps/map_12.json")
     frame = geo.frame_for(lonlat)
@@ -55,6 +56,7 @@ def test_local_world_inverse_and_rigid_fit():
     assert th == pytest.approx(theta) and np.allclose(t, cam)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_sfm_chain_handles_reflections(flat_root):
     t = io.read_transformations(flat_root / "maps/12/transformations.json")
     rpp = np.asarray(t["to_principal_plane"])

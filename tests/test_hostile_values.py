@@ -55,6 +55,7 @@ def test_a_published_token_that_is_a_path_is_refused_when_read(tmp_path, token):
         io.read_local_maps(path, "0")
 
 
+@pytest.mark.slow  # the published data (all_local_maps)
 def test_every_published_token_is_a_plain_name(flat_root, all_local_maps):
     """The check refuses paths, not the data: Mapillary ids such as '-AB21Af_LPev08UY_96ptQ' pass."""
     tokens = [t for scene in all_local_maps.values() for t in scene]
@@ -63,6 +64,7 @@ def test_every_published_token_is_a_plain_name(flat_root, all_local_maps):
     assert [t for t in tokens if names.name_problem(t)] == []
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_a_tokens_file_with_a_path_is_refused_by_ingest(tmp_path, flat_root):
     for rel in ["local_maps.json", "individual_reference_maps/map_12.json", "maps/12/transformations.json"]:
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -85,6 +87,7 @@ def _data_with_token(flat_root: Path, data: Path, token: str) -> None:
     (data / "local_maps.json").write_text(json.dumps(local))
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_a_hostile_token_stops_the_workflow_and_writes_nothing_outside(repo, flat_root, tmp_path):
     """The probe's token ``../../x`` wrote a PNG outside the run folder, rc 0: now the first rule
     that reads it stops with one ERROR line naming the file, and nothing appears outside."""
@@ -142,6 +145,7 @@ def test_every_seed_of_the_schema_is_bounded():
     assert found["seed"]["maximum"] + found["coarse.seed_offset"]["maximum"] < 2**31
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_a_nan_in_a_config_file_stops_the_run_before_any_job(repo, flat_root, tmp_path):
     cfg = tmp_path / "mine.yaml"
     cfg.write_text("recover:\n  tol_m: .nan\nsplit: {train: 0.5}\n")
@@ -198,6 +202,7 @@ def test_malformed_ply_headers_are_refused(tmp_path, text, message):
         ply.check_header(path)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_every_published_ply_passes_the_header_check(flat_root):
     plys = sorted(flat_root.glob("maps/*/*.ply"))
     assert len(plys) >= 20

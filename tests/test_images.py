@@ -13,6 +13,7 @@ from flatlandia.errors import InputError
 from flatlandia.images import image_audit, segment
 
 
+@pytest.mark.slow  # the Lund photos
 def test_exif_metadata_of_a_real_mapillary_image(lund):
     rec = image_audit.read_exif_metadata(lund / "01.jpg")
     assert (rec["width"], rec["height"]) == (1024, 768)
@@ -22,12 +23,14 @@ def test_exif_metadata_of_a_real_mapillary_image(lund):
     assert rec["capture_time"].startswith("2014-06-07T10:24:05")
 
 
+@pytest.mark.slow  # the Lund photos
 def test_audit_table_of_lund_keeps_distinct_images(lund):
     df = image_audit.audit_table(lund, dedup_threshold=0.02)
     assert len(df) == 29 and df["kept"].all()
     assert df["capture_time"].is_monotonic_increasing
 
 
+@pytest.mark.slow  # the Lund photos
 def test_near_duplicate_missing_gps_and_broken_files(lund, tmp_path):
     for n in ("01.jpg", "02.jpg"):
         shutil.copy(lund / n, tmp_path / n)
@@ -65,6 +68,7 @@ def test_empty_or_missing_folder_is_a_clear_error(tmp_path):
         image_audit.list_images(tmp_path / "nope")
 
 
+@pytest.mark.slow  # the Lund photos
 def test_offline_people_detector_finds_the_pedestrian_of_lund_01(lund):
     rgb = np.asarray(Image.open(lund / "01.jpg").convert("RGB"))
     boxes = segment.detect_people(rgb)
@@ -74,6 +78,7 @@ def test_offline_people_detector_finds_the_pedestrian_of_lund_01(lund):
     assert segment.detect_people(np.asarray(Image.open(lund / "10.jpg").convert("RGB"))) == []
 
 
+@pytest.mark.slow  # the Lund photos
 def test_offline_backend_masks_sky_but_claims_no_objects(lund):
     ids, names = segment.make_backend("offline").labels(lund / "15.jpg")
     mask, cls, shares = segment.mask_and_classes(ids, names, [0.0, 0.95, 1.0, 1.0])

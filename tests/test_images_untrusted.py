@@ -68,6 +68,7 @@ def _run_script(name: str, snakemake: SimpleNamespace, capsys) -> list[str]:
 # ----------------------------------------------------------------------------- 1. the images themselves
 
 
+@pytest.mark.slow  # the published data
 def test_every_lund_and_berlin_photo_is_within_the_size_limits():
     for folder in (lund_images(), berlin_images() / "images"):
         df = image_audit.read_folder_metadata(folder)
@@ -76,6 +77,7 @@ def test_every_lund_and_berlin_photo_is_within_the_size_limits():
         assert (df["width"] * df["height"] <= IMAGES["max_megapixels"] * 1e6).all()
 
 
+@pytest.mark.slow  # the published data
 def test_a_fifo_named_like_a_photo_is_dropped_without_being_opened(tmp_path):
     photos = _photos(tmp_path / "photos")
     fifo = photos / "x.jpg"
@@ -102,6 +104,7 @@ def test_a_fifo_named_like_a_photo_is_dropped_without_being_opened(tmp_path):
             pass
 
 
+@pytest.mark.slow  # the published data (via _photos)
 def test_tiny_images_are_dropped_and_segment_refuses_them(tmp_path, capsys):
     photos = _photos(tmp_path / "photos")
     Image.new("RGB", (1, 1), (200, 10, 10)).save(photos / "pixel.jpg")
@@ -155,6 +158,7 @@ def test_people_detector_skips_images_smaller_than_its_window(size):
     assert segment.offline_labels(rgb).shape == rgb.shape[:2]
 
 
+@pytest.mark.slow  # the published data (via _photos)
 def test_huge_images_are_dropped_from_their_header_never_decoded(tmp_path, monkeypatch):
     photos = _photos(tmp_path / "photos")
     _jpeg_declaring(photos / "huge.jpg", 12000, 12000)  # the probe's 144 MP photo
@@ -239,6 +243,7 @@ def test_the_audit_rule_stops_with_one_line_when_nothing_usable_is_left(tmp_path
         ('name,lat,lon\n01.jpg,"55.7\n', "line 2: not valid CSV (unexpected end of data)"),
     ],
 )
+@pytest.mark.slow  # the published data (via _photos)
 def test_a_malformed_metadata_csv_is_one_error_naming_line_column_and_value(tmp_path, capsys, text, want):
     photos = _photos(tmp_path / "photos")
     csv = photos / "metadata.csv"
@@ -265,6 +270,7 @@ def test_a_malformed_metadata_csv_is_one_error_naming_line_column_and_value(tmp_
     assert not table.exists()
 
 
+@pytest.mark.slow  # the published data (via _photos)
 def test_metadata_csv_bytes_that_are_not_text_are_one_error(tmp_path):
     photos = _photos(tmp_path / "photos")
     (photos / "metadata.csv").write_bytes(b"name,lat,lon\n01.jpg,55.7,13.19\n\xff\xfe\x00garbage\n")
@@ -276,6 +282,7 @@ def test_metadata_csv_bytes_that_are_not_text_are_one_error(tmp_path):
         image_audit.read_folder_metadata(photos)
 
 
+@pytest.mark.slow  # the published data (via _photos)
 def test_metadata_csv_values_are_typed_and_empty_cells_keep_the_exif(tmp_path):
     photos = _photos(tmp_path / "photos")
     exif = image_audit.read_folder_metadata(photos).set_index("name")

@@ -20,6 +20,9 @@ from flatlandia.errors import InputError
 from flatlandia.images import classify_points, gps_alignment, image_queries
 from flatlandia.objects import clustering, labels
 
+#: every test here runs Snakemake jobs or reads the published data (the slow lane)
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def lund_run(repo, flat_root, lund, tmp_path_factory):

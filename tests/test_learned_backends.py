@@ -117,6 +117,7 @@ def backend(vistas_model):
     return segment.make_backend("transformers", weights=str(vistas_model))
 
 
+@pytest.mark.slow  # the Lund photos
 def test_mask2former_labels_every_pixel_of_lund_images(backend, lund):
     assert backend.names == [segment.VISTAS_V12_READABLE[n] for n in VISTAS_V12]  # readable -> label names
     for name in IMAGES[:2]:
@@ -138,6 +139,7 @@ def test_mask2former_labels_every_pixel_of_lund_images(backend, lund):
         ("Ego Vehicle", None, True),
     ],
 )
+@pytest.mark.slow  # the Lund photos
 def test_vistas_classes_map_to_flatlandia_classes_and_masks(backend, lund, winner, flatlandia_class, masked):
     vote_for(backend.model, VISTAS_V12.index(winner))
     ids, names = backend.labels(lund / IMAGES[0])
@@ -191,6 +193,7 @@ def test_dilation_grows_moving_things_only():
     assert shares["masked"] == pytest.approx((mask == 0).mean())
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_segment_rule_with_the_transformers_backend(repo, flat_root, lund, tmp_path):
     photos = tmp_path / "photos"
     photos.mkdir()
@@ -233,6 +236,7 @@ def _view(name: str, depths: np.ndarray) -> tuple[View, dict[int, np.ndarray]]:
     return View(name, K, np.eye(3), np.zeros(3), 1024, 768, ids, xy), dict(enumerate(xyz))
 
 
+@pytest.mark.slow  # the Lund photos
 def test_depth_anything_predicts_at_the_camera_size(lund, tmp_path):
     model = depth.MonocularDepth(str(save_depth_anything(tmp_path)))
     pred = model.predict(lund / IMAGES[0], (768, 1024))
@@ -240,6 +244,7 @@ def test_depth_anything_predicts_at_the_camera_size(lund, tmp_path):
 
 
 @pytest.mark.parametrize("inverse", [True, False])
+@pytest.mark.slow  # the Lund photos
 def test_monocular_depth_is_scaled_to_the_sfm_depths(lund, tmp_path, inverse):
     c = 0.25
     model = depth.MonocularDepth(str(save_depth_anything(tmp_path, constant=c)), inverse=inverse)
@@ -250,6 +255,7 @@ def test_monocular_depth_is_scaled_to_the_sfm_depths(lund, tmp_path, inverse):
     assert np.allclose(dm, 3.0 / c if inverse else 3.0 * c)
 
 
+@pytest.mark.slow  # the Lund photos
 def test_queries_lifter_puts_detections_at_the_scaled_depth(lund, tmp_path):
     weights = save_depth_anything(tmp_path, constant=0.5)
     depths = np.linspace(4.0, 20.0, 41)  # median 12

@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import TINY_ROOT, TINY_SCENE, published_scene
+import tiny_results
+from conftest import TINY_SCENE, published_scene
 
-from flatlandia import cli, config, geo, io, localize, solver
+from flatlandia import cli, config, io, localize, solver
 from flatlandia.city import index, tiling
 from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps, queries, recover, reference_map
+from flatlandia.data import localmaps, reference_map
 from flatlandia.errors import InputError
 
 
@@ -38,15 +39,8 @@ def write_scene(results: Path, ref: pd.DataFrame, q: pd.DataFrame, meta: dict) -
 @pytest.fixture(scope="module")
 def tiny_scene():
     """The tiny scene's reference map, metadata and queries, as rules reference_map and queries make them."""
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
-    frame = geo.MetricFrame(meta["lon0"], meta["lat0"])
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    return ref, meta, queries.build_queries(TINY_SCENE, rec, ref, local, frame, split)
+    tiny = tiny_results.tiny_scene()
+    return tiny.ref, tiny.meta, tiny.queries
 
 
 @pytest.fixture(scope="module")
@@ -391,6 +385,7 @@ def gt_share_within(m, test: pd.DataFrame, tmp: Path, metres: float = 0.5) -> fl
 
 
 @pytest.mark.parametrize("scene", ["7", "19"])
+@pytest.mark.slow  # the published data (flat_root)
 def test_gt_target_on_published_scenes(flat_root, scene, tmp_path):
     """The GT target: >= 95 % of a scene's test queries within 0.5 m (every scene: 99.1 %,
     benchmarks/bench_localize.py)."""
@@ -402,6 +397,7 @@ def test_gt_target_on_published_scenes(flat_root, scene, tmp_path):
     assert len(test) >= 20 and gt_share_within(m, test, tmp_path) >= 0.95
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_gt_target_on_a_city_index(flat_root, tmp_path):
     """Two published scenes tiled into a city, its index as rule city_index builds it: the GT queries
     found through the index, >= 95 % within 0.5 m."""

@@ -11,11 +11,11 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import TINY_ROOT, TINY_SCENE
+from conftest import TINY_SCENE
+from tiny_results import tiny_scene
 
 from flatlandia import cli, geo, io, localize, score
-from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps, queries, recover, reference_map
+from flatlandia.data import localmaps, reference_map
 
 #: metres per degree of latitude (for a fix moved north)
 M_PER_DEG_LAT = 111_200.0
@@ -26,17 +26,9 @@ def tiny(tmp_path_factory):
     """results/0/maps/reference_map.parquet of a results folder holding the tiny scene, its queries
     and the benchmark record naming its city; and the test queries."""
     results = tmp_path_factory.mktemp("answers") / "results"
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    q = queries.build_queries(TINY_SCENE, rec, ref, local, geo.MetricFrame(meta["lon0"], meta["lat0"]), split)
-    path = results / TINY_SCENE / "maps" / "reference_map.parquet"
-    reference_map.write_geoparquet(ref, meta, path)
-    io.write_parquet(q, results / TINY_SCENE / "queries" / "queries.parquet")
+    tiny = tiny_scene()
+    q = tiny.queries
+    path = tiny.write(results)
     io.write_parquet(pd.DataFrame({"scene": [TINY_SCENE], "city": ["Flatland"]}), results / score.BENCHMARK_RECORD)
     return path, q
 

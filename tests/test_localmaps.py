@@ -2,22 +2,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import geo, io
-from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps, queries, recover, reference_map
+from flatlandia import geo
+from flatlandia.data import localmaps, queries, recover, scene_inputs
 
 
 @pytest.fixture(scope="module")
 def scene9(flat_root):
-    lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
-    frame = geo.frame_for(lonlat)
-    ref = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(flat_root / "local_maps.json", "9")
-    rec = recover.recover_scene("9", lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt="9")
-    return ref, frame, local, queries.build_queries("9", rec, ref, local, frame, split)
+    s = scene_inputs.published_scene(flat_root, "9")
+    return s.ref, s.frame, s.local_maps, s.queries
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_metric_local_maps_are_rigid_copies_of_the_reference(scene9):
     ref, frame, _, q = scene9
     xy = ref[["x_m", "y_m"]].to_numpy()
@@ -34,6 +29,7 @@ def test_metric_local_maps_are_rigid_copies_of_the_reference(scene9):
         assert (gt[:, 0] > -1.0).all()  # objects lie in front of the camera (+x)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_published_maps_carried_into_the_metric_frame(scene9, flat_root):
     """The degree-unit published GT map, carried into metres, is our metric GT map (< 1 cm)."""
     ref, frame, local, q = scene9
@@ -46,6 +42,7 @@ def test_published_maps_carried_into_the_metric_frame(scene9, flat_root):
         assert np.abs(carried - localmaps.xy(qr.gt_local_xy_m)).max() < 0.01
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_depth_maps_normalised_with_metric_bearings(scene9):
     _, frame, local, q = scene9
     errs = []
@@ -59,6 +56,7 @@ def test_depth_maps_normalised_with_metric_bearings(scene9):
     assert np.degrees(np.median(np.concatenate(errs))) < 3.0
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_query_table_schema(scene9):
     _, _, _, q = scene9
     need = {

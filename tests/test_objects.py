@@ -224,6 +224,7 @@ def test_audit_known_answer():
 # ----------------------------------------------------------------------- real published data
 
 
+@pytest.mark.slow  # the published data
 def test_macro_table_matches_measurement():
     """The MACRO_CLASSES table agrees with the colours measured on scene 12 and 13."""
     for scene in ("12", "13"):
@@ -241,6 +242,7 @@ def audit_rows():
     return pd.DataFrame(rows)
 
 
+@pytest.mark.slow  # the published data (audit_rows)
 def test_reproduction_real(audit_rows):
     df = audit_rows
     assert df["published"].sum() == 854
@@ -266,6 +268,7 @@ def test_reproduction_real(audit_rows):
     "images (benchmarks/reproduction_bounds.py)",
     strict=True,
 )
+@pytest.mark.slow  # the published data (audit_rows)
 def test_reproduction_target(audit_rows):
     df = audit_rows
     assert df["within_0.5m"].sum() / df["published"].sum() >= 0.9
@@ -293,6 +296,7 @@ def test_fit_plane_finds_the_true_inliers():
     np.testing.assert_array_equal(principal_plane.fit_plane(pts, threshold=0.3).normal, pl.normal)
 
 
+@pytest.mark.slow  # the published data
 def test_fit_plane_scene12_cameras_unchanged(tmp_path):
     """The camera plane of scene 12 (the only published scene that ships images.bin) is today's:
     the hand-written RANSAC gave normal (0.008596042, -0.997955606, 0.063330213) with 46 of 49
@@ -333,6 +337,7 @@ GROUND_NORMALS = {
 
 
 @pytest.mark.parametrize("scene", CLASS_CLOUD_SCENES)
+@pytest.mark.slow  # the published data
 def test_ground_plane_unchanged(scene):
     pts, lab = cloud.read_classified_cloud(ROOT / f"maps/{scene}/class_segmented_point_cloud.ply")
     t = io.read_transformations(ROOT / f"maps/{scene}/transformations.json")

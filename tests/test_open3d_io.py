@@ -20,6 +20,7 @@ PUBLISHED_VERTEX = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("rgb", "
 
 
 @pytest.mark.parametrize("scene", CLASS_CLOUD_SCENES)
+@pytest.mark.slow  # the published data
 def test_published_cloud_read_exactly(scene):
     """open3d's reader returns every vertex of the binary file bit for bit (checked against the
     raw body), and every colour is background or a macro-class colour."""
@@ -39,6 +40,7 @@ def test_published_cloud_read_exactly(scene):
     assert list(labels) == expected
 
 
+@pytest.mark.slow  # the published data
 def test_truncated_published_cloud_raises(tmp_path):
     """A cut file: its header declares more rows than the body holds, refused before open3d reads it
     (open3d itself only logs a short read)."""

@@ -60,6 +60,7 @@ def test_near_tie_resolved_by_exact_residual():
     assert registration.classify_ambiguity(rec, np.array([1, 2, 3, 4])) == "exact_fit"
 
 
+@pytest.mark.slow  # the published data (all_local_maps)
 def test_all_published_queries_recovered_and_consistent(flat_root, all_local_maps):
     """Every published GT local map is recovered, and re-deriving it from the pose gives it back."""
     n, worst_res, worst_map = 0, 0.0, 0.0
@@ -82,6 +83,7 @@ def test_all_published_queries_recovered_and_consistent(flat_root, all_local_map
     assert unresolved <= 10
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_recovered_scene12_cameras_match_sfm_poses(flat_root, tmp_path):
     """Scene 12 ships images.bin: its SfM camera centres through the chain equal recovered poses."""
     import zipfile

@@ -64,6 +64,7 @@ def test_feature_auc_known_answer():
     assert np.isnan(bounds.feature_auc(f, np.ones(6, bool))["sep"])
 
 
+@pytest.mark.slow  # the published data
 def test_read_colmap_tracks_real_and_bad(tmp_path):
     xyz, images = bounds.read_colmap_tracks(ROOT / "maps/12/SfM/points3D.bin")
     pts, _ = cloud.read_classified_cloud(ROOT / "maps/12/class_segmented_point_cloud.ply")
@@ -97,6 +98,7 @@ def _scene(scene):
     )
 
 
+@pytest.mark.slow  # the published data (via _scene)
 def test_dbscan_objects_are_tree_nodes_real():
     """Scene 12: every object of the workflow's clustering is a node of its colour's single-linkage
     tree, alive at the radius used (the tree enumerates what any radius can give)."""
@@ -112,6 +114,7 @@ def test_dbscan_objects_are_tree_nodes_real():
             assert ex.loc[0, "radius_lo"] <= eps < ex.loc[0, "radius_hi"]
 
 
+@pytest.mark.slow  # the published data (via _scene)
 def test_published_colours_scene2_real():
     """Scene 2: 59 published objects are the exact mean of a cluster of one colour; 16 of them
     have a nearest coloured point of another colour (the audit used to match them wrongly)."""

@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 import tiny_results as tiny_results_folder
 import yaml
-from conftest import REPO, TINY_SCENE, benchmark_module, smk_dry_run
+from conftest import REPO, TINY_SCENE, smk_dry_run
 from snakemake_runner import smk
 
 from flatlandia import cli, config, figures, geo, io, score, tables
@@ -25,7 +25,6 @@ from flatlandia.fine import evaluation
 from flatlandia.fine import table as fine_table
 from flatlandia.viewer import page, query_figures, scene
 
-compare_tables = benchmark_module("compare_tables")
 #: an errors row's columns that are the solver's own fit, not its pose (an external method has none)
 #: the solver's fit of a pose, which poses given from outside do not carry: its inliers and its
 #: answer (probability, answered at the threshold)
@@ -287,9 +286,9 @@ def test_poses_outside_the_split_are_noted_not_scored(tiny_scenes, tmp_path):
 
 def _round_trip_columns(a: pd.DataFrame, b: pd.DataFrame, skip: set) -> list[str]:
     """Columns of two frames that differ (floats to ATOL, NaN equal to NaN), ``skip`` and timing aside."""
-    skip = skip | set(compare_tables.timing_columns(a.columns))
+    skip = skip | set(tables.timing_columns(a.columns))
     assert list(a.columns) == list(b.columns)
-    return [c for c in a.columns if c not in skip and not compare_tables._equal(a[c], b[c], ATOL)]
+    return [c for c in a.columns if c not in skip and not tables.columns_equal(a[c], b[c], ATOL)]
 
 
 def test_round_trip_the_solvers_own_poses_score_as_the_solver(tiny_results, tiny_scenes, tmp_path):
@@ -623,6 +622,7 @@ def external_workflow(repo, flat_root, tmp_path_factory):
     return {"wd": wd, "before": before, "table_before": table_before, "stderr": second.stderr, "args": args}
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_workflow_scores_external_methods_into_the_table_and_figures(external_workflow):
     wd = external_workflow["wd"]
     res = wd / "results"
@@ -652,6 +652,7 @@ def test_workflow_scores_external_methods_into_the_table_and_figures(external_wo
     assert "mine_depth_whole (depth local maps, whole map proposals)" in log
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_cli_end_to_end_on_a_workflow_results_folder(external_workflow, tmp_path, capsys):
     wd = external_workflow["wd"]
     res = wd / "results"
@@ -665,6 +666,7 @@ def test_cli_end_to_end_on_a_workflow_results_folder(external_workflow, tmp_path
     assert "| theirs (yours) |" in md and "| geometric solver |" in md and "| mine |" in md
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_an_edited_poses_file_rescores_its_runs(external_workflow, repo):
     wd = external_workflow["wd"]
     poses = wd / "mine.csv"

@@ -12,6 +12,7 @@ from flatlandia.images import sfm
 OPTS = sfm.SfmOptions(num_threads=1, max_image_size=800)
 
 
+@pytest.mark.slow  # the Lund photos
 def test_a_folder_with_one_image_is_a_clear_error(lund, tmp_path):
     with pytest.raises(InputError, match="SfM needs at least 3 images, 1 kept"):
         sfm.run_sfm(lund, ["01.jpg"], None, tmp_path / "w", OPTS)

@@ -21,8 +21,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import REPO, benchmark_module, smk_dry_run
+from conftest import REPO, smk_dry_run
 from snakemake_runner import SNAKEMAKE, smk
+
+from flatlandia import tables
 
 SLURM_SCRIPTS = REPO / "tests" / "slurm"
 PROFILE = REPO / "workflow" / "profiles" / "slurm"
@@ -30,9 +32,6 @@ RULES = REPO / "workflow" / "rules"
 TEST_CONFIGS = REPO / "config" / "test"
 #: a small cluster node: what every rule's ask must fit (cores, MB)
 SMALL_NODE = (2, 20000)
-
-
-compare_tables = benchmark_module("compare_tables")
 
 
 # ---------------------------------------------------------------- resources, profile (fast)
@@ -118,6 +117,7 @@ def test_slurm_profile_dry_run_asks_every_job_for_cores_memory_and_time(repo, tm
     assert "Group job scene_prep" in res.stdout  # the light per-scene steps travel as one job
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_slurm_profile_dry_run_of_all_scenes_asks_what_the_table_says(repo, flat_root, tmp_path):
     """`all` on the published scenes and Lund's images (moved here from test_workflow.py): SfM,
     segment and the trainings ask for the table's figures, and no partition is imposed."""
@@ -255,7 +255,7 @@ def _tensors(obj, prefix=""):
 
 def differences(a: Path, b: Path) -> list[str]:
     """How results/ of run ``a`` and run ``b`` differ: the same files; every Parquet file the same
-    table, exactly, but for its timing columns (benchmarks/compare_tables.py says which); every
+    table, exactly, but for its timing columns (flatlandia.tables.timing_columns says which); every
     trained model's tensors equal (single-threaded, seeded)."""
     import torch
 
@@ -264,7 +264,7 @@ def differences(a: Path, b: Path) -> list[str]:
     for rel in sorted(files[0] & files[1]):
         if rel.suffix == ".parquet":
             ta, tb = pd.read_parquet(a / rel), pd.read_parquet(b / rel)
-            timing = compare_tables.timing_columns(ta.columns)
+            timing = tables.timing_columns(ta.columns)
             try:
                 pd.testing.assert_frame_equal(ta.drop(columns=timing), tb.drop(columns=timing), check_exact=True)
             except AssertionError as err:

@@ -143,6 +143,7 @@ def _within(errors: pd.DataFrame) -> int:
     return int(((errors["error_m"] < 5) & (errors["error_deg"] < 5)).sum())
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_verifier_learned_on_real_training_splits_places_more_test_queries(real_scenes):
     """Scenes 8 and 17 on the whole map, depth maps: a verifier learned from their training splits
     (leave-one-out) places more of their val and test queries within (5 m, 5 deg) than the
@@ -181,6 +182,7 @@ def test_true_match_bound_is_exact_on_exact_bearings():
     assert np.hypot(x - cam[0], y - cam[1]) < 0.5
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_true_match_bound_on_real_scenes_and_priors_tighten_it(real_scenes):
     """Scenes 8 and 17, val and test queries: the bound is metres, not tens of metres, and the
     training-split priors (cameras and scale) bring more queries within 3 m."""
@@ -207,6 +209,7 @@ def test_true_match_bound_on_real_scenes_and_priors_tighten_it(real_scenes):
     assert np.mean(np.array(err[True]) < 3) > np.mean(np.array(err[False]) < 3)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_no_verifier_without_co_visibility_sets(real_scenes):
     """Without co-visibility (``covis_weight`` 0 leaves the training sets out) there is nothing to
     learn from: no verifier, and the solver keeps the cheapest hypothesis."""

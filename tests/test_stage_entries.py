@@ -37,6 +37,7 @@ def scene12_cloud(flat_root):
     return pts, point_labels, t
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_published_objects_are_the_clusters_through_the_published_chain(flat_root, scene12_cloud):
     pts, point_labels, t = scene12_cloud
     lonlat = io.read_reference_map(flat_root / "individual_reference_maps/map_12.json")[0]
@@ -104,6 +105,7 @@ def test_images_objects_without_object_points_say_why():
     assert (out.members["object_id"] == -1).all() and len(out.members) == 40
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_principal_plane_report_of_scene12(scene12_cloud):
     pts, point_labels, t = scene12_cloud
     out = principal_plane.published_plane_report("12", pts, point_labels, t, source="cloud 12")
@@ -119,16 +121,21 @@ def test_principal_plane_report_of_scene12(scene12_cloud):
 # --------------------------------------------------------------------------- maps and queries
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_published_reference_map_and_queries_are_the_workflow_chain(flat_root):
-    ref_by_hand, q_by_hand = published_scene(flat_root, "9")
+    from flatlandia.data import recover
+
     lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
+    frame = geo.frame_for(lonlat)
+    ref_by_hand = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
+    local = io.read_local_maps(flat_root / "local_maps.json", "9")
+    rec = recover.recover_scene("9", lonlat, classes, local)
+    q_by_hand = queries.build_queries(
+        "9", rec, ref_by_hand, local, frame, queries.split_queries(list(rec["token"]), 0, salt="9")
+    )
     ref, meta = reference_map.published_reference_map("9", lonlat, classes)
     pd.testing.assert_frame_equal(ref, ref_by_hand)
     assert meta["frame"] == "gps" and meta["lon0"] == geo.frame_for(lonlat).lon0
-    from flatlandia.data import recover
-
-    local = io.read_local_maps(flat_root / "local_maps.json", "9")
-    rec = recover.recover_scene("9", lonlat, classes, local)
     q, qmeta = queries.published_scene_queries("9", rec, ref, meta, local, 0, SPLIT)
     pd.testing.assert_frame_equal(q, q_by_hand)
     assert qmeta == {**meta, "seed": 0, "split": SPLIT}
@@ -199,6 +206,7 @@ def scene9_pair(scene9):
 FINE = dict(model="MLP", map_type="gt", hidden=16, epochs=2, batch_size=32, augment=False)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_training_samples_per_regime(scene9_pair):
     cfg = learned.FineTrainConfig(**FINE)
     q = scene9_pair[0][1]
@@ -214,6 +222,7 @@ def test_training_samples_per_regime(scene9_pair):
     assert len(val_only) == len(val_s)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_fine_train_model_is_training_on_those_samples(scene9_pair, tmp_path):
     cfg = learned.FineTrainConfig(**FINE)
     ct = {"copies": 1, "keep_gtbb": True, "crop_m": 0.0}
@@ -231,6 +240,7 @@ def test_fine_train_model_is_training_on_those_samples(scene9_pair, tmp_path):
         training.train_model([(ref, q[q["split"] != "val"])], cfg, "gtbb", ct, source="queries.parquet")
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_coarse_training_dataset_and_model(scene9_pair):
     from flatlandia.coarse import target
 
@@ -258,6 +268,7 @@ def test_coarse_training_dataset_and_model(scene9_pair):
 # --------------------------------------------------------------------------- city
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_scene_cities_skip_scenes_without_queries_and_are_seeded(flat_root, scene9):
     ref12, q12 = published_scene(flat_root, "12")
     refs = {"9": scene9[0], "12": ref12}

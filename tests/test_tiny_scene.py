@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import re
 import shutil
 
 import numpy as np
@@ -15,12 +14,13 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import REPO, TINY_ROOT, TINY_SCENE, smk_dry_run
-from snakemake_runner import smk
+from snakemake_runner import job_stats, smk
+from tiny_results import tiny_scene
 
 from flatlandia import config, geo, io, proposals, solver
 from flatlandia.classes import CLASSES
 from flatlandia.coarse import solver_proposals
-from flatlandia.data import ingest, localmaps, queries, recover, reference_map
+from flatlandia.data import ingest, localmaps, queries, recover, scene_inputs
 from flatlandia.errors import InputError
 
 TEST_CONFIGS = REPO / "config" / "test"
@@ -46,16 +46,18 @@ def truth() -> dict:
 def tiny() -> dict:
     """The tiny scene built as the workflow builds a published scene (rules reference_map, recover,
     queries; split seed 0)."""
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
+    s = tiny_scene()
+    split = dict(zip(s.queries["token"], s.queries["split"]))
+    return dict(
+        lonlat=s.lonlat,
+        classes=s.classes,
+        frame=s.frame,
+        ref=s.ref,
+        local=s.local_maps,
+        rec=s.recovered,
+        split=split,
+        queries=s.queries,
     )
-    frame = geo.frame_for(lonlat)
-    ref = reference_map.reference_table(TINY_SCENE, lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    q = queries.build_queries(TINY_SCENE, rec, ref, local, frame, split)
-    return dict(lonlat=lonlat, classes=classes, frame=frame, ref=ref, local=local, rec=rec, split=split, queries=q)
 
 
 def _same_numbers(a, b) -> bool:
@@ -162,6 +164,36 @@ def test_a_local_map_that_fits_nowhere_is_not_recovered_and_stops_the_queries(ti
     assert rec.set_index("token")["recovered"].to_dict() == {t: t != token for t in sorted(local)}
     with pytest.raises(InputError, match="1 queries could not be recovered"):
         queries.build_queries(TINY_SCENE, rec, tiny["ref"], local, tiny["frame"], tiny["split"])
+
+
+def test_the_shared_recipe_is_the_chain_of_the_stage_functions(tiny, tmp_path):
+    """flatlandia.data.scene_inputs (the recipe every test of the tiny scene, conftest.published_scene
+    and users share) gives what the stage functions give by hand, and writes the rules' files."""
+    from flatlandia.data import reference_map
+
+    lonlat, classes = io.read_reference_map(
+        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
+    )
+    frame = geo.frame_for(lonlat)
+    ref = reference_map.reference_table(TINY_SCENE, lonlat, classes, CLASSES, frame)
+    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
+    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local, tol_m=config.section_defaults("recover")["tol_m"])
+    split = queries.split_queries(list(rec["token"]), config.section_defaults()["seed"], salt=TINY_SCENE)
+    q = queries.build_queries(TINY_SCENE, rec, ref, local, frame, split)
+    pd.testing.assert_frame_equal(tiny["ref"], ref)
+    pd.testing.assert_frame_equal(tiny["rec"], rec)
+    pd.testing.assert_frame_equal(tiny["queries"], q)
+    assert tiny["split"] == split and len(tiny_scene().split("test")) == list(split.values()).count("test")
+    results = tmp_path / "results"
+    path = tiny_scene().write(results, geojson=True)
+    assert path == results / TINY_SCENE / "maps" / "reference_map.parquet" and path.with_suffix(".geojson").exists()
+    pd.testing.assert_frame_equal(pd.read_parquet(path).drop(columns="geometry"), ref)  # GeoParquet adds the points
+    pd.testing.assert_frame_equal(pd.read_parquet(results / TINY_SCENE / "queries" / "queries.parquet"), q)
+    assert io.read_parquet_metadata(path)["lon0"] == frame.lon0
+    other = scene_inputs.published_scene(TINY_ROOT, TINY_SCENE, {"seed": 7})  # the config's settings are used
+    assert dict(zip(other.queries["token"], other.queries["split"])) == queries.split_queries(
+        list(rec["token"]), 7, salt=TINY_SCENE
+    )
 
 
 def test_split_is_seeded_per_scene_and_independent_of_order(tiny):
@@ -278,8 +310,7 @@ def test_committed_test_configs_pass_the_schema(path):
 def test_dry_run_plans_the_maps_of_the_tiny_scene(repo, tmp_path):
     res = smk_dry_run(repo, tmp_path, "maps", "--configfile", str(TEST_CONFIGS / "tiny.yaml"))
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
-    stats = res.stdout.split("Job stats:")[1].split("\n\n")[0]
-    planned = {rule: int(n) for rule, n in re.findall(r"^(\w+)\s+(\d+)$", stats, flags=re.M)}
+    planned = job_stats(res.stdout)
     assert planned == {
         "ingest": 1,
         "recover": 1,
@@ -293,6 +324,7 @@ def test_dry_run_plans_the_maps_of_the_tiny_scene(repo, tmp_path):
     assert not (tmp_path / "results").exists()
 
 
+@pytest.mark.slow  # Snakemake jobs
 def test_maps_of_the_tiny_scene_build_without_the_published_data(repo, tmp_path):
     """The per-scene rules for real on the tiny scene (seconds; slow only because it runs jobs)."""
     res = smk(repo, tmp_path, "--cores", "2", "maps", "--configfile", str(TEST_CONFIGS / "tiny.yaml"))

@@ -24,10 +24,12 @@ import torch
 from conftest import REPO, TINY_ROOT, TINY_SCENE
 from PIL import ExifTags, Image
 from PIL.TiffImagePlugin import IFDRational
+from tiny_results import tiny_scene
+from zip_archives import make_zip
 
-from flatlandia import checkpoints, cli, config, escape, export, figures, geo, io, runlog
+from flatlandia import checkpoints, cli, config, escape, export, figures, io, runlog
 from flatlandia.classes import CLASSES
-from flatlandia.data import fetch, queries, recover, reference_map
+from flatlandia.data import fetch, reference_map
 from flatlandia.errors import InputError
 from flatlandia.fine import learned
 from flatlandia.images import image_audit
@@ -42,27 +44,11 @@ def tree(root: Path) -> set[str]:
     return out
 
 
-def make_zip(path: Path, members: dict[str, bytes]) -> Path:
-    import zipfile
-
-    with zipfile.ZipFile(path, "w") as z:
-        for name, data in members.items():
-            z.writestr(name, data)
-    return path
-
-
 @pytest.fixture(scope="module")
 def tiny() -> dict:
     """The tiny scene's reference map (table, metadata) and queries, as rules reference_map and queries make them."""
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    q = queries.build_queries(TINY_SCENE, rec, ref, local, geo.MetricFrame(meta["lon0"], meta["lat0"]), split)
-    return {"ref": ref, "meta": meta, "queries": q}
+    tiny = tiny_scene()
+    return {"ref": tiny.ref, "meta": tiny.meta, "queries": tiny.queries}
 
 
 # ----------------------------------------------------------------------------- 2. fetch

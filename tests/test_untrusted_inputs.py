@@ -15,7 +15,6 @@ import re
 import shutil
 import stat
 import urllib.request
-import zipfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -23,6 +22,7 @@ import numpy as np
 import pytest
 import torch
 from snakemake_runner import smk
+from zip_archives import make_zip
 
 from flatlandia import checkpoints, runlog
 from flatlandia.data import fetch
@@ -37,21 +37,6 @@ def tree(root: Path) -> set[str]:
     for dirpath, dirnames, filenames in os.walk(root):
         out |= {str(Path(dirpath, n).relative_to(root)) for n in dirnames + filenames}
     return out
-
-
-def add_member(z: zipfile.ZipFile, name: str, data: bytes = b"x", kind: int = stat.S_IFREG) -> None:
-    """A member with unix file type ``kind`` (regular file, symlink, device...)."""
-    info = zipfile.ZipInfo(name)
-    info.create_system = 3  # unix: the type bits below are honoured by unzip tools
-    info.external_attr = (kind | 0o644) << 16
-    z.writestr(info, data, compress_type=zipfile.ZIP_DEFLATED)
-
-
-def make_zip(path: Path, members: list[tuple]) -> Path:
-    with zipfile.ZipFile(path, "w") as z:
-        for m in members:
-            add_member(z, *m)
-    return path
 
 
 @pytest.fixture
@@ -168,6 +153,7 @@ def _sheet(tmp_path: Path, url: str, sha256: str = "") -> Path:
 
 
 @pytest.mark.parametrize("case", ["dotdot", "sha256"])
+@pytest.mark.slow  # the published data (flat_root)
 def test_scene_sheet_archive_stops_the_run_with_one_error(repo, flat_root, tmp_path, case):
     if case == "dotdot":
         archive = make_zip(tmp_path / "crafted.zip", attack("dotdot", tmp_path)[0])
@@ -269,6 +255,7 @@ def _photos(src: Path, dest: Path, n: int = 3) -> Path:
 
 
 @pytest.mark.parametrize("name", ["../x.jpg", "/etc/x.jpg", "sub/01.jpg", "..", "a\\b.jpg"])
+@pytest.mark.slow  # the Lund photos
 def test_metadata_csv_names_must_be_plain_file_names(lund, tmp_path, name):
     photos = _photos(lund, tmp_path / "photos")
     (photos / "metadata.csv").write_text(f"name,lat,lon\n01.jpg,55.7,13.19\n{name},55.7,13.19\n")
@@ -276,6 +263,7 @@ def test_metadata_csv_names_must_be_plain_file_names(lund, tmp_path, name):
         image_audit.read_folder_metadata(photos)
 
 
+@pytest.mark.slow  # the published data (flat_root)
 def test_metadata_csv_naming_a_parent_file_stops_the_workflow(repo, flat_root, lund, tmp_path):
     photos = _photos(lund, tmp_path / "photos")
     (photos / "metadata.csv").write_text("name,lat,lon\n../x.jpg,55.7,13.19\n")

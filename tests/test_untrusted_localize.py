@@ -19,12 +19,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from conftest import TINY_ROOT, TINY_SCENE
+from tiny_results import tiny_scene
 
-from flatlandia import cli, geo, io, localize, solver, validate
+from flatlandia import cli, io, localize, solver, validate
 from flatlandia.city import index
 from flatlandia.classes import CLASSES
-from flatlandia.data import localmaps, queries, recover, reference_map
+from flatlandia.data import localmaps, reference_map
 from flatlandia.errors import InputError
 
 
@@ -33,14 +33,8 @@ def tiny(tmp_path_factory) -> dict:
     """The tiny scene as the workflow writes it (reference_map.parquet/.geojson), its city index
     arrays, a GT test query file and the query's objects."""
     d = tmp_path_factory.mktemp("tiny_doors")
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    q = queries.build_queries(TINY_SCENE, rec, ref, local, geo.MetricFrame(meta["lon0"], meta["lat0"]), split)
+    tiny = tiny_scene()
+    ref, meta, q = tiny.ref, tiny.meta, tiny.queries
     reference_map.write_geoparquet(ref, meta, d / "reference_map.parquet")
     reference_map.write_geojson(ref, meta, d / "reference_map.geojson")
     ix = index.build(ref, q[q["split"] == "train"])

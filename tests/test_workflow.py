@@ -14,9 +14,12 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from snakemake_runner import smk
+from snakemake_runner import job_stats, smk
 
 from flatlandia import io
+
+#: every test here runs Snakemake jobs or reads the published data (the slow lane)
+pytestmark = pytest.mark.slow
 
 TEST_CONFIGS = Path(__file__).resolve().parents[1] / "config" / "test"
 
@@ -380,7 +383,7 @@ def test_rerun_from_scratch_gives_identical_tables(run_two_scenes, repo, flat_ro
 def test_maps_of_one_city_plan_no_training_and_no_shared_table(repo, flat_root, tmp_path):
     res = smk(repo, tmp_path, "-n", "maps", "--config", "select=[Paris]", f"flatlandia_root={flat_root}")
     assert res.returncode == 0, res.stderr[-2000:]
-    planned = {line.split()[0] for line in res.stdout.split("Job stats:")[1].split("\n\n")[0].splitlines()[2:]}
+    planned = set(job_stats(res.stdout)) - {"total"}
     assert {"reference_map", "queries", "recover"} <= planned
     assert not planned & {"coarse_train", "fine_train", "coarse_eval", "fine_eval", "dataset_stats", "fine_table"}
     assert "results/tables/" not in res.stdout

@@ -1,20 +1,45 @@
-"""A results folder of the tiny scene (tests/data/tiny) as the workflow lays it out, built in-process
-from the package's functions (no Snakemake): its reference map (frame in the Parquet metadata),
-queries, the benchmark record, and the solver's depth runs (train split: 10 queries; the test split
-holds one) with their fine table. Used by the scoring tests and the installed wheel's test."""
+"""The tiny scene (tests/data/tiny) for the tests, through the package's one recipe
+(:func:`flatlandia.data.scene_inputs.published_scene`: rules reference_map -> recover -> queries in
+process, no Snakemake): :func:`tiny_scene` (its tables, once a session) and :func:`build` (a results
+folder as the workflow lays it out: reference map with its frame in the Parquet metadata, queries,
+the benchmark record, and the solver's depth runs (train split: 10 queries; the test split holds
+one) with their fine table; used by the scoring tests and the installed wheel's test)."""
 
 from __future__ import annotations
 
+import functools
+import json
 from pathlib import Path
 
 import pandas as pd
 from conftest import TINY_ROOT, TINY_SCENE
 
-from flatlandia import config, geo, io, score
-from flatlandia.classes import CLASSES
-from flatlandia.data import queries, recover, reference_map
+from flatlandia import config, io, score
+from flatlandia.data import scene_inputs
 from flatlandia.fine import evaluation
 from flatlandia.fine import table as fine_table
+
+
+@functools.cache
+def _tiny_scene() -> scene_inputs.SceneInputs:
+    return scene_inputs.published_scene(TINY_ROOT, TINY_SCENE)
+
+
+def tiny_scene() -> scene_inputs.SceneInputs:
+    """The tiny scene's inputs as the rules make them (built once a session; each caller gets its
+    own copy of the tables, so a test may change them)."""
+    s = _tiny_scene()
+    return scene_inputs.SceneInputs(
+        s.scene,
+        s.lonlat.copy(),
+        s.classes.copy(),
+        {t: {k: v.copy() for k, v in m.items()} for t, m in s.local_maps.items()},
+        s.ref.copy(),
+        json.loads(json.dumps(s.meta)),
+        s.recovered.copy(),
+        s.queries.copy(),
+        json.loads(json.dumps(s.queries_meta)),
+    )
 
 
 def builtin_summary(errors: pd.DataFrame, method: str, map_type: str, proposal: str, label: str, ref) -> dict:
@@ -37,21 +62,9 @@ def builtin_summary(errors: pd.DataFrame, method: str, map_type: str, proposal: 
 
 def build(root: Path) -> Path:
     """Write the tiny scene's results folder at ``root`` (…/results) and return it."""
-    lonlat, classes = io.read_reference_map(
-        TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
-    )
-    frame = geo.frame_for(lonlat)
-    ref = reference_map.reference_table(TINY_SCENE, lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
-    rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
-    split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
-    q = queries.build_queries(TINY_SCENE, rec, ref, local, frame, split)
-    reference_map.write_geoparquet(
-        ref,
-        reference_map.frame_metadata(TINY_SCENE, frame),
-        root / TINY_SCENE / "maps" / "reference_map.parquet",
-    )
-    io.write_parquet(q, root / TINY_SCENE / "queries" / "queries.parquet")
+    tiny = tiny_scene()
+    ref, q = tiny.ref, tiny.queries
+    tiny.write(root)
     io.write_parquet(pd.DataFrame({"scene": [TINY_SCENE]}), root / score.BENCHMARK_RECORD)
     summaries = []
     for proposal, label in (("whole", "whole map"), ("gtbb", "GT-BB")):

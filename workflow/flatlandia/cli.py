@@ -376,6 +376,8 @@ def score_poses(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from flatlandia.localize import ALTERNATIVES  # the library's default, said once (light: no solver)
+
     ap = argparse.ArgumentParser(prog="flatlandia", description=__doc__)
     ap.add_argument("--version", action="version", version=f"flatlandia {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -472,7 +474,12 @@ def main(argv: list[str] | None = None) -> int:
     lq.add_argument("--gps-sigma-m", metavar="M", help="with --gps: the fix's sigma in metres (east and north)")
     lq.add_argument("--compass", metavar="DEG", help="with --gps: a compass heading, degrees clockwise from north")
     lq.add_argument("--compass-sigma-deg", metavar="S", help="with --compass: its sigma in degrees")
-    lq.add_argument("--alternatives", default="3", metavar="K", help="next-best distinct poses (default 3)")
+    lq.add_argument(
+        "--alternatives",
+        default=str(ALTERNATIVES),
+        metavar="K",
+        help=f"next-best distinct poses (default {ALTERNATIVES})",
+    )
     lq.add_argument(
         "--priors",
         default="auto",

@@ -24,6 +24,10 @@ if TYPE_CHECKING:  # pyproj loads when a frame projects: the learned models' cod
 TO_FLATLANDIA = 0.0033780547666424354
 #: Degrees per local-map unit (docs/conventions.md, "Local maps").
 UNIT_DEG = TO_FLATLANDIA / 2.0
+#: Fewest objects a 2D pose is found and checked with (a 2-point fit and a third to check it): of a
+#: query, a published local map, a solvable proposal. The schema's ``images.min_objects`` may not go
+#: below it (its ``minimum``; tests/test_defaults_once.py checks they agree).
+MIN_OBJECTS = 3
 
 
 @dataclass(frozen=True)

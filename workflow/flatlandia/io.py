@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from flatlandia.errors import InputError
+from flatlandia.geo import MIN_OBJECTS
 from flatlandia.names import plain_name
 
 # --------------------------------------------------------------------------- atomic writes
@@ -393,7 +394,7 @@ def read_reference_map(path: str | Path, n_classes: int | None = None) -> tuple[
     return lonlat, classes
 
 
-def read_local_maps(path: str | Path, scene: str, min_objects: int = 3) -> dict[str, dict[str, np.ndarray]]:
+def read_local_maps(path: str | Path, scene: str, min_objects: int = MIN_OBJECTS) -> dict[str, dict[str, np.ndarray]]:
     """The published local maps of one scene: token -> {"GT": (M,2), "depth": (M,2)}."""
     path = Path(path)
     data = read_json(path)

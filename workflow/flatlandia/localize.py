@@ -54,7 +54,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from flatlandia import paths, validate, vocabulary
+from flatlandia import geo, paths, validate, vocabulary
+from flatlandia.beyond import MIN_SIGMA_DEG, MIN_SIGMA_M
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
@@ -67,8 +68,8 @@ if TYPE_CHECKING:  # the solver loads numba (2 s): only a loaded map needs it
 
 MAP_TYPES = vocabulary.MAP_TYPES
 #: fewest objects a query needs (a 2-point fit and one object to check it)
-MIN_OBJECTS = 3
-#: next-best distinct poses returned by default
+MIN_OBJECTS = geo.MIN_OBJECTS
+#: next-best distinct poses returned by default (also `flatlandia localize --alternatives`'s default)
 ALTERNATIVES = 3
 #: a depth query whose median object range is within this of 1 is used as given: the benchmark's
 #: depth maps are normalised so (the scale prior is in metres per such unit); any other is scaled
@@ -239,8 +240,8 @@ def parse_sequence(obj: Any, source: str | Path = "<sequence>") -> Sequence:
         x, y = (_number(pose.get(a), source, f"{where} pose {a}", bound=validate.MAX_ODOMETRY_M) for a in ("x", "y"))
         th = _number(pose.get("theta_deg", 0.0), source, f"{where} pose theta_deg", bound=360.0)
         rel.append((x, y, math.radians(th)))
-        sm = f.get("sigma_m", max(0.05, beyond["odometry_distance_pct"] / 100 * math.hypot(x, y)))
-        sd = f.get("sigma_deg", max(0.1, beyond["odometry_heading_deg"] * math.sqrt(k)))
+        sm = f.get("sigma_m", max(MIN_SIGMA_M, beyond["odometry_distance_pct"] / 100 * math.hypot(x, y)))
+        sd = f.get("sigma_deg", max(MIN_SIGMA_DEG, beyond["odometry_heading_deg"] * math.sqrt(k)))
         sigma.append(
             (
                 _number(sm, source, f"{where} sigma_m", True, validate.MAX_ODOMETRY_M),
@@ -287,6 +288,7 @@ class ObjectMap:
     cameras: int = 0  # training cameras among the priors
     learned: solver.LearnedPriors | None = None
     learned_path: Path | None = None
+    map_size_path: Path | None = None  # city: the map-size correction of the probability (rule city_calibration)
     priors: dict = field(default_factory=dict)  # map type -> solver.TrainingPriors over the rows
     index: ViewIndex | None = None
     search: SearchConfig | None = None
@@ -305,6 +307,11 @@ class ObjectMap:
             "learned_from": str(self.learned_path) if lp is not None and self.learned_path else None,
             "scale_prior": bool(lp is not None and lp.scale is not None),
             "verifier": bool(lp is not None and lp.verifier is not None and self.cameras > 0),
+            **(
+                {"map_size_from": str(self.map_size_path) if lp is not None and self.map_size_path else None}
+                if self.kind == "city"
+                else {}
+            ),
         }
 
 
@@ -549,6 +556,11 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
     auto = paths.within(city_dir.parent.parent, paths.solver_priors(vocabulary.WHOLE))
     m.learned_path = (auto if auto.is_file() else None) if learned == "auto" else (Path(learned) if learned else None)
     m.learned = solver.LearnedPriors.read(m.learned_path) if m.learned_path else None
+    correction = paths.within(city_dir.parent.parent, paths.city_calibration())  # rule city_calibration
+    if m.learned is not None and path.parent.name == "index" and correction.is_file():
+        from flatlandia.solver.learned import read_map_size
+
+        m.learned, m.map_size_path = m.learned.with_map_size(read_map_size(correction)), correction
     table = city_dir / "map.parquet"
     if path.parent.name == "index" and table.is_file():
         import pandas as pd

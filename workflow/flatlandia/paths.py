@@ -199,6 +199,12 @@ def city_result(n="{n}", method="{method}", part: str = "summary") -> str:
     return city(n, f"{part}_{method}.{'json' if part == 'summary' else 'parquet'}")
 
 
+def city_calibration(part: str = "calibration.json") -> str:
+    """The cities' map-size correction of the answers' probability (rule city_calibration):
+    ``calibration.json``, ``calibration_answers.parquet``."""
+    return _r("city", part)
+
+
 def simulated_city(objects="{objects}", part: str = "summary.json") -> str:
     """A simulated city of ``objects`` objects (rule city_simulate): summary.json, errors.parquet."""
     return _r("city", "simulated", objects, part)

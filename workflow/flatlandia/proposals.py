@@ -14,12 +14,17 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import vocabulary
+from flatlandia import config, vocabulary
 
 PROPOSAL_COLUMNS = ["scene", "token", "strategy", "proposal"]
+#: the oracle GT-BB box of the fine stage (the benchmark's definition): enlarged by this share of its
+#: size (the coarse stage's GT-BB rows follow the setting `coarse.train.bb_enlarge`, by default the same)
+GTBB_ENLARGE = 0.10
+#: Defaults: the `fine.coarse_training` section of workflow/schemas/config.schema.yaml.
+_COARSE_TRAINING = config.section_defaults("fine.coarse_training")
 
 
-def gtbb_indices(ref_xy: np.ndarray, matched, cam_xy, enlarge: float = 0.10) -> np.ndarray:
+def gtbb_indices(ref_xy: np.ndarray, matched, cam_xy, enlarge: float = GTBB_ENLARGE) -> np.ndarray:
     """Reference rows inside the box around the matched objects and the camera, enlarged by ``enlarge``."""
     ref_xy = np.asarray(ref_xy, float)
     pts = np.vstack([ref_xy[np.asarray(list(matched), int)], np.asarray(cam_xy, float).reshape(1, 2)])
@@ -28,7 +33,7 @@ def gtbb_indices(ref_xy: np.ndarray, matched, cam_xy, enlarge: float = 0.10) -> 
     return np.flatnonzero(np.all(np.abs(ref_xy - centre) <= half + 1e-9, axis=1))
 
 
-def gtbb_proposals(ref: pd.DataFrame, queries: pd.DataFrame, enlarge: float = 0.10) -> pd.DataFrame:
+def gtbb_proposals(ref: pd.DataFrame, queries: pd.DataFrame, enlarge: float = GTBB_ENLARGE) -> pd.DataFrame:
     """The oracle GT-BB proposal of every query (``proposal`` holds reference ``obj_idx``)."""
     ref_xy = ref[["x_m", "y_m"]].to_numpy()
     obj = ref["obj_idx"].to_numpy()
@@ -153,8 +158,8 @@ def training_proposals(
     queries: pd.DataFrame,
     regime: str,
     rng: np.random.Generator,
-    copies: int = 2,
-    keep_gtbb: bool = True,
+    copies: int = _COARSE_TRAINING["copies"],
+    keep_gtbb: bool = _COARSE_TRAINING["keep_gtbb"],
     crop_m: float = 0.0,
 ) -> list[pd.DataFrame]:
     """The proposal tables a learned model trains (or validates) on, one sample per query and table.

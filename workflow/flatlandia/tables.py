@@ -7,6 +7,7 @@ can rely on them; ``docs/tables.md`` is rendered from the same schemas (:func:`s
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -401,3 +402,34 @@ def schema_markdown() -> str:
         # a meaning lists its values with " | ": escaped, so the cell stays one cell
         out += [f"| `{c.name}` | {c.kind} | {c.unit} | {c.meaning.replace('|', chr(92) + '|')} |" for c in cols]
     return "\n".join(out) + "\n"
+
+
+# ----------------------------------------------------------------------------- two runs' tables
+
+#: columns whose values are wall or CPU times of a run, not results: two runs' tables are compared
+#: on every other column (benchmarks/compare_tables.py, the tests' round trips)
+TIMING = re.compile(r"(^|_)(s|ms|sec|seconds|time|minutes|min)(_|$)|query_ms|train_s|qt_", re.IGNORECASE)
+
+
+def timing_columns(columns) -> list[str]:
+    """The columns of ``columns`` that are timings (:data:`TIMING`; the paper's own values are not)."""
+    return [c for c in columns if TIMING.search(str(c)) and not str(c).startswith("paper_")]
+
+
+def columns_equal(a: pd.Series, b: pd.Series, tolerance: float = 0.0) -> bool:
+    """Two columns hold the same values: floats within ``tolerance`` (NaN equals NaN), anything else as text."""
+    if a.dtype.kind in "fc" and b.dtype.kind in "fc":
+        return bool(np.allclose(a.to_numpy(float), b.to_numpy(float), rtol=0, atol=tolerance, equal_nan=True))
+    return a.astype(str).tolist() == b.astype(str).tolist()
+
+
+def table_differences(a: str | Path, b: str | Path, tolerance: float = 0.0) -> list[str]:
+    """How table file ``a`` differs from table file ``b`` (Parquet): columns, rows, then every
+    non-timing column (:func:`columns_equal`); empty when they agree."""
+    ta, tb = pd.read_parquet(a), pd.read_parquet(b)
+    if list(ta.columns) != list(tb.columns):
+        return [f"columns differ: {sorted(set(ta.columns) ^ set(tb.columns))}"]
+    if len(ta) != len(tb):
+        return [f"{len(ta)} rows vs {len(tb)}"]
+    skip = set(timing_columns(ta.columns))
+    return [f"column {c!r} differs" for c in ta.columns if c not in skip and not columns_equal(ta[c], tb[c], tolerance)]

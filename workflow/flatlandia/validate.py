@@ -424,6 +424,28 @@ def unique_ids(ids: np.ndarray, source: str | Path, what: str = "obj_idx") -> No
 # ----------------------------------------------------------------------------- learned priors
 
 
+def map_size_calibration(d: Any, source: str | Path, max_shift: float, max_per_log_odds: float) -> None:
+    """A city's map-size correction (rule city_calibration's record,
+    :class:`flatlandia.solver.calibration.MapSize` under key ``map_size``): ``reference_objects``
+    >= 1; ``frame`` and ``sequence`` each a ``shift`` in [0, ``max_shift``] and a ``per_log_odds``
+    in [0, ``max_per_log_odds``]; ``answers`` a count."""
+    if not isinstance(d, dict) or not isinstance(d.get("map_size"), dict):
+        raise InputError(source, "expected a JSON object with a map_size object (rule city_calibration's record)")
+    m = d["map_size"]
+    finite(m.get("reference_objects"), source, "map_size reference_objects", 1.0, 1e9)
+    for kind in ("frame", "sequence"):
+        term = m.get(kind)
+        if not isinstance(term, dict):
+            raise InputError(
+                source, f"map_size {kind} must be an object with shift and per_log_odds, got {shown(term)}"
+            )
+        finite(term.get("shift"), source, f"map_size {kind} shift", 0.0, max_shift)
+        finite(term.get("per_log_odds"), source, f"map_size {kind} per_log_odds", 0.0, max_per_log_odds)
+    n = m.get("answers")
+    if not isinstance(n, int) or isinstance(n, bool) or n < 0:
+        raise InputError(source, f"map_size answers must be a count of answers, got {shown(n)}")
+
+
 def learned_priors(d: Any, source: str | Path, n_features: int) -> None:
     """A solver priors JSON (:class:`flatlandia.solver.learned.LearnedPriors`): ``scale_prior``
     null or (mean, std) finite with std > 0; ``verifier`` null or ``weights``, ``mean``,

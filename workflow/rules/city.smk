@@ -71,10 +71,36 @@ rule city_eval:
         "../scripts/city_eval.py"
 
 
+rule city_calibration:
+    input:
+        unpack(city_calibration_inputs),
+    output:
+        calibration=CITY_CALIBRATION,
+        answers=paths.city_calibration("calibration_answers.parquet"),
+    log:
+        "logs/city_calibration/all.log",
+    benchmark:
+        "logs/benchmarks/city_calibration/all.tsv"
+    conda:
+        "../envs/flatlandia.yaml"
+    threads: rule_threads("city_calibration")
+    resources:
+        **rule_resources("city_calibration"),
+    params:
+        **config_keys(
+            "seed", "solver", "city.search", "city.simulate", "city.spacing_m", "beyond", exclude=BEYOND_CITIES
+        ),
+        maps=beyond_city_maps(),
+        scene_ids=benchmark_scenes(),
+    script:
+        "../scripts/city_calibration.py"
+
+
 rule city_simulate:
     input:
         unpack(city_scene_inputs),
         priors=paths.solver_priors(vocabulary.WHOLE),
+        calibration=CITY_CALIBRATION,
     output:
         errors=paths.simulated_city(part="errors.parquet"),
         summary=paths.simulated_city(),

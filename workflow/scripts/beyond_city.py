@@ -11,13 +11,14 @@ from flatlandia import io, runlog, solver
 from flatlandia.beyond import evaluate
 from flatlandia.city.index import ViewIndex
 from flatlandia.fine import evaluation
+from flatlandia.solver.learned import read_map_size
 
 
 def main(smk, log):
     beyond = dict(smk.params["beyond"])
     kind, n = smk.wildcards.map.split("-")
     settings = evaluate.settings_grid(beyond, True)
-    learned = solver.LearnedPriors.read(smk.input.priors)
+    learned = solver.LearnedPriors.read(smk.input.priors).with_map_size(read_map_size(smk.input.calibration))
     common = dict(
         settings=settings,
         solver_settings=dict(smk.params["solver"]),

@@ -13,11 +13,15 @@ from flatlandia import io, runlog, solver
 from flatlandia.city import evaluate, search
 from flatlandia.city.index import ViewIndex
 from flatlandia.fine import evaluation
+from flatlandia.solver.learned import read_map_size
 
 
 def main(smk, log):
     method, cfg = smk.wildcards.method, search.SearchConfig.from_dict(smk.params["city.search"])
     index_dir = Path(smk.input.index) if method == "index" else None
+    learned = solver.LearnedPriors.read(smk.input.priors)
+    if method == "index":  # the index ranks the whole city: the map-size correction (rule city_calibration)
+        learned = learned.with_map_size(read_map_size(smk.input.calibration))
 
     def index_of(city: str) -> ViewIndex:
         return ViewIndex.load(index_dir / f"{city}.npz")
@@ -30,7 +34,7 @@ def main(smk, log):
         smk.params["city.split"],
         cfg,
         dict(smk.params["solver"]),
-        solver.LearnedPriors.read(smk.input.priors),
+        learned,
         index_of=index_of,
         built=json.loads((index_dir / "build.json").read_text()) if index_dir else None,
         log=log,

@@ -12,6 +12,7 @@ import pandas as pd
 from flatlandia import io, runlog, solver
 from flatlandia.city import evaluate, search
 from flatlandia.fine import evaluation
+from flatlandia.solver.learned import read_map_size
 
 
 def main(smk, log):
@@ -28,7 +29,7 @@ def main(smk, log):
         split,
         search.SearchConfig.from_dict(smk.params["city.search"]),
         dict(smk.params["solver"]),
-        solver.LearnedPriors.read(smk.input.priors),
+        solver.LearnedPriors.read(smk.input.priors).with_map_size(read_map_size(smk.input.calibration)),
         log=log,
     )
     io.write_parquet(errors, smk.output.errors, {"objects": n_objects, "split": split, "simulate": dict(sim)})

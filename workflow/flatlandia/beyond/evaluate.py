@@ -42,7 +42,7 @@ class Setting:
     camera_prior: bool = True
 
 
-def settings_grid(beyond: dict, camera_prior: bool = True) -> list[Setting]:
+def settings_grid(beyond: dict, camera_prior: bool) -> list[Setting]:
     """The table's settings from the config section ``beyond``: every frame count without a fix
     and, with the camera prior on, each GPS sigma at each of ``gps_frames`` (the rows without the
     camera prior say how much it carries; a fix does not change that)."""

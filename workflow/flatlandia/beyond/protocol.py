@@ -38,13 +38,12 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from flatlandia import geo, solver
+from flatlandia.beyond import MIN_SIGMA_DEG, MIN_SIGMA_M  # noqa: F401  (the floors, this module's API too)
 from flatlandia.solver.priors import Fix
 from flatlandia.solver.sequence import relative_pose
 
 #: purposes of the seeded generators (one stream each per anchor)
 ODOMETRY, GPS = 1, 2
-#: floors of the noise the solver is told (a perfect step would tie frames rigidly)
-MIN_SIGMA_M, MIN_SIGMA_DEG = 0.05, 0.1
 
 
 def rng_for(seed: int, purpose: int, scene: str, token: str) -> np.random.Generator:

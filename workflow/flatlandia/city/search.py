@@ -10,10 +10,16 @@ distinct places (views at least ``nms_m`` apart). The solver then runs once on t
 co-visibility and verifier read only views near a pose), so a query's cost grows slowly with the
 city (validation split: 15 ms of CPU at 2,354 objects, 34 ms at 100,000, where the whole-map solver
 takes 42 ms and, at 10,000 objects, 1.3 s).
+
+The index ranked every place of the city, so an answer's probability is lowered by the cities'
+map-size correction (:class:`flatlandia.solver.calibration.MapSize`, in ``learned``'s calibration:
+rule city_calibration) for the index's objects; a search on given places (a fix's region, a prior
+position) is not.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -122,6 +128,20 @@ def region_training_priors(ix: ViewIndex, cams: np.ndarray, seen: np.ndarray, le
     return solver.TrainingPriors(ix.cam[cams], seen).with_learned(learned)
 
 
+def in_city(solutions: list, learned, ix: ViewIndex, frames: int = 1) -> list:
+    """``solutions`` (None kept) with their probability lowered for the ``ix.n_objects`` objects the
+    index ranked (the map-size correction of ``learned``'s calibration; as they are without one)."""
+    cal = learned.calibration if learned is not None else None
+    if cal is None or cal.map_size is None:
+        return list(solutions)
+    return [
+        s
+        if s is None
+        else dataclasses.replace(s, probability=float(cal.in_map([s.probability], ix.n_objects, frames)[0]))
+        for s in solutions
+    ]
+
+
 @dataclass
 class Located:
     """A query's pose (None when the solver found none), the next-best distinct poses and what the
@@ -155,7 +175,7 @@ def localize(
     solver's likelihood too. ``exclude``: views (rows of the index's) neither ranked nor used as
     priors (a sequence's companions)."""
     q_xy, q_cls = np.asarray(q_xy, float).reshape(-1, 2), np.asarray(q_cls, np.int64)
-    radius = None
+    radius, ranked = None, centres is None and fix is None
     if centres is None and fix is not None:
         centres, radius = fix.xy[None], fix.crop_m
     elif centres is None:
@@ -176,7 +196,10 @@ def localize(
             alternatives=alternatives,
             fix=fix,
         )
-    return Located(found.best, rows, centres, found.alternatives)
+    best, alts = found.best, found.alternatives
+    if ranked and not metric:
+        best, *alts = in_city([best, *alts], learned, ix)
+    return Located(best, rows, centres, alts)
 
 
 def sequence_centres(ix: ViewIndex, frames, cfg: SearchConfig, exclude: np.ndarray | None = None) -> np.ndarray:
@@ -241,5 +264,8 @@ def localize_sequence(
         fix,
         alternatives,
     )
+    if fix is None:
+        best, *alts = in_city([found.best, *found.alternatives], learned, ix, len(frames))
+        found = dataclasses.replace(found, best=best, alternatives=alts)
     located.solution, located.alternatives = found.best, found.alternatives
     return found, located

@@ -34,9 +34,9 @@ def markdown(df: pd.DataFrame, note: str) -> str:
             "answered_pct": "% answered",
             "within_answered_pct": "answered: % within (5 m, 5 deg)",
             "wrong_scene_answered_pct": "answered: % wrong scene",
-            "answerable_95_pct": "answerable at >= 95 % within",
-            "answerable_wrong_1pct": "answerable at <= 1 % wrong scene",
-            "answerable_wrong_2pct": "answerable at <= 2 % wrong scene",
+            "answerable_95_pct": "answerable at ≥ 95 % within",
+            "answerable_wrong_1pct": "answerable at ≤ 1 % wrong scene",
+            "answerable_wrong_2pct": "answerable at ≤ 2 % wrong scene",
             "ece_points": "calibration error",
         }
     )

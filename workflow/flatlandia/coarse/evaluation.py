@@ -17,12 +17,14 @@ import numpy as np
 import pandas as pd
 import torch
 
+from flatlandia import config, escape, paper, proposals, tables, vocabulary
 from flatlandia import device as device_module
-from flatlandia import escape, paper, proposals, tables, vocabulary
 from flatlandia.coarse import retrieval
 from flatlandia.proposals import proposal_metrics  # noqa: F401  (this module's API too)
 
 STRATEGIES = [*vocabulary.COARSE_STRATEGIES, vocabulary.ORACLE_STRATEGY]
+#: Defaults: the `coarse.train` section of workflow/schemas/config.schema.yaml (R_30's radius, GT-BB's enlargement).
+_TRAIN = config.section_defaults("coarse.train")
 
 #: Columns of results/tables/coarse_localization.parquet: (name, unit, meaning), from its schema.
 TABLE_COLUMNS = [(c.name, c.unit, c.meaning) for c in tables.SCHEMAS["coarse_localization"]]
@@ -47,10 +49,10 @@ def propose(
     ref_xy: np.ndarray,
     n_query: int,
     strategy: str,
-    radius_m: float = 30.0,
+    radius_m: float = _TRAIN["radius_m"],
     matched_rows=None,
     cam_xy=None,
-    enlarge: float = 0.10,
+    enlarge: float = _TRAIN["bb_enlarge"],
 ) -> np.ndarray:
     """Rows of the reference table proposed by a strategy (scores: smaller is better).
 
@@ -80,8 +82,8 @@ def evaluate_scores(
     loss_label: str,
     map_type: str,
     strategies=("N_LM", "2N_LM", "R_30"),
-    radius_m: float = 30.0,
-    enlarge: float = 0.10,
+    radius_m: float = _TRAIN["radius_m"],
+    enlarge: float = _TRAIN["bb_enlarge"],
 ) -> pd.DataFrame:
     """One row per (query, strategy): the proposal (reference ``obj_idx``) and its metrics."""
     rows = []
@@ -140,8 +142,8 @@ def evaluate(
     """
     samples = ds.split(split)
     parts = []
-    radius = next(iter(models.values()))[1].radius_m if models else 30.0
-    enlarge = next(iter(models.values()))[1].bb_enlarge if models else 0.10
+    radius = next(iter(models.values()))[1].radius_m if models else _TRAIN["radius_m"]
+    enlarge = next(iter(models.values()))[1].bb_enlarge if models else _TRAIN["bb_enlarge"]
     for label, (model, cfg) in models.items():
         for mt in retrieval.MAP_TYPES:
             parts.append(

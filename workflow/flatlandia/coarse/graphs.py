@@ -29,17 +29,24 @@ import numpy as np
 import pandas as pd
 import torch
 
+from flatlandia import config
 from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
 from flatlandia.pyg import Batch, Data
 
-REF_KNN = 7
+#: Defaults: the `coarse.train` section of workflow/schemas/config.schema.yaml.
+_TRAIN = config.section_defaults("coarse.train")
+#: neighbours per reference node (the default of `coarse.train.knn`)
+REF_KNN = _TRAIN["knn"]
+#: metres assumed for one unit of a normalised depth map when no training median is given
+#: (`coarse.train.depth_unit_m` null and no training maps measured: about their median object range)
+DEPTH_UNIT_M = 27.0
 
 
 @dataclass(frozen=True)
 class GraphConfig:
-    scale_m: float = 50.0  # metres per normalised unit
-    depth_unit_m: float = 27.0  # metres assumed for one unit of a normalised depth map
+    scale_m: float = _TRAIN["scale_m"]  # metres per normalised unit
+    depth_unit_m: float = DEPTH_UNIT_M  # metres assumed for one unit of a normalised depth map
     knn: int = REF_KNN  # reference graph: in-edges from the k nearest neighbours
     n_classes: int = N_CLASSES
 

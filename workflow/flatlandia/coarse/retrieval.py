@@ -55,7 +55,7 @@ class CoarseTrainConfig:
     def graph_config(self) -> graphs.GraphConfig:
         return graphs.GraphConfig(
             scale_m=self.scale_m,
-            depth_unit_m=float(self.depth_unit_m if self.depth_unit_m is not None else 27.0),
+            depth_unit_m=float(self.depth_unit_m if self.depth_unit_m is not None else graphs.DEPTH_UNIT_M),
             knn=self.knn,
         )
 

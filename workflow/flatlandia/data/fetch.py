@@ -40,7 +40,10 @@ import pandas as pd
 from flatlandia import config, escape, io
 from flatlandia.classes import CLASSES
 
-UPSTREAM_ZIP = "https://codeload.github.com/IIT-PAVIS/Flatlandia/zip/refs/heads/main"
+#: Defaults: the `fetch` section of workflow/schemas/config.schema.yaml.
+_FETCH = config.section_defaults("fetch")
+#: the published data's archive (the default of `fetch.url`)
+UPSTREAM_ZIP = _FETCH["url"]
 
 HOW_TO_POINT = (
     "Point the workflow at a local copy of the Flatlandia data instead: set "
@@ -481,7 +484,7 @@ def fetch_archive(
     url: str,
     subfolder: str,
     dest: str | Path,
-    timeout_s: float = 30.0,
+    timeout_s: float = _FETCH["timeout_s"],
     sha256: str | None = None,
     limits: Limits | None = None,
     finish: Callable[[Path], None] | None = None,
@@ -534,7 +537,7 @@ def fetch_images(
     url: str,
     subfolder: str,
     dest: str | Path,
-    timeout_s: float = 30.0,
+    timeout_s: float = _FETCH["timeout_s"],
     sha256: str | None = None,
     limits: Limits | None = None,
     workdir: str | Path | None = None,
@@ -561,7 +564,7 @@ def fetch_flatlandia(
     dest: str | Path,
     scenes: pd.DataFrame,
     url: str = UPSTREAM_ZIP,
-    timeout_s: float = 30.0,
+    timeout_s: float = _FETCH["timeout_s"],
     sha256: str | None = None,
     limits: Limits | None = None,
     workdir: str | Path | None = None,

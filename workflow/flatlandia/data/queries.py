@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo
+from flatlandia import config, geo
 from flatlandia.data.localmaps import metric_local_map, normalise_depth_map, oracle_scale, published_to_metric_frame
 from flatlandia.errors import InputError
 
@@ -32,10 +32,12 @@ QUERY_COLUMNS = [
     "second_residual_m",
     "second_cam_dist_m",
 ]
+#: the (train, val, test) shares by default: the schema's `split` section
+DEFAULT_FRACTIONS = tuple(config.section_defaults("split")[k] for k in config.SPLIT_KEYS)
 
 
 def split_queries(
-    tokens: list[str], seed: int, fractions: tuple[float, float, float] = (0.8, 0.1, 0.1), salt: str = ""
+    tokens: list[str], seed: int, fractions: tuple[float, float, float] = DEFAULT_FRACTIONS, salt: str = ""
 ) -> dict[str, str]:
     """Seeded random train/val/test split, independent of input order.
 
@@ -111,7 +113,7 @@ def build_queries(
 
 def split_fractions(split: dict) -> tuple[float, float, float]:
     """The (train, val, test) fractions of the config's ``split`` section."""
-    return tuple(split[k] for k in ("train", "val", "test"))
+    return tuple(split[k] for k in config.SPLIT_KEYS)
 
 
 def published_scene_queries(

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo
+from flatlandia import config, geo
 from flatlandia.data import registration
 
 
@@ -18,7 +18,7 @@ def recover_scene(
     ref_lonlat: np.ndarray,
     ref_classes: np.ndarray,
     local_maps: dict[str, dict[str, np.ndarray]],
-    tol_m: float = 0.10,
+    tol_m: float = config.section_defaults("recover")["tol_m"],
     progress=None,
 ) -> pd.DataFrame:
     """Register every GT local map of a scene; one row per query (pose in lon/lat + unit space)."""

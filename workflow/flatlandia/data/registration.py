@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from flatlandia import config
 from flatlandia.geo import UNIT_DEG, rigid_fit_2d, rot2, wrap_angle
 
 
@@ -73,7 +74,7 @@ def register(
     local: np.ndarray,
     index: PairIndex,
     metres_per_degree: tuple[float, float],
-    tol_m: float = 0.10,
+    tol_m: float = config.section_defaults("recover")["tol_m"],
     local_classes: np.ndarray | None = None,
     ref_classes: np.ndarray | None = None,
     max_alternatives: int = 64,

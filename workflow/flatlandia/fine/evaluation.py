@@ -59,7 +59,7 @@ ANSWER_COLUMNS = [
 ]
 
 
-def solvable(query_classes, proposal_classes, min_objects: int = 3) -> bool:
+def solvable(query_classes, proposal_classes, min_objects: int = geo.MIN_OBJECTS) -> bool:
     """Can the proposal hold a solution: at least ``min_objects`` objects of the query's classes.
 
     Counted as a multiset match: each query object can use one proposal object of its class.

@@ -32,7 +32,7 @@ def angle_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.atan2(torch.sin(d), torch.cos(d)).abs()
 
 
-def pose_loss(pred: torch.Tensor, target: torch.Tensor, angle_weight: float = 1.0) -> torch.Tensor:
+def pose_loss(pred: torch.Tensor, target: torch.Tensor, angle_weight: float) -> torch.Tensor:
     """Mean of Δo (Euclidean position error, normalised units) + w Δθ (radians)."""
     d_o = (pred[:, :2] - target[:, :2]).norm(dim=1)
     return (d_o + angle_weight * angle_distance(pred[:, 2], target[:, 2])).mean()

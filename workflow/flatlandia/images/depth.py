@@ -18,9 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
+from flatlandia import config
 from flatlandia.errors import InputError
 from flatlandia.images.image_queries import View, sparse_depth_point
 from flatlandia.images.segment import load_local_model
+
+#: Defaults: the `images.depth` section of workflow/schemas/config.schema.yaml.
+_DEPTH = config.section_defaults("images.depth")
 
 
 def fit_scale(pred_at_points: np.ndarray, sfm_depth: np.ndarray, inverse: bool) -> float:
@@ -70,7 +74,7 @@ def upsample(pred, size: tuple[int, int]) -> np.ndarray:
 class MonocularDepth:
     """A local ``transformers`` depth-estimation checkpoint; predictions scaled per image to SfM."""
 
-    def __init__(self, weights: str | Path | None, inverse: bool = True, device="cpu"):
+    def __init__(self, weights: str | Path | None, inverse: bool = _DEPTH["inverse"], device="cpu"):
         """``device``: where the model runs (a ``torch.device``, or the config's ``auto`` | ``cpu`` |
         ``cuda``); it is moved there once, each image's tensors go there and the depth map comes back."""
         if not weights:
@@ -124,7 +128,7 @@ def make_lifter(
     point_xyz: dict[int, np.ndarray],
     images_dir: str | Path | None = None,
     weights: str | None = None,
-    inverse: bool = True,
+    inverse: bool = _DEPTH["inverse"],
     device="cpu",
 ) -> Callable[[View, list[float]], np.ndarray | None]:
     """The ``lift(view, box)`` function of a backend (``sparse`` or ``transformers``, its model on

@@ -16,9 +16,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from flatlandia import geo
+from flatlandia import config, geo
 from flatlandia.errors import InputError
 from flatlandia.scaled_rigid import ransac_scaled_rigid
+
+#: Defaults: the `images.align` section of workflow/schemas/config.schema.yaml.
+_ALIGN = config.section_defaults("images.align")
 
 # --------------------------------------------------------------------------- GPS alignment
 
@@ -65,10 +68,10 @@ def fit_gps_alignment(
     lonlat: np.ndarray,
     altitude: np.ndarray | None = None,
     compass_deg: np.ndarray | None = None,
-    threshold_m: float = 15.0,
-    iterations: int = 2000,
+    threshold_m: float = _ALIGN["threshold_m"],
+    iterations: int = _ALIGN["iterations"],
     seed: int = 0,
-    use_heading: bool = False,
+    use_heading: bool = _ALIGN["use_heading"],
     heading_threshold_deg: float = 45.0,
     source: str = "cameras",
 ) -> dict:
@@ -192,7 +195,7 @@ def align_camera_table(cams, views: dict, params: dict, seed: int, source: str, 
     return cams, out
 
 
-def local_frame(centres: np.ndarray, rotations: np.ndarray, unit_m: float = 1.0) -> dict:
+def local_frame(centres: np.ndarray, rotations: np.ndarray, unit_m: float = _ALIGN["unit_m"]) -> dict:
     """The map of a scene without GPS (``images.align.mode: none``): the SfM ground plane.
 
     x/y lie on the plane normal to the cameras' mean up axis (right-handed, so angles keep their
@@ -250,7 +253,7 @@ def gps_outliers(
     rotations: np.ndarray,
     lonlat: np.ndarray,
     max_residual_m: float,
-    threshold_m: float = 15.0,
+    threshold_m: float = _ALIGN["threshold_m"],
     seed: int = 0,
 ) -> np.ndarray:
     """Cameras the SfM put far from their own GPS fix once the model is aligned to GPS.

@@ -417,7 +417,7 @@ def near_duplicates(paths: list[Path], threshold: float) -> list[float]:
 def audit_table(
     folder: str | Path,
     dedup_threshold: float,
-    missing_gps: str = "keep",
+    missing_gps: str = _IMAGES["missing_gps"],
     min_side_px: int = _IMAGES["min_side_px"],
     max_megapixels: float = _IMAGES["max_megapixels"],
 ) -> pd.DataFrame:

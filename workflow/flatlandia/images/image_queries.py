@@ -21,9 +21,12 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo
+from flatlandia import config, geo
 from flatlandia.data.localmaps import normalise_depth_map, oracle_scale
 from flatlandia.data.queries import QUERY_COLUMNS
+
+#: Defaults: the `images` section of workflow/schemas/config.schema.yaml.
+_IMAGES = config.section_defaults("images")
 
 
 @dataclass
@@ -89,7 +92,7 @@ def project(view: View, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return uv[:, :2] / np.where(np.abs(uv[:, 2:]) < 1e-12, 1e-12, uv[:, 2:]), z
 
 
-def detections(view: View, objects: pd.DataFrame, point_object: dict[int, int], min_points: int = 2) -> pd.DataFrame:
+def detections(view: View, objects: pd.DataFrame, point_object: dict[int, int], min_points: int) -> pd.DataFrame:
     """Objects seen by a view: clipped projected 3D box, number of observed points.
 
     ``objects`` needs ``object_id`` and ``corners`` (8x3 box corners in SfM coordinates);
@@ -146,8 +149,8 @@ def scene_queries(
     b: np.ndarray,
     obj_xy: dict[int, np.ndarray],
     obj_class: dict[int, int],
-    min_objects: int = 3,
-    min_points: int = 2,
+    min_objects: int = _IMAGES["min_objects"],
+    min_points: int = _IMAGES["min_points"],
     lift=None,
 ) -> pd.DataFrame:
     """The queries table of an images scene, in the published scenes' schema (see README).

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from flatlandia import config
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 from flatlandia.images import image_audit
@@ -422,7 +423,10 @@ def make_backend(name: str, weights: str | None = None, labels_dir: str | None =
 
 
 def mask_and_classes(
-    ids: np.ndarray, names: list[str], watermark_box: list[float] | None, dilate_px: int = 0
+    ids: np.ndarray,
+    names: list[str],
+    watermark_box: list[float] | None,
+    dilate_px: int = config.section_defaults("segment")["dilate_px"],
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """(pycolmap mask uint8 0/255, Flatlandia class map uint8, pixel shares per masked kind).
 

@@ -162,10 +162,14 @@ def gps_priors(rec, gps: pd.DataFrame, sigma_m: float = 5.0, alt_sigma_m: float 
     return priors, frame
 
 
-def final_bundle_adjustment(rec, priors=None, ransac_max_error_m: float = 15.0, seed: int = 0) -> bool:
+def final_bundle_adjustment(
+    rec, priors=None, ransac_max_error_m: float = config.section_defaults("images.align")["threshold_m"], seed: int = 0
+) -> bool:
     """Bundle adjustment of the cleaned model; with GPS pose priors the model is first aligned to
     them (RANSAC on camera positions) and then refined with their positions as soft constraints,
-    so it comes out metric, in the priors' frame. Returns whether priors were used."""
+    so it comes out metric, in the priors' frame. Returns whether priors were used.
+    ``ransac_max_error_m``: that alignment's inlier distance, by default the schema's default of
+    ``images.align.threshold_m`` (rule sfm does not read the ``images.align`` section)."""
     import pycolmap
 
     opts = pycolmap.BundleAdjustmentOptions()

@@ -11,6 +11,12 @@ a dozen poses, not every place, and the keys are not exact likelihoods), so a lo
 (:class:`Calibration`, scikit-learn) maps its log-odds and the number of objects seen to the
 probability of being within (5 m, 5 deg), fitted on the validation split (rule solver_priors, one
 fit for single frames and one for sequences) and written with the learned priors.
+
+A city is not a scene map: the index ranks every place of the city, and the pool the solver refines
+holds only what the best few regions offered, so the more places compete the likelier a middling
+pool is a chance fit. :class:`MapSize` lowers such an answer's log-odds in proportion to the log of
+how many more objects the index ranked than a scene map has (one term for single frames, one for
+sequences), fitted on the cities' validation answers (rule city_calibration, :func:`fit_map_size`).
 """
 
 from __future__ import annotations
@@ -81,13 +87,92 @@ class Logistic:
         return 1.0 / (1.0 + np.exp(-z))
 
 
+#: bounds of a map-size term (:class:`MapSize`): the log-odds taken off an even answer per e-fold
+#: of the map (1 would divide its odds by the map's growth), and how much of that each unit of
+#: log-odds spares
+MAX_SHIFT, MAX_PER_LOG_ODDS = 2.0, 1.0
+
+
+def logit(p) -> np.ndarray:
+    """log(p / (1 - p)), p clipped into (0, 1) so that a sure answer stays finite."""
+    p = np.clip(np.asarray(p, float), 1e-12, 1.0 - 1e-12)
+    return np.log(p) - np.log1p(-p)
+
+
+@dataclass(frozen=True)
+class MapTerm:
+    """One kind's map-size term: an answer of log-odds z loses ``max(0, shift - per_log_odds * z)``
+    per e-fold of the map beyond a scene map's size."""
+
+    shift: float
+    per_log_odds: float
+
+    def __post_init__(self):
+        if not (math.isfinite(self.shift) and 0 <= self.shift <= MAX_SHIFT):
+            raise ValueError(f"a map-size shift must lie in [0, {MAX_SHIFT:g}], got {self.shift}")
+        if not (math.isfinite(self.per_log_odds) and 0 <= self.per_log_odds <= MAX_PER_LOG_ODDS):
+            raise ValueError(f"a map-size per_log_odds must lie in [0, {MAX_PER_LOG_ODDS:g}], got {self.per_log_odds}")
+
+    def loss(self, z: np.ndarray, efolds: np.ndarray) -> np.ndarray:
+        return efolds * np.maximum(0.0, self.shift - self.per_log_odds * z)
+
+
+@dataclass(frozen=True)
+class MapSize:
+    """The map-size correction of a city's answers: logit P' = logit P - e * max(0, shift -
+    per_log_odds * logit P), e = max(0, log(map objects / ``reference_objects``)) the e-folds by
+    which the index's map outgrows a scene map (the median of the maps :class:`Calibration` was
+    fitted on), one :class:`MapTerm` for single frames (``frame``) and one for sequences. The more
+    places compete, the likelier a middling answer is a chance fit, while a pool sure of itself
+    stays sure (validation split, docs/results.md); a scene map, or a smaller search (a fix's
+    region), is left as it is, and no answer is ever raised or reordered within a map."""
+
+    reference_objects: float
+    frame: MapTerm
+    sequence: MapTerm
+    answers: int  # validation answers of the cities it was fitted on
+
+    def __post_init__(self):
+        if not (math.isfinite(self.reference_objects) and self.reference_objects >= 1):
+            raise ValueError(f"a map-size correction needs reference_objects >= 1, got {self.reference_objects}")
+
+    def efolds(self, objects: float) -> float:
+        """By how many e-folds a map of ``objects`` objects outgrows a scene map (0 if it does not)."""
+        return max(0.0, math.log(max(float(objects), 1.0) / self.reference_objects))
+
+    def adjust(self, probability, objects: float, frames: int = 1) -> np.ndarray:
+        """(N,) the probabilities of answers searched among ``objects`` map objects."""
+        p = np.asarray(probability, float).ravel()
+        e = self.efolds(objects)
+        if e == 0.0:
+            return p
+        z = logit(p)
+        loss = (self.frame if frames <= 1 else self.sequence).loss(z, e)
+        out = 1.0 / (1.0 + np.exp(-(z - loss)))
+        return np.where(np.isfinite(p) & (loss > 0), np.minimum(out, p), p)
+
+    def to_dict(self) -> dict:
+        return {
+            "reference_objects": self.reference_objects,
+            "frame": {"shift": self.frame.shift, "per_log_odds": self.frame.per_log_odds},
+            "sequence": {"shift": self.sequence.shift, "per_log_odds": self.sequence.per_log_odds},
+            "answers": self.answers,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> MapSize:
+        terms = [MapTerm(float(d[k]["shift"]), float(d[k]["per_log_odds"])) for k in ("frame", "sequence")]
+        return cls(float(d["reference_objects"]), *terms, int(d["answers"]))
+
+
 @dataclass(frozen=True)
 class Calibration:
     """The fitted maps of single frames and of sequences (either None: the pool's share is used as
-    it is)."""
+    it is), and the cities' map-size correction (None: none; :meth:`in_map` applies it)."""
 
     frame: Logistic | None = None
     sequence: Logistic | None = None
+    map_size: MapSize | None = None
 
     def probability(self, mass, objects, frames: int = 1, agreement=1.0) -> np.ndarray:
         """(N,) P(within (5 m, 5 deg)) of answers with pool shares ``mass`` and ``objects`` seen, of
@@ -96,11 +181,19 @@ class Calibration:
         mass = np.clip(np.asarray(mass, float).ravel(), 0.0, 1.0)
         return mass if fit is None else fit(features(mass, objects, frames, agreement))
 
+    def in_map(self, probability, map_objects: float, frames: int = 1) -> np.ndarray:
+        """(N,) ``probability`` of answers whose search ranked ``map_objects`` objects (a city's
+        index), lowered by the map-size correction (unchanged without one)."""
+        p = np.asarray(probability, float).ravel()
+        return p if self.map_size is None else self.map_size.adjust(p, map_objects, frames)
+
     def to_dict(self) -> dict:
         out = {"features": list(FEATURES)}
         for k in KINDS:
             f = getattr(self, k)
             out[k] = None if f is None else {"intercept": f.intercept, "weights": list(f.weights), "answers": f.answers}
+        if self.map_size is not None:
+            out["map_size"] = self.map_size.to_dict()
         return out
 
     @classmethod
@@ -115,6 +208,8 @@ class Calibration:
                 if v is None
                 else Logistic(float(v["intercept"]), tuple(float(w) for w in v["weights"]), int(v["answers"]))
             )
+        if d.get("map_size") is not None:
+            parts["map_size"] = MapSize.from_dict(d["map_size"])
         return cls(**parts)
 
 
@@ -136,6 +231,35 @@ def fit_logistic(mass, objects, frames, agreement, right) -> Logistic | None:
         return None
     lr = LogisticRegression(C=1.0, max_iter=5000).fit(features(mass, objects, frames, agreement), y)
     return Logistic(float(lr.intercept_[0]), tuple(float(w) for w in lr.coef_.ravel()), int(len(y)))
+
+
+def fit_map_size(answers, reference_objects: float) -> MapSize:
+    """The map-size correction fitted on cities' validation answers (columns ``probability``: the
+    calibrated probability before the correction, ``map_objects``: the objects the index ranked,
+    ``frames``, ``right``): per kind (one frame, sequences), the :class:`MapTerm` within its bounds
+    that maximizes the answers' Bernoulli likelihood (scipy's L-BFGS-B from no correction:
+    deterministic); no correction for a kind with fewer than 20 answers in maps larger than
+    ``reference_objects``, or a single outcome."""
+    from scipy.optimize import minimize
+
+    frames = np.asarray(answers["frames"], int)
+    z = logit(answers["probability"])
+    e = np.maximum(0.0, np.log(np.maximum(np.asarray(answers["map_objects"], float), 1.0) / reference_objects))
+    y = np.asarray(answers["right"], bool)
+    terms = {}
+    for kind, sel in (("frame", frames <= 1), ("sequence", frames > 1)):
+        sel = sel & (e > 0) & np.isfinite(z)
+        if sel.sum() < 20 or y[sel].all() or not y[sel].any():
+            terms[kind] = MapTerm(0.0, 0.0)
+            continue
+        zs, es, sign = z[sel], e[sel], np.where(y[sel], -1.0, 1.0)
+
+        def loss(v, zs=zs, es=es, sign=sign):
+            return float(np.sum(np.logaddexp(0.0, sign * (zs - es * np.maximum(0.0, v[0] - v[1] * zs)))))
+
+        v = minimize(loss, [0.0, 0.0], method="L-BFGS-B", bounds=[(0.0, MAX_SHIFT), (0.0, MAX_PER_LOG_ODDS)]).x
+        terms[kind] = MapTerm(float(v[0]), float(v[1]))
+    return MapSize(float(reference_objects), terms["frame"], terms["sequence"], int(len(y)))
 
 
 def expected_calibration_error(probability, right, bins: int = 10) -> float:

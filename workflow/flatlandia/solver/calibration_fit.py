@@ -18,6 +18,9 @@ from flatlandia.solver import learned as learned_module
 from flatlandia.solver.calibration import RIGHT_DEG, RIGHT_M
 from flatlandia.solver.learned import LearnedPriors
 
+#: the split the cities' map-size correction is fitted on (rule city_calibration)
+CITY_SPLIT = "val"
+
 
 def validation_answers(
     scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
@@ -76,3 +79,22 @@ def calibrated(
     """(``learned`` with the calibration fitted on the validation answers, the answers)."""
     answers = validation_answers(scenes, settings, learned, region, beyond, seed, split)
     return learned_module.with_calibration(learned, answers), answers
+
+
+def city_answers(errors: pd.DataFrame, map_objects: float) -> pd.DataFrame:
+    """The answers of a city's anchors (rows of :mod:`flatlandia.beyond.evaluate`, without a fix)
+    for the map-size fit (:func:`flatlandia.solver.calibration.fit_map_size`): ``map``, ``frames``
+    (used), ``map_objects`` (the objects the index ranked), ``probability`` (calibrated, before the
+    correction), ``right``; the anchors without a pose are left out."""
+    e = errors[errors["gps_sigma_m"].isna()] if "gps_sigma_m" in errors else errors
+    em, ed = e["error_m"].to_numpy(float), e["error_deg"].to_numpy(float)
+    posed = np.isfinite(em)
+    return pd.DataFrame(
+        {
+            "map": e["map"].astype(str).to_numpy(),
+            "frames": e["frames_used"].to_numpy(int),
+            "map_objects": np.full(len(e), float(map_objects)),
+            "probability": e["probability"].to_numpy(float),
+            "right": (em < RIGHT_M) & (ed < RIGHT_DEG),
+        }
+    )[posed].reset_index(drop=True)

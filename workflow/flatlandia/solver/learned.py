@@ -18,7 +18,7 @@ import pandas as pd
 
 from flatlandia import io
 from flatlandia.solver import calibration, likelihood, verify, verify_fit
-from flatlandia.solver.calibration import Calibration
+from flatlandia.solver.calibration import Calibration, MapSize
 from flatlandia.solver.likelihood import LikelihoodModel
 from flatlandia.solver.priors import depth_scale_prior
 from flatlandia.solver.settings import SolverConfig
@@ -69,6 +69,11 @@ class LearnedPriors:
     def write(self, path: str | Path) -> None:
         io.write_json(self.to_dict(), path)
 
+    def with_map_size(self, map_size: MapSize | None) -> LearnedPriors:
+        """These priors with a city's map-size correction (None: without one)."""
+        cal = self.calibration if self.calibration is not None else Calibration()
+        return replace(self, calibration=replace(cal, map_size=map_size))
+
     @classmethod
     def read(cls, path: str | Path) -> LearnedPriors:
         from flatlandia import validate
@@ -80,6 +85,15 @@ class LearnedPriors:
             return cls.from_dict(d)
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(path, f"not the solver's learned priors ({e}); delete it to have it refitted") from None
+
+
+def read_map_size(path: str | Path) -> MapSize:
+    """A city's map-size correction (rule city_calibration's record), checked as it is read."""
+    from flatlandia import validate
+
+    d = io.read_json(path)
+    validate.map_size_calibration(d, path, calibration.MAX_SHIFT, calibration.MAX_PER_LOG_ODDS)
+    return MapSize.from_dict(d["map_size"])
 
 
 def fit(

@@ -13,9 +13,10 @@ def beyond_scene_inputs(wildcards=None):
 
 def beyond_city_inputs(wildcards):
     """A tiled city's map, queries and index (`city-N`), or the scenes a simulated city is drawn
-    from (`simulated-N`, as rule city_simulate); the solver's learned priors."""
+    from (`simulated-N`, as rule city_simulate); the solver's learned priors and the cities'
+    map-size correction (rule city_calibration)."""
     kind, n = wildcards.map.split("-")
-    inp = {"priors": paths.solver_priors(vocabulary.WHOLE)}
+    inp = {"priors": paths.solver_priors(vocabulary.WHOLE), "calibration": CITY_CALIBRATION}
     if kind == "city":
         inp.update(map=paths.city(n), queries=paths.city(n, "queries.parquet"), index=paths.city(n, "index"))
     else:

@@ -10,8 +10,14 @@ def city_scene_inputs(wildcards=None):
     }
 
 
+#: the cities' map-size correction of the answers' probability (rule city_calibration), read by
+#: every city search (rules city_eval, city_simulate, beyond_city and `flatlandia localize --map`)
+CITY_CALIBRATION = paths.city_calibration()
+
+
 def city_eval_inputs(wildcards):
-    """A city size's maps and queries, the shared priors, and for the city search its indexes."""
+    """A city size's maps and queries, the shared priors, and for the city search its indexes and
+    the map-size correction."""
     n = wildcards.n
     inp = {
         "map": paths.city(n),
@@ -20,6 +26,24 @@ def city_eval_inputs(wildcards):
     }
     if wildcards.method == "index":
         inp["index"] = paths.city(n, "index")
+        inp["calibration"] = CITY_CALIBRATION
+    return inp
+
+
+def city_calibration_inputs(wildcards=None):
+    """The scenes (the simulated city rows' tiles, and a scene map's size), the scene-calibrated
+    priors, and each tiled city row's map, queries and index (beyond_city_maps)."""
+    inp = {**city_scene_inputs(), "priors": paths.solver_priors(vocabulary.WHOLE)}
+    for name in beyond_city_maps():
+        kind, n = name.split("-")
+        if kind == "city":
+            inp.update(
+                {
+                    f"map_{n}": paths.city(n),
+                    f"queries_{n}": paths.city(n, "queries.parquet"),
+                    f"index_{n}": paths.city(n, "index"),
+                }
+            )
     return inp
 
 

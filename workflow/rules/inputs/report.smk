@@ -16,7 +16,9 @@ def fine_trained_models():
 def fine_training_labels():
     """The training curves' legend of each learned model (fine_trained_models' order)."""
     oracle = vocabulary.ORACLE_STRATEGY
-    return [f"{m} ({t} maps, {oracle if r == vocabulary.GTBB else 'coarse'} training)" for m, t, r in fine_trained_models()]
+    return [
+        f"{m} ({t} maps, {oracle if r == vocabulary.GTBB else 'coarse'} training)" for m, t, r in fine_trained_models()
+    ]
 
 
 def heatmap_scene():
