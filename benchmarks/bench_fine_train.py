@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io, proposals
+from flatlandia import checkpoints, config, proposals
 from flatlandia.fine import learned, training
 
 MODEL_NAMES = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
@@ -102,7 +102,7 @@ def main() -> None:
     )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    fcfg = io.config_section([Path("config/config.yaml"), *args.configfile], "fine")
+    fcfg = config.config_section([Path("config/config.yaml"), *args.configfile], "fine")
     print(f"# Fine training benchmark, {args.threads} thread(s)")
     print(
         "| model | map | train / val / test | epochs | s / epoch | CPU s / epoch | 1000 epochs (min) | best epoch |"

@@ -332,7 +332,7 @@ def main(argv=None) -> int:
     bundle = load_inputs(a)
     use_schema(bundle["schema"])
     from flatlandia import device
-    from flatlandia.errors import InputError
+    from flatlandia.plumbing.errors import InputError
 
     torch.set_num_threads(1)
     cfg_all, scenes = bundle["config"], bundle["scenes"]

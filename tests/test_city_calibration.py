@@ -17,9 +17,10 @@ import pytest
 from test_city import CORNER, mirrored_city
 from test_localize import query_file, run_cli, tiny_scene  # noqa: F401
 
-from flatlandia import io, solver
+from flatlandia import solver
 from flatlandia.city import index, search, tiling
-from flatlandia.errors import InputError
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 from flatlandia.solver import calibration, learned
 from flatlandia.solver.calibration import Calibration, Logistic, MapSize, MapTerm
 
@@ -77,7 +78,7 @@ def test_a_map_twice_the_size_gets_a_lower_probability():
 def test_the_record_round_trips_and_a_bad_one_is_refused(tmp_path):
     ms = MapSize(98.0, MapTerm(0.05, 0.2), MapTerm(0.25, 0.15), 1500)
     path = tmp_path / "calibration.json"
-    io.write_json({"map_size": ms.to_dict(), "split": "val"}, path)
+    files.write_json({"map_size": ms.to_dict(), "split": "val"}, path)
     assert learned.read_map_size(path) == ms
     lp = learned.LearnedPriors((2.0, 0.5)).with_map_size(ms)
     lp.write(tmp_path / "whole.json")
@@ -127,7 +128,7 @@ def test_localize_reads_the_record_beside_the_city_folders(tiny_scene, tmp_path,
     city = results / "city" / "1"
     cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
     (city / "index").mkdir(parents=True)
-    io.write_parquet(cref.assign(city=0), city / "map.parquet")
+    files.write_parquet(cref.assign(city=0), city / "map.parquet")
     index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
     _priors(None).write(results / "solver" / "priors" / "whole.json")
     query = query_file(tmp_path / "q.json", cq[cq["split"] == "test"].iloc[0], "depth")
@@ -136,7 +137,7 @@ def test_localize_reads_the_record_beside_the_city_folders(tiny_scene, tmp_path,
     plain = json.loads(text)
     assert status == 0 and plain["found"] and plain["priors"]["map_size_from"] is None
     record = results / "city" / "calibration.json"
-    io.write_json({"map_size": MapSize(2.0, MapTerm(2.0, 0.0), MapTerm(2.0, 0.0), 100).to_dict()}, record)
+    files.write_json({"map_size": MapSize(2.0, MapTerm(2.0, 0.0), MapTerm(2.0, 0.0), 100).to_dict()}, record)
     status, text = run_cli(capsys, *args)
     out = json.loads(text)
     assert status == 0 and out["priors"]["map_size_from"] == str(record)

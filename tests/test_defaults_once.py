@@ -270,13 +270,14 @@ def test_the_floor_of_objects_is_the_schema_minimum():
     the published local maps and the fine stage's solvability use that one floor."""
     import inspect
 
-    from flatlandia import geo, io, localize
+    from flatlandia import geo, localize
+    from flatlandia.data import published
     from flatlandia.fine import evaluation
 
     node = config.schema()["properties"]["images"]["properties"]["min_objects"]
     assert node["minimum"] == geo.MIN_OBJECTS <= node["default"]
     assert localize.MIN_OBJECTS == geo.MIN_OBJECTS
-    assert inspect.signature(io.read_local_maps).parameters["min_objects"].default == geo.MIN_OBJECTS
+    assert inspect.signature(published.read_local_maps).parameters["min_objects"].default == geo.MIN_OBJECTS
     assert inspect.signature(evaluation.solvable).parameters["min_objects"].default == geo.MIN_OBJECTS
 
 

@@ -20,9 +20,9 @@ from conftest import smk_dry_run
 from flatlandia import config, device, geo
 from flatlandia.coarse import graphs, retrieval
 from flatlandia.coarse import training as coarse_training
-from flatlandia.errors import InputError
 from flatlandia.fine import learned
 from flatlandia.fine import training as fine_training
+from flatlandia.plumbing.errors import InputError
 
 HAS_CUDA = torch.cuda.is_available()
 META = torch.device("meta")
@@ -375,8 +375,8 @@ def _tiny_results(folder):
     from conftest import TINY_SCENE
     from tiny_results import tiny_scene
 
-    from flatlandia import io
     from flatlandia.coarse import target
+    from flatlandia.plumbing import files
 
     tiny = tiny_scene()
     ref, q = tiny.ref, tiny.queries
@@ -386,7 +386,7 @@ def _tiny_results(folder):
         ("coarse/target", target.scene_similarity(ref, q)),
     ):
         (folder / TINY_SCENE / name).parent.mkdir(parents=True, exist_ok=True)
-        io.write_parquet(table, folder / TINY_SCENE / f"{name}.parquet")
+        files.write_parquet(table, folder / TINY_SCENE / f"{name}.parquet")
 
 
 @pytest.mark.slow  # trains on the CPU in three processes: about 45 s

@@ -8,9 +8,9 @@ import pytest
 
 from flatlandia import geo
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
 from flatlandia.images import gps_alignment
 from flatlandia.objects import clustering, labels
+from flatlandia.plumbing.errors import InputError
 
 FRAME = geo.MetricFrame(lon0=13.195, lat0=55.698)
 

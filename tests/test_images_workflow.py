@@ -14,11 +14,12 @@ import pycolmap
 import pytest
 from snakemake_runner import smk
 
-from flatlandia import io, scaled_rigid
+from flatlandia import scaled_rigid
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
 from flatlandia.images import classify_points, gps_alignment, image_queries
 from flatlandia.objects import clustering, labels
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 
 #: every test here runs Snakemake jobs or reads the published data (the slow lane)
 pytestmark = pytest.mark.slow
@@ -129,7 +130,7 @@ def test_lund_gps_alignment(lund_run):
 @pytest.mark.slow
 def test_lund_offline_backend_gives_a_documented_empty_map(lund_run):
     wd = lund_run
-    meta = io.read_parquet_metadata(wd / "results/lund/objects/objects.parquet")
+    meta = files.read_parquet_metadata(wd / "results/lund/objects/objects.parquet")
     assert "no SfM point carries an object class" in meta["empty_because"]
     assert len(pd.read_parquet(wd / "results/lund/objects/objects.parquet")) == 0
     assert len(pd.read_parquet(wd / "results/lund/maps/reference_map.parquet")) == 0
@@ -137,7 +138,7 @@ def test_lund_offline_backend_gives_a_documented_empty_map(lund_run):
     assert len(q) == 0 and {"token", "x_m", "theta_deg", "gt_local_xy_m", "split"} <= set(q.columns)
     assert "object points, 0 objects" in (wd / "logs/objects/lund.log").read_text()
     loc = wd / "results/lund/localization/localization.parquet"
-    assert len(pd.read_parquet(loc)) == 0 and "no query" in io.read_parquet_metadata(loc)["empty_because"]
+    assert len(pd.read_parquet(loc)) == 0 and "no query" in files.read_parquet_metadata(loc)["empty_because"]
     assert "no localization rows" in (wd / "results/summary.md").read_text()
 
 
@@ -276,12 +277,12 @@ def test_photos_without_gps_in_local_frame_mode_give_a_local_map(repo, flat_root
     assert model.num_reg_images() >= 3
     al = json.loads((tmp_path / "results/mine/sfm/gps_alignment.json").read_text())
     assert al["mode"] == "none" and al["crs"] is None and al["unit"] == "SfM unit"
-    meta = io.read_parquet_metadata(tmp_path / "results/mine/maps/reference_map.parquet")
+    meta = files.read_parquet_metadata(tmp_path / "results/mine/maps/reference_map.parquet")
     assert meta["frame"] == "local" and meta["crs"] is None and "SfM unit" in meta["axes"]
     assert gpd.read_parquet(tmp_path / "results/mine/maps/reference_map.parquet").crs is None
     geo = json.loads((tmp_path / "results/mine/maps/reference_map.geojson").read_text())
     assert geo["flatlandia"]["frame"] == "local"
-    q = io.read_parquet_metadata(tmp_path / "results/mine/queries/queries.parquet")
+    q = files.read_parquet_metadata(tmp_path / "results/mine/queries/queries.parquet")
     assert q["frame"] == "local" and q["crs"] is None
     summary = (tmp_path / "results/summary.md").read_text()
     assert "local frame (SfM unit, no lon/lat)" in summary

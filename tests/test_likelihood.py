@@ -23,7 +23,7 @@ import pytest
 
 from flatlandia import classes, config, geo
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 from flatlandia.solver import calibration, learned, likelihood
 from flatlandia.solver.likelihood import BEARING_EDGES_DEG, RANGE_EDGES_M, LikelihoodModel
 from flatlandia.solver.priors import Priors, TrainingPriors

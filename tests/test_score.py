@@ -19,10 +19,11 @@ import yaml
 from conftest import REPO, TINY_SCENE, smk_dry_run
 from snakemake_runner import smk
 
-from flatlandia import cli, config, figures, geo, io, score, tables
-from flatlandia.errors import InputError
+from flatlandia import cli, config, figures, geo, score, tables
 from flatlandia.fine import evaluation
 from flatlandia.fine import table as fine_table
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 from flatlandia.viewer import page, query_figures, scene
 
 #: an errors row's columns that are the solver's own fit, not its pose (an external method has none)
@@ -406,7 +407,7 @@ def test_cli_writes_the_runs_and_scores_md(tiny_results, tiny_scenes, tmp_path, 
         assert list(e.columns) == list(
             pd.read_parquet(tiny_results / "fine" / "solver_depth_whole" / "errors.parquet").columns
         )
-        assert io.read_parquet_metadata(out / run / "errors.parquet")["run"] == run
+        assert files.read_parquet_metadata(out / run / "errors.parquet")["run"] == run
         s = json.loads((out / run / "summary.json").read_text())
         assert s["run"] == run and s["external"] and set(evaluation.RECALL_COLUMNS) <= set(s)
     md = (out / "scores.md").read_text()

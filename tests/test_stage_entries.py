@@ -10,18 +10,18 @@ import pandas as pd
 import pytest
 from conftest import published_scene
 
-from flatlandia import checkpoints, config, geo, io
+from flatlandia import checkpoints, config, geo
 from flatlandia.city import simulate
 from flatlandia.classes import CLASSES
 from flatlandia.coarse import evaluation as coarse_evaluation
 from flatlandia.coarse import retrieval
 from flatlandia.coarse import training as coarse_training
-from flatlandia.data import queries, reference_map
-from flatlandia.errors import InputError
+from flatlandia.data import published, queries, reference_map
 from flatlandia.fine import learned, training
 from flatlandia.images import gps_alignment
 from flatlandia.objects import cloud, clustering, labels, principal_plane
 from flatlandia.objects import scene as scene_objects
+from flatlandia.plumbing.errors import InputError
 
 CLUSTER = config.section_defaults("objects.cluster")
 SPLIT = {"train": 0.8, "val": 0.1, "test": 0.1}
@@ -33,15 +33,17 @@ SPLIT = {"train": 0.8, "val": 0.1, "test": 0.1}
 @pytest.fixture(scope="module")
 def scene12_cloud(flat_root):
     pts, point_labels = cloud.read_classified_cloud(flat_root / "maps/12/class_segmented_point_cloud.ply")
-    t = io.read_transformations(flat_root / "maps/12/transformations.json")
+    t = published.read_transformations(flat_root / "maps/12/transformations.json")
     return pts, point_labels, t
 
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_published_objects_are_the_clusters_through_the_published_chain(flat_root, scene12_cloud):
     pts, point_labels, t = scene12_cloud
-    lonlat = io.read_reference_map(flat_root / "individual_reference_maps/map_12.json")[0]
-    others = [io.read_reference_map(flat_root / f"individual_reference_maps/map_{s}.json")[1] for s in ("0", "9")]
+    lonlat = published.read_reference_map(flat_root / "individual_reference_maps/map_12.json")[0]
+    others = [
+        published.read_reference_map(flat_root / f"individual_reference_maps/map_{s}.json")[1] for s in ("0", "9")
+    ]
     out = scene_objects.published_objects("12", pts, point_labels, t, lonlat, others, CLUSTER, source="cloud 12")
     # by hand: clusters, the label prior of the other maps, positions through the chain
     objs, member = clustering.cluster_objects(
@@ -125,10 +127,10 @@ def test_principal_plane_report_of_scene12(scene12_cloud):
 def test_published_reference_map_and_queries_are_the_workflow_chain(flat_root):
     from flatlandia.data import recover
 
-    lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
+    lonlat, classes = published.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
     frame = geo.frame_for(lonlat)
     ref_by_hand = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(flat_root / "local_maps.json", "9")
+    local = published.read_local_maps(flat_root / "local_maps.json", "9")
     rec = recover.recover_scene("9", lonlat, classes, local)
     q_by_hand = queries.build_queries(
         "9", rec, ref_by_hand, local, frame, queries.split_queries(list(rec["token"]), 0, salt="9")

@@ -27,13 +27,14 @@ from PIL.TiffImagePlugin import IFDRational
 from tiny_results import tiny_scene
 from zip_archives import make_zip
 
-from flatlandia import checkpoints, cli, config, escape, export, figures, io, runlog
+from flatlandia import checkpoints, cli, config, export, figures
 from flatlandia.classes import CLASSES
-from flatlandia.data import fetch, reference_map
-from flatlandia.errors import InputError
+from flatlandia.data import fetch, published, reference_map
 from flatlandia.fine import learned
 from flatlandia.images import image_audit
 from flatlandia.objects import audit
+from flatlandia.plumbing import escape, files, rule_log
+from flatlandia.plumbing.errors import InputError
 from flatlandia.viewer import query_figures, scene
 
 
@@ -155,7 +156,7 @@ def test_no_cell_of_the_export_runs_in_a_spreadsheet(tiny, tmp_path):
     texts |= {name: export.csv_text(index[name]) for name in ("scenes", "template", "classes")}
     runs = ("=", "+", "@", "\t", "\r")
     for name, text in texts.items():
-        io.write_text(text, tmp_path / f"{name}.csv")
+        files.write_text(text, tmp_path / f"{name}.csv")
         back = pd.read_csv(tmp_path / f"{name}.csv", dtype=str, keep_default_na=False)
         cells = [c for col in back.columns for c in back[col]] + list(back.columns)
         plain = [c for c in cells if escape._PLAIN_DASHED.fullmatch(c) or escape._PROJ.fullmatch(c)]  # words, crs
@@ -205,7 +206,7 @@ def test_the_audit_skips_broken_records_and_hashes_only_the_runs_own_files(tmp_p
     outside = tmp_path / "big.bin"
     with open(outside, "wb") as f:
         f.truncate(40 * 10**9)  # sparse: 40 GB that nothing may read
-    digest = io.sha256(run / "results" / "a.txt")
+    digest = files.sha256(run / "results" / "a.txt")
     recs = {
         "good/all.json": _record("good", {"results/a.txt": digest}),
         "root/all.json": _record("root", {"/": "0"}),
@@ -248,12 +249,12 @@ def test_nan_in_the_published_transforms_is_refused(tmp_path, value):
     path = tmp_path / "transformations.json"
     path.write_text(json.dumps(t))  # written as NaN / -Infinity, as Python's json does
     with pytest.raises(InputError, match="to_mapillary.rotation holds NaN or inf"):
-        io.read_transformations(path)
+        published.read_transformations(path)
     t = json.loads((TINY_ROOT / "maps" / TINY_SCENE / "transformations.json").read_text())
     t["to_principal_plane"][0] = [5.0, 0.0, 0.0]
     path.write_text(json.dumps(t))
     with pytest.raises(InputError, match="to_principal_plane is not a rotation or a reflection"):
-        io.read_transformations(path)
+        published.read_transformations(path)
 
 
 def _checkpoint(tmp_path: Path, state: dict, meta: str | None = None, **cfg_over) -> Path:
@@ -269,7 +270,7 @@ def _load_error(path: Path, capsys) -> str:
         checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
 
     with pytest.raises(SystemExit):
-        runlog.run(main, SimpleNamespace(log=[]))
+        rule_log.run(main, SimpleNamespace(log=[]))
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if line.startswith("ERROR:")]
     assert len(errors) == 1 and errors[0].startswith(f"ERROR: {path}: ") and "Traceback" not in err, err
@@ -372,7 +373,8 @@ def test_an_impossible_exif_geotag_is_a_drop_reason(tmp_path):
 def test_the_batch_reads_an_exports_csvs_within_bounds(tmp_path):
     """`localize --batch` (issue 36) reads a user's export: regular files within MAX_CSV_BYTES, local
     maps of finite coordinates, at most MAX_QUERY_OBJECTS objects."""
-    from flatlandia import batch, validate
+    from flatlandia import batch
+    from flatlandia.plumbing import validate
 
     scene = tmp_path / "0"
     scene.mkdir()

@@ -24,11 +24,12 @@ import torch
 from snakemake_runner import smk
 from zip_archives import make_zip
 
-from flatlandia import checkpoints, runlog
+from flatlandia import checkpoints
 from flatlandia.data import fetch
-from flatlandia.errors import InputError
 from flatlandia.fine import learned
 from flatlandia.images import classify_points, depth, image_audit, segment
+from flatlandia.plumbing import rule_log
+from flatlandia.plumbing.errors import InputError
 
 
 def tree(root: Path) -> set[str]:
@@ -227,7 +228,7 @@ def test_checkpoint_with_a_pickled_callable_is_refused_and_runs_nothing(tmp_path
         checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
 
     with pytest.raises(SystemExit):
-        runlog.run(main, SimpleNamespace(log=[]))
+        rule_log.run(main, SimpleNamespace(log=[]))
     errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("ERROR:")]
     assert len(errors) == 1 and errors[0].startswith(f"ERROR: {path}: refused:"), errors
     assert "could run code" in errors[0] and "getattr" in errors[0]

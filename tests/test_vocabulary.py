@@ -271,7 +271,7 @@ def test_a_new_proposal_type_is_two_edits(tmp_path):
 
 def test_a_key_with_a_wildcard_is_the_jobs_entry(tmp_path):
     """fine_train reads fine.train_overrides.{model}: the job's model's entry, recorded under that name."""
-    from flatlandia import debug, provenance
+    from flatlandia.plumbing import debug, provenance
 
     job = debug.mock_snakemake(
         "fine_train", workdir=tmp_path, configfiles=[TINY], model="gat", map_type="gt", train="coarse"

@@ -27,9 +27,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import localize, paths, validate, vocabulary
+from flatlandia import localize, paths, vocabulary
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
+from flatlandia.plumbing import validate
+from flatlandia.plumbing.errors import InputError
 
 #: the poses file's columns: what ``flatlandia score`` reads (scene, token, the metric pose, the
 #: setting and the query time), then what the answer adds (ignored by score): found, the answer's
@@ -397,16 +398,17 @@ def _row(m: localize.ObjectMap, scene: str, token: str, map_type: str, answer: d
 def write_poses(batch: Batch, path: str | Path) -> Path:
     """The poses file (``.csv``: floats exact, scene and token as text; or ``.parquet``), written
     atomically: the shape ``flatlandia score`` reads."""
-    from flatlandia import export, io
+    from flatlandia import export
+    from flatlandia.plumbing import files
 
     path = Path(path)
     df = batch.poses.copy()
     for c in ("x_m", "y_m", "theta_deg"):
         df[c] = df[c].astype(float)
     if path.suffix.lower() == ".parquet":
-        io.write_parquet(df, path, {"written_by": "flatlandia localize --batch"})
+        files.write_parquet(df, path, {"written_by": "flatlandia localize --batch"})
     elif path.suffix.lower() == ".csv":
-        io.write_text(export.csv_text(df), path)
+        files.write_text(export.csv_text(df), path)
     else:
         raise InputError(path, "a poses file is .csv or .parquet")
     return path

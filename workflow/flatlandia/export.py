@@ -19,10 +19,11 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, geo, proposals, vocabulary
+from flatlandia import geo, proposals, vocabulary
 from flatlandia.classes import CLASSES
 from flatlandia.data import localmaps
-from flatlandia.errors import InputError
+from flatlandia.plumbing import escape
+from flatlandia.plumbing.errors import InputError
 
 MAP_TYPES = list(vocabulary.MAP_TYPES)
 #: every proposal source, in the order of proposals.csv: the oracle box, then the coarse stages (the
@@ -129,7 +130,7 @@ def _floats(values) -> list[str]:
 
 def csv_text(df: pd.DataFrame) -> str:
     """A table as CSV text: floats exact and positional (:func:`_floats`), text cells no spreadsheet
-    runs (:func:`flatlandia.escape.csv_cell`: ``=HYPERLINK(...)`` becomes ``'=HYPERLINK(...)``, a
+    runs (:func:`flatlandia.plumbing.escape.csv_cell`: ``=HYPERLINK(...)`` becomes ``'=HYPERLINK(...)``, a
     published token such as ``-AB21Af_LPev08UY_96ptQ`` stays as it is), ``\\n`` line ends, no index."""
     out = df.copy()
     for c in out.columns:

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, paper, vocabulary
-from flatlandia.io import atomic_path
+from flatlandia import paper, vocabulary
+from flatlandia.plumbing import escape
+from flatlandia.plumbing.files import atomic_path
 
 
 def pyplot():

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 if TYPE_CHECKING:  # pyproj loads when a frame projects: the learned models' code needs none of it
     from pyproj import Transformer

@@ -38,7 +38,7 @@ Each answer is a dict (:func:`localize`): the pose (lon, lat, x_m, y_m in the ma
 heading_deg clockwise from north, theta_deg counter-clockwise from east as the benchmark's tables),
 the depth map's scale, a confidence, which map object each query object matched, the next-best
 distinct poses and the priors used, and the answer's ``status`` (``ok``, ``ambiguous`` or ``no pose``)
-with its calibrated ``probability`` of being within (5 m, 5 deg) (each alternative has its own). Bad input raises :class:`flatlandia.errors.InputError`, one
+with its calibrated ``probability`` of being within (5 m, 5 deg) (each alternative has its own). Bad input raises :class:`flatlandia.plumbing.errors.InputError`, one
 line naming the file and the problem.
 """
 
@@ -54,10 +54,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from flatlandia import geo, paths, validate, vocabulary
+from flatlandia import geo, paths, vocabulary
 from flatlandia.beyond import MIN_SIGMA_DEG, MIN_SIGMA_M
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
+from flatlandia.plumbing import validate
+from flatlandia.plumbing.errors import InputError
 
 if TYPE_CHECKING:  # the solver loads numba (2 s): only a loaded map needs it
     import pandas as pd
@@ -358,7 +359,7 @@ def _read_table(path: Path) -> tuple[pd.DataFrame, dict]:
     """A map table from Parquet (its ``flatlandia`` metadata: the workflow's frame) or GeoJSON."""
     import pandas as pd
 
-    from flatlandia import io
+    from flatlandia.plumbing import files
 
     if path.suffix.lower() == ".parquet":
         try:
@@ -366,7 +367,7 @@ def _read_table(path: Path) -> tuple[pd.DataFrame, dict]:
                 path, validate.MAX_MAP_OBJECTS, validate.MAX_MAP_BYTES, "objects", ("MAX_MAP_OBJECTS", "MAX_MAP_BYTES")
             )
             df = pd.read_parquet(path)
-            meta = io.read_parquet_metadata(path)
+            meta = files.read_parquet_metadata(path)
         except InputError:
             raise
         except Exception as e:  # pyarrow raises several types for files that are not Parquet
@@ -539,7 +540,7 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
     from flatlandia.city.index import ViewIndex
 
     try:
-        ix = ViewIndex.load(path)  # checked there (flatlandia.validate.city_index)
+        ix = ViewIndex.load(path)  # checked there (flatlandia.plumbing.validate.city_index)
     except InputError:
         raise
     except Exception as e:

@@ -15,7 +15,7 @@ Why the same functions: a row of an external run must read against the solver's 
 models' rows, so it is built by :func:`flatlandia.fine.evaluation.error_row` (errors by
 :func:`flatlandia.geo.pose_errors`) and summarised by :func:`flatlandia.fine.evaluation.summarise`;
 a query without a pose is a failure exactly as the solver's (no pose: infinite error, 180 deg).
-Every problem of a file is one :class:`flatlandia.errors.InputError` naming the file; what looks
+Every problem of a file is one :class:`flatlandia.plumbing.errors.InputError` naming the file; what looks
 like a convention mix-up (lon/lat swapped, radians for degrees) is a warning, not an error.
 """
 
@@ -29,10 +29,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, geo, io, paper, paths, validate, vocabulary
+from flatlandia import geo, paper, paths, vocabulary
 from flatlandia import proposals as proposals_module
-from flatlandia.errors import InputError
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import escape, files, validate
+from flatlandia.plumbing.errors import InputError
 
 KEYS = ("scene", "token")
 #: the two pose forms: the scene's metric frame, or WGS84 with a compass heading
@@ -108,7 +109,7 @@ def read_scene(reference_map: str | Path, queries: str | Path) -> BenchmarkScene
     for p in (reference_map, queries):
         if not Path(p).exists():
             raise InputError(p, "missing: run the workflow first (`snakemake --cores 2 benchmark`)")
-    meta = io.read_parquet_metadata(reference_map)
+    meta = files.read_parquet_metadata(reference_map)
     ref, q = pd.read_parquet(reference_map), pd.read_parquet(queries)
     scene = str(meta.get("scene", ref["scene"].iloc[0] if len(ref) else ""))
     frame = geo.MetricFrame(float(meta["lon0"]), float(meta["lat0"])) if meta.get("lon0") is not None else None
@@ -204,7 +205,7 @@ _DECOMPRESS = {".gz": "gzip", ".bz2": "bz2", ".xz": "lzma"}
 
 
 def _csv_bytes(path: Path):
-    """A poses CSV's bytes, as a file object: read at most :data:`flatlandia.validate.MAX_POSES_BYTES`,
+    """A poses CSV's bytes, as a file object: read at most :data:`flatlandia.plumbing.validate.MAX_POSES_BYTES`,
     a compressed one decompressed as a stream and stopped there (a 4 MB archive of 2 GB of rows is
     refused after 64 MB, never held whole)."""
     import importlib
@@ -225,7 +226,7 @@ def _natural(s: str) -> tuple:
 
 
 def _short(text: str) -> str:
-    """A cell as an error message quotes it: a long one by its start (:func:`flatlandia.validate.shown`)."""
+    """A cell as an error message quotes it: a long one by its start (:func:`flatlandia.plumbing.validate.shown`)."""
     return text if len(text) <= validate.SHOW_CHARS else validate.shown(text)
 
 
@@ -241,7 +242,7 @@ def _listing(items, n: int = SHOW) -> str:
 
 def _text(values) -> list:
     """Cells as stripped text (None for an empty or missing cell); a cell the export made safe for
-    spreadsheets (``'=x``, :func:`flatlandia.escape.csv_cell`) is read back as its value."""
+    spreadsheets (``'=x``, :func:`flatlandia.plumbing.escape.csv_cell`) is read back as its value."""
     out = []
     for v in values:
         if v is None or (isinstance(v, float) and math.isnan(v)):
@@ -605,8 +606,8 @@ class Run:
         }
 
     def write(self, errors_path: str | Path, summary_path: str | Path) -> None:
-        io.write_parquet(self.errors, errors_path, self.metadata())
-        io.write_json(evaluation.json_safe(self.summary), summary_path)
+        files.write_parquet(self.errors, errors_path, self.metadata())
+        files.write_json(evaluation.json_safe(self.summary), summary_path)
 
     def describe(self) -> str:
         """One paragraph for the terminal: queries, scored, missing, medians, recalls."""
@@ -1019,5 +1020,5 @@ def write_scores(scores: Scores, name: str, poses_path: str, out: str | Path) ->
         folder = out / run.run
         run.write(folder / "errors.parquet", folder / "summary.json")
         written += [folder / "errors.parquet", folder / "summary.json"]
-    io.write_text(scores_markdown(scores, name, poses_path), out / "scores.md")
+    files.write_text(scores_markdown(scores, name, poses_path), out / "scores.md")
     return written + [out / "scores.md"]

@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape
-from flatlandia.io import write_parquet, write_text
+from flatlandia.plumbing import escape
+from flatlandia.plumbing.files import write_parquet, write_text
 
 
 @dataclass(frozen=True)
@@ -322,7 +322,7 @@ def check_schema(df: pd.DataFrame, name: str) -> None:
 
 
 def to_markdown(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
-    """The frame as a Markdown table; every header and cell escaped (:func:`flatlandia.escape.markdown`)."""
+    """The frame as a Markdown table; every header and cell escaped (:func:`flatlandia.plumbing.escape.markdown`)."""
 
     def fmt(v):
         if isinstance(v, (float, np.floating)):
@@ -336,7 +336,7 @@ def to_markdown(df: pd.DataFrame, floatfmt: str = ".3g") -> str:
 
 
 def to_latex(df: pd.DataFrame, floatfmt: str = ".3g", caption: str = "") -> str:
-    """The frame as a LaTeX table; every header, cell and the caption escaped (:func:`flatlandia.escape.latex`)."""
+    """The frame as a LaTeX table; every header, cell and the caption escaped (:func:`flatlandia.plumbing.escape.latex`)."""
 
     def esc(v) -> str:
         if isinstance(v, (float, np.floating)):

@@ -7,10 +7,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog, solver
+from flatlandia import solver
 from flatlandia.beyond import evaluate
 from flatlandia.city.index import ViewIndex
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import files, rule_log
 from flatlandia.solver.learned import read_map_size
 
 
@@ -53,10 +54,12 @@ def main(smk, log):
         )
         objects = int(errors.attrs.get("objects", n))
     rows = evaluate.summaries(errors, {smk.wildcards.map: objects})
-    io.write_parquet(errors, smk.output.errors, {"split": beyond["split"], "beyond": beyond, "map": smk.wildcards.map})
-    io.write_json([evaluation.json_safe(r) for r in rows], smk.output.summary)
+    files.write_parquet(
+        errors, smk.output.errors, {"split": beyond["split"], "beyond": beyond, "map": smk.wildcards.map}
+    )
+    files.write_json([evaluation.json_safe(r) for r in rows], smk.output.summary)
     for r in rows:
         log.info("%s", r)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

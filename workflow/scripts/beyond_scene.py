@@ -5,9 +5,10 @@ rows of the table beyond_one_frame."""
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, runlog, solver
+from flatlandia import solver
 from flatlandia.beyond import evaluate
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -28,10 +29,10 @@ def main(smk, log):
         log=log,
     )
     rows = evaluate.summaries(errors, {"scene": int(round(np.mean([len(r) for r in refs])))})
-    io.write_parquet(errors, smk.output.errors, {"split": beyond["split"], "beyond": beyond})
-    io.write_json([evaluation.json_safe(r) for r in rows], smk.output.summary)
+    files.write_parquet(errors, smk.output.errors, {"split": beyond["split"], "beyond": beyond})
+    files.write_json([evaluation.json_safe(r) for r in rows], smk.output.summary)
     for r in rows:
         log.info("%s", r)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -7,9 +7,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog, tables
+from flatlandia import tables
 from flatlandia.beyond import figures
 from flatlandia.beyond import table as beyond_table
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -18,7 +19,7 @@ def main(smk, log):
     note = beyond_table.note(smk.params["beyond.split"], dict(smk.params["beyond"]))
     tables.write_table(df, "beyond_one_frame", smk.output.parquet, note=note)  # schema-checked
     text = beyond_table.markdown(df, note)
-    io.write_text(text, smk.output.markdown)
+    files.write_text(text, smk.output.markdown)
     log.info("\n%s", text)
     errors = (
         pd.concat([pd.read_parquet(p) for p in smk.input.errors], ignore_index=True)
@@ -29,4 +30,4 @@ def main(smk, log):
     figures.plot_reliability(errors, smk.output.reliability)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

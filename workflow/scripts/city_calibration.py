@@ -6,9 +6,10 @@ scene-calibrated priors; the record and the answers it was fitted on."""
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, runlog, solver
+from flatlandia import solver
 from flatlandia.beyond import evaluate
 from flatlandia.city.index import ViewIndex
+from flatlandia.plumbing import files, rule_log
 from flatlandia.solver import calibration, calibration_fit
 
 
@@ -67,8 +68,8 @@ def main(smk, log):
         }
     record = {"map_size": fitted.to_dict(), "split": calibration_fit.CITY_SPLIT, "maps": maps, "validation": before}
     log.info("map-size correction: %s", record)
-    io.write_parquet(answers, smk.output.answers, {"split": calibration_fit.CITY_SPLIT, "maps": maps})
-    io.write_json(record, smk.output.calibration)
+    files.write_parquet(answers, smk.output.answers, {"split": calibration_fit.CITY_SPLIT, "maps": maps})
+    files.write_json(record, smk.output.calibration)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -9,10 +9,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog, solver
+from flatlandia import solver
 from flatlandia.city import evaluate, search
 from flatlandia.city.index import ViewIndex
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import files, rule_log
 from flatlandia.solver.learned import read_map_size
 
 
@@ -40,9 +41,9 @@ def main(smk, log):
         log=log,
     )
     meta = {"method": method, "split": smk.params["city.split"], "search": cfg.to_dict()}
-    io.write_parquet(errors, smk.output.errors, meta)
-    io.write_json(evaluation.json_safe(out), smk.output.summary)
+    files.write_parquet(errors, smk.output.errors, meta)
+    files.write_json(evaluation.json_safe(out), smk.output.summary)
     log.info("summary: %s", out)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -9,9 +9,10 @@ whole-map search needs a (views x objects) co-visibility matrix, 7 GB at 100,000
 
 import pandas as pd
 
-from flatlandia import io, runlog, solver
+from flatlandia import solver
 from flatlandia.city import evaluate, search
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import files, rule_log
 from flatlandia.solver.learned import read_map_size
 
 
@@ -32,9 +33,9 @@ def main(smk, log):
         solver.LearnedPriors.read(smk.input.priors).with_map_size(read_map_size(smk.input.calibration)),
         log=log,
     )
-    io.write_parquet(errors, smk.output.errors, {"objects": n_objects, "split": split, "simulate": dict(sim)})
-    io.write_json(evaluation.json_safe(out), smk.output.summary)
+    files.write_parquet(errors, smk.output.errors, {"objects": n_objects, "split": split, "simulate": dict(sim)})
+    files.write_json(evaluation.json_safe(out), smk.output.summary)
     log.info("summary: %s", out)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

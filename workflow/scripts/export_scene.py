@@ -10,7 +10,8 @@ import json
 
 import pandas as pd
 
-from flatlandia import export, io, runlog
+from flatlandia import export
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -20,15 +21,15 @@ def main(smk, log):
     out = export.scene_export(
         scene,
         pd.read_parquet(smk.input.reference_map),
-        io.read_parquet_metadata(smk.input.reference_map),
+        files.read_parquet_metadata(smk.input.reference_map),
         pd.read_parquet(smk.input.queries),
         coarse,
     )
     for name in ("reference_map", "queries", "local_maps", "proposals", "ground_truth"):
-        io.write_text(export.csv_text(out[name]), smk.output[name])
-    io.write_text(json.dumps(out["reference_geojson"], indent=1) + "\n", smk.output.reference_geojson)
-    io.write_text(json.dumps(out["query_cameras"], indent=1) + "\n", smk.output.query_cameras)
-    io.write_json(out["frame"], smk.output.frame)
+        files.write_text(export.csv_text(out[name]), smk.output[name])
+    files.write_text(json.dumps(out["reference_geojson"], indent=1) + "\n", smk.output.reference_geojson)
+    files.write_text(json.dumps(out["query_cameras"], indent=1) + "\n", smk.output.query_cameras)
+    files.write_json(out["frame"], smk.output.frame)
     absent = [s for s in export.COARSE_SOURCES if s not in coarse]
     log.info(
         "scene %s: %d objects, %d queries (%s), %d local-map rows; proposals %s; absent sources: %s",
@@ -42,4 +43,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -3,8 +3,9 @@
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, figures, runlog
+from flatlandia import checkpoints, figures
 from flatlandia.coarse import retrieval
+from flatlandia.plumbing import rule_log
 
 
 def main(smk, log):
@@ -41,4 +42,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -10,8 +10,9 @@ keys it reads are its params (rules/fine.smk); a key the run does not read is {}
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, proposals, runlog, solver, vocabulary
+from flatlandia import proposals, solver, vocabulary
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -34,7 +35,7 @@ def main(smk, log):
             settings["camera_prior"] = False
         learned = solver.LearnedPriors.read(smk.input.solver_priors) if smk.input.get("solver_priors") else None
         log.info("learned priors: %s", learned)
-        progress = lambda what: runlog.progress(log, what)  # noqa: E731
+        progress = lambda what: rule_log.progress(log, what)  # noqa: E731
         errors = evaluation.solver_errors(scenes, mt, proposal, settings, learned, coarse, strategy, progress=progress)
     else:  # torch only here: the solver's runs start 4 s faster without it
         import torch
@@ -58,7 +59,7 @@ def main(smk, log):
         "solver": settings if method.startswith("solver") else None,
         "model_config": cfg.to_dict() if cfg else None,
     }
-    io.write_parquet(errors, smk.output.errors, meta)
+    files.write_parquet(errors, smk.output.errors, meta)
     summary = evaluation.summarise(errors)
     summary.update(
         method=str(errors["method"].iloc[0]),
@@ -82,8 +83,8 @@ def main(smk, log):
             train_s=float(info.get("seconds") or 0.0),
             epochs=int(cfg.epochs),
         )
-    io.write_json(evaluation.json_safe(summary), smk.output.summary)
+    files.write_json(evaluation.json_safe(summary), smk.output.summary)
     log.info("%s: %s", run, summary)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -8,8 +8,8 @@ keeps the SfM frame on its ground plane (photos without GPS: SfM units, no lon/l
 import pandas as pd
 import pycolmap
 
-from flatlandia import io, runlog
 from flatlandia.images import gps_alignment
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -23,7 +23,7 @@ def main(smk, log):
         source=str(smk.input.cameras),
         log=log,
     )
-    io.write_json(out, smk.output.json)
+    files.write_json(out, smk.output.json)
     if gps_alignment.is_local(out):
         log.info(
             "scene %s: local frame on the SfM ground plane of %d cameras, unit: %s",
@@ -47,4 +47,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -8,9 +8,10 @@ points and takes positions through its GPS alignment. The logic: :mod:`flatlandi
 
 import pandas as pd
 
-from flatlandia import io, runlog
 from flatlandia.classes import CLASSES
+from flatlandia.data import published
 from flatlandia.objects import cloud, clustering, scene
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -19,7 +20,7 @@ def main(smk, log):
         out = scene.images_objects(
             name,
             pd.read_parquet(smk.input.points),
-            io.read_json(smk.input.alignment),
+            files.read_json(smk.input.alignment),
             pd.read_parquet(smk.input.instances),
             cluster,
             source=str(smk.input.points),
@@ -30,18 +31,18 @@ def main(smk, log):
             name,
             pts,
             point_labels,
-            io.read_transformations(smk.input.transformations),
-            io.read_reference_map(smk.input.reference_map)[0],
-            [io.read_reference_map(p, n_classes=len(CLASSES))[1] for p in smk.input.other_maps],
+            published.read_transformations(smk.input.transformations),
+            published.read_reference_map(smk.input.reference_map)[0],
+            [published.read_reference_map(p, n_classes=len(CLASSES))[1] for p in smk.input.other_maps],
             cluster,
             source=str(smk.input.cloud),
         )
     if "empty_because" in out.meta:
         log.warning("scene %s: %s", name, out.meta["empty_because"])
-    io.write_parquet(out.objects, smk.output.parquet, out.meta)
-    io.write_parquet(out.members, smk.output.members, out.members_meta)
+    files.write_parquet(out.objects, smk.output.parquet, out.meta)
+    files.write_parquet(out.members, smk.output.members, out.members_meta)
     clustering.write_boxes_ply(out.objects, smk.output.ply)
     log.info("%s", out.summary)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

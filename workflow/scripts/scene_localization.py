@@ -5,8 +5,9 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io, runlog
+from flatlandia import checkpoints
 from flatlandia.fine import learned, scene_localization
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -28,10 +29,10 @@ def main(smk, log):
         models,
         list(smk.params["fine.runs.map_types"]),
         dict(smk.params["solver"]),
-        progress=runlog.progress(log, f"scene {scene}"),
+        progress=rule_log.progress(log, f"scene {scene}"),
     )
-    io.write_parquet(rows, smk.output.parquet, meta)
-    io.write_text(scene_localization.render_markdown(rows, scene), smk.output.markdown)
+    files.write_parquet(rows, smk.output.parquet, meta)
+    files.write_text(scene_localization.render_markdown(rows, scene), smk.output.markdown)
     log.info(
         "scene %s: %d queries, %d rows\n%s",
         scene,
@@ -41,4 +42,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -4,7 +4,7 @@ validation split, for one region (flatlandia.solver.learned, flatlandia.solver.c
 
 import pandas as pd
 
-from flatlandia import runlog
+from flatlandia.plumbing import rule_log
 from flatlandia.solver import calibration_fit, learned, verify
 
 
@@ -35,4 +35,4 @@ def main(smk, log):
     fitted.write(smk.output.priors)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

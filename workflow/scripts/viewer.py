@@ -1,6 +1,6 @@
 """Rule viewer: a self-contained HTML map viewer of one scene."""
 
-from flatlandia import runlog
+from flatlandia.plumbing import rule_log
 from flatlandia.viewer import page, scene
 
 
@@ -20,4 +20,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

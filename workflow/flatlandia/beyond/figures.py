@@ -19,8 +19,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, figures
+from flatlandia import figures
 from flatlandia.fine.evaluation import WITHIN, WRONG_SCENE_M
+from flatlandia.plumbing import escape
 from flatlandia.solver import calibration
 
 #: the frame counts drawn

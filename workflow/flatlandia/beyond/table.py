@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, paper, tables
+from flatlandia import paper, tables
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import escape
 
 #: columns of results/tables/beyond_one_frame.parquet, in order (schema: flatlandia.tables)
 COLUMNS = [c.name for c in tables.SCHEMAS["beyond_one_frame"]]

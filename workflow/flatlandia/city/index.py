@@ -23,8 +23,9 @@ import pandas as pd
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from flatlandia import classes, io
+from flatlandia import classes
 from flatlandia.city import kernels
+from flatlandia.plumbing import files
 
 #: arrays of the saved index
 _FIELDS = ("obj_xy", "obj_cls", "obj_id", "cam", "view_ptr", "view_obj", "idf")
@@ -67,15 +68,15 @@ class ViewIndex:
         return int(sum(getattr(self, f).nbytes for f in _FIELDS))
 
     def save(self, path: str | Path) -> None:
-        with io.atomic_path(path, suffix=".npz") as tmp:
+        with files.atomic_path(path, suffix=".npz") as tmp:
             np.savez(tmp, **{f: getattr(self, f) for f in _FIELDS})
 
     @classmethod
     def load(cls, path: str | Path) -> ViewIndex:
-        """The index saved at ``path``, checked before anything uses it (:func:`flatlandia.validate.city_index`:
+        """The index saved at ``path``, checked before anything uses it (:func:`flatlandia.plumbing.validate.city_index`:
         a crafted pointer would send the compiled kernels out of bounds); InputError naming the file."""
-        from flatlandia import validate
-        from flatlandia.errors import InputError
+        from flatlandia.plumbing import validate
+        from flatlandia.plumbing.errors import InputError
 
         validate.npz_members(path)
         try:

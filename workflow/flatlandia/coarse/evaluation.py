@@ -17,9 +17,10 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import config, escape, paper, proposals, tables, vocabulary
+from flatlandia import config, paper, proposals, tables, vocabulary
 from flatlandia import device as device_module
 from flatlandia.coarse import retrieval
+from flatlandia.plumbing import escape
 from flatlandia.proposals import proposal_metrics  # noqa: F401  (this module's API too)
 
 STRATEGIES = [*vocabulary.COARSE_STRATEGIES, vocabulary.ORACLE_STRATEGY]
@@ -168,7 +169,7 @@ def _fmt(p, r, s) -> str:
 
 def render_markdown(table: pd.DataFrame, title: str = "Coarse map localization (Table 3)", note: str = "") -> str:
     """Rows loss x strategy; columns GT maps and depth maps, ours beside the paper's (P / R / S). The
-    rows' labels are escaped (:func:`flatlandia.escape.markdown`); ``title`` and ``note`` are the caller's."""
+    rows' labels are escaped (:func:`flatlandia.plumbing.escape.markdown`); ``title`` and ``note`` are the caller's."""
     order_loss = ["-", "Sim", "Trip", "Sim+Trip", "Solver", "random", "S oracle"]
     order_strat = {s: i for i, s in enumerate(STRATEGIES)}
     t = table.copy()

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, figures, geo
+from flatlandia import figures, geo
 from flatlandia.classes import CLASSES
-from flatlandia.io import atomic_path, write_text
+from flatlandia.plumbing import escape
+from flatlandia.plumbing.files import atomic_path, write_text
 
 
 def reference_table(

@@ -325,7 +325,7 @@ def evaluate_model(
 
     from flatlandia import device as device_module
     from flatlandia.fine import learned
-    from flatlandia.pyg import Batch
+    from flatlandia.plumbing.pyg import Batch
 
     samples, kept = learned.samples_from_queries(ref, queries, proposals, cfg)
     ref_cls = ref["class_id"].to_numpy()

@@ -38,7 +38,7 @@ from flatlandia import config, vocabulary
 from flatlandia import device as device_module
 from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
-from flatlandia.pyg import Batch, Data, GATv2Conv, scatter, to_dense_batch
+from flatlandia.plumbing.pyg import Batch, Data, GATv2Conv, scatter, to_dense_batch
 
 MODELS = tuple(vocabulary.LEARNED_METHODS.values())
 

@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, paper, tables, vocabulary
+from flatlandia import paper, tables, vocabulary
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import escape
 
 #: method slugs (rule wildcards) and their display names (vocabulary.METHOD_LABELS); an external
 #: method (config ``external``, ``flatlandia score``) is shown by its summary's ``method``, its name
@@ -153,7 +154,7 @@ def render_markdown(df: pd.DataFrame, note: str = "") -> str:
     """Tables 4 (GT-BB) and 5 (coarse proposals, whole map) with one number per cell: ours, then the
     paper's row of the same method beside it (empty where the paper has none); every run's recall
     at the field's thresholds (:func:`recall_markdown`); then cost and failures. Values from the runs
-    are escaped (:func:`flatlandia.escape.markdown`); ``note`` is the caller's Markdown."""
+    are escaped (:func:`flatlandia.plumbing.escape.markdown`); ``note`` is the caller's Markdown."""
     df = _ordered(df).assign(train_min=df["train_s"] / 60)
     lead = [("method", "method_label"), ("proposal", "strategy"), ("map", "map_type")]
     out = [

@@ -21,9 +21,9 @@ import torch
 
 from flatlandia import checkpoints, proposals
 from flatlandia import device as device_module
-from flatlandia.errors import InputError
 from flatlandia.fine import learned
-from flatlandia.pyg import Data
+from flatlandia.plumbing.errors import InputError
+from flatlandia.plumbing.pyg import Data
 
 
 def angle_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from flatlandia import config
-from flatlandia.errors import InputError
 from flatlandia.images.image_queries import View, sparse_depth_point
 from flatlandia.images.segment import load_local_model
+from flatlandia.plumbing.errors import InputError
 
 #: Defaults: the `images.depth` section of workflow/schemas/config.schema.yaml.
 _DEPTH = config.section_defaults("images.depth")

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from flatlandia import config, geo
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 from flatlandia.scaled_rigid import ransac_scaled_rigid
 
 #: Defaults: the `images.align` section of workflow/schemas/config.schema.yaml.

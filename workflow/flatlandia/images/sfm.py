@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, escape, figures
-from flatlandia.errors import InputError
+from flatlandia import config, figures
+from flatlandia.plumbing import escape
+from flatlandia.plumbing.errors import InputError
 
 TESTED_PYCOLMAP = "4.2.1"
 
@@ -209,7 +210,7 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
     plt = figures.pyplot()
 
     from flatlandia import geo
-    from flatlandia.io import atomic_path
+    from flatlandia.plumbing.files import atomic_path
 
     cameras = cameras.sort_values("name")  # capture order for Mapillary sequences
     c = cameras[["x", "y", "z"]].to_numpy()
@@ -317,18 +318,18 @@ def reconstruct(
     """
     import pycolmap
 
-    from flatlandia import runlog
+    from flatlandia.plumbing import rule_log
 
     names = list(table.loc[table["kept"], "name"])
     o = dict(options)
     opts = SfmOptions.from_dict(o, seed=seed, num_threads=1 if o["deterministic"] else threads)
     pycolmap.logging.logtostderr = True  # COLMAP's own log, into native_log below
-    with runlog.native_output_to(native_log):
+    with rule_log.native_output_to(native_log):
         rec = run_sfm(Path(image_dir), names, None if mask_dir is None else Path(mask_dir), work, opts, log=log)
     gps = table.set_index("name")
     removed = clean_cameras(rec, gps, opts.height_mad_k, o["gps_max_residual_m"], seed=int(seed))
     log(f"removed {len(removed)} badly localised cameras; final bundle adjustment")
-    with runlog.native_output_to(native_log):
+    with rule_log.native_output_to(native_log):
         priors, frame = (
             gps_priors(rec, gps, float(o["gps_prior_sigma_m"]), float(o["gps_prior_alt_sigma_m"]))
             if o["gps_prior"]

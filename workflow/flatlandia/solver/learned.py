@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import io
+from flatlandia.plumbing import files
 from flatlandia.solver import calibration, likelihood, verify, verify_fit
 from flatlandia.solver.calibration import Calibration, MapSize
 from flatlandia.solver.likelihood import LikelihoodModel
@@ -67,7 +67,7 @@ class LearnedPriors:
         return cls(scale, verifier, lik, cal)
 
     def write(self, path: str | Path) -> None:
-        io.write_json(self.to_dict(), path)
+        files.write_json(self.to_dict(), path)
 
     def with_map_size(self, map_size: MapSize | None) -> LearnedPriors:
         """These priors with a city's map-size correction (None: without one)."""
@@ -76,10 +76,10 @@ class LearnedPriors:
 
     @classmethod
     def read(cls, path: str | Path) -> LearnedPriors:
-        from flatlandia import validate
-        from flatlandia.errors import InputError
+        from flatlandia.plumbing import validate
+        from flatlandia.plumbing.errors import InputError
 
-        d = io.read_json(path)
+        d = files.read_json(path)
         validate.learned_priors(d, path, len(verify.FEATURES))  # finite, positive spreads, one weight per feature
         try:
             return cls.from_dict(d)
@@ -89,9 +89,9 @@ class LearnedPriors:
 
 def read_map_size(path: str | Path) -> MapSize:
     """A city's map-size correction (rule city_calibration's record), checked as it is read."""
-    from flatlandia import validate
+    from flatlandia.plumbing import validate
 
-    d = io.read_json(path)
+    d = files.read_json(path)
     validate.map_size_calibration(d, path, calibration.MAX_SHIFT, calibration.MAX_PER_LOG_ODDS)
     return MapSize.from_dict(d["map_size"])
 

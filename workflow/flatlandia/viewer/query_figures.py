@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from flatlandia import escape, figures, names
+from flatlandia import figures
 from flatlandia.figures import MAP_TYPE_STYLES, TRUTH_COLOUR, Run, method_label
+from flatlandia.plumbing import escape, names
 from flatlandia.viewer.scene import Estimate, QueryView, SceneView, worst_queries
 
 #: a link to a reference object that is not the true one

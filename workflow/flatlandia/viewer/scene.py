@@ -13,10 +13,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo, io, vocabulary
+from flatlandia import geo, vocabulary
 from flatlandia.data import localmaps
 from flatlandia.data import reference_map as reference_map_module
 from flatlandia.figures import Run
+from flatlandia.plumbing import files
 
 #: the solver's match of each local-map object (reference ``obj_idx``, -1: none), where the run's
 #: errors table stores it; without it an estimate's objects are linked to their true positions
@@ -178,7 +179,7 @@ def scene_view(
 
 def read_view(scene: str, reference_map: str | Path, queries: str | Path, errors: dict[str, str | Path]) -> SceneView:
     """The scene's model from its files: a rule's inputs, ``errors`` by run name."""
-    axes = reference_map_module.axis_labels(io.read_parquet_metadata(reference_map))
+    axes = reference_map_module.axis_labels(files.read_parquet_metadata(reference_map))
     tables = {run: pd.read_parquet(path) for run, path in errors.items()}
     return scene_view(scene, pd.read_parquet(reference_map), pd.read_parquet(queries), tables, axes)
 

@@ -15,7 +15,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from flatlandia import provenance
+from flatlandia.plumbing import provenance
 
 
 @dataclass(frozen=True)

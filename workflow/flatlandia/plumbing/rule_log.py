@@ -22,7 +22,7 @@ class _LogFile(logging.FileHandler):
     full: OSError | None = None
 
     def handleError(self, record: logging.LogRecord) -> None:
-        from flatlandia.io import full_disk_error
+        from flatlandia.plumbing.files import full_disk_error
 
         err = full_disk_error(sys.exc_info()[1])
         if err is None:
@@ -41,7 +41,7 @@ def _log_full(logger: logging.Logger) -> tuple[str, OSError] | None:
 
 def disk_full_line(err: OSError, fallback: str) -> str:
     """The one line a run out of room ends with (after ``ERROR: ``): the file, what happened, what to do."""
-    from flatlandia.io import FULL_ERRNOS
+    from flatlandia.plumbing.files import FULL_ERRNOS
 
     where = err.filename or fallback
     return (
@@ -86,12 +86,12 @@ def run(main, smk) -> None:
     An :class:`InputError` is written to the rule's log and to stderr as ``ERROR: <file>: <problem>``
     and the script exits 1, so Snakemake reports the rule failed; so is a write that found the disk
     full or the quota used up (``ERROR: <file>: no space left on device; ...``; the atomic writers of
-    :mod:`flatlandia.io` name the output and have removed their temporary). Any other error is
+    :mod:`flatlandia.plumbing.files` name the output and have removed their temporary). Any other error is
     logged with its traceback and raised.
     """
-    from flatlandia import provenance
-    from flatlandia.errors import InputError
-    from flatlandia.io import full_disk_error
+    from flatlandia.plumbing import provenance
+    from flatlandia.plumbing.errors import InputError
+    from flatlandia.plumbing.files import full_disk_error
 
     logger = setup(smk.log[0] if len(smk.log) else None)
     provenance.started()
@@ -117,7 +117,7 @@ def _unnamed_write(logger: logging.Logger, smk) -> str:
     """Which file an out-of-room error without a file name was about: the atomic writers name
     theirs, so the log (a progress bar writes to it directly) when its disk is full, else the
     rule's first output."""
-    from flatlandia.io import disk_full
+    from flatlandia.plumbing.files import disk_full
 
     log_full = _log_full(logger)
     if log_full:

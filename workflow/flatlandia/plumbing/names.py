@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 #: longest name accepted, in UTF-8 bytes (file systems allow 255; room for a suffix)
 MAX_NAME_BYTES = 200
@@ -48,7 +48,7 @@ def plain_name(name, source: str | Path, what: str = "name") -> str:
 
 
 def _shown(name) -> str:
-    from flatlandia.validate import shown
+    from flatlandia.plumbing.validate import shown
 
     return shown(name)
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import escape, io
+from flatlandia.plumbing import escape, files
 
 #: why a scene's map can be empty, for the files that do not say it themselves
 EMPTY_MAP_HINT = (
@@ -47,11 +47,11 @@ def scene_line(results: Path, scene: str) -> tuple[str, list[str]]:
     if objects is not None:
         parts.append(f"{objects} clustered objects")
         if objects == 0:
-            meta = io.read_parquet_metadata(base / "objects" / "objects.parquet")
+            meta = files.read_parquet_metadata(base / "objects" / "objects.parquet")
             empty.append(meta.get("empty_because", EMPTY_MAP_HINT))
     ref = _rows(base / "maps" / "reference_map.parquet")
     if ref is not None:
-        meta = io.read_parquet_metadata(base / "maps" / "reference_map.parquet")
+        meta = files.read_parquet_metadata(base / "maps" / "reference_map.parquet")
         local = meta.get("frame") == "local"
         parts.append(
             f"reference map of {ref} objects" + (f" in a local frame ({meta.get('unit')}, no lon/lat)" if local else "")
@@ -90,7 +90,7 @@ def listed_scenes(results: str | Path, scenes: list[str], known: list[str] | Non
 def summary(results: str | Path, scenes: list[str], known: list[str] | None = None) -> str:
     """Markdown: one line per scene (:func:`listed_scenes`: every scene of ``known`` with results
     here, and this run's ``scenes``), marked when this run selected it; then the result tables
-    present. Values read from disk are escaped (:func:`flatlandia.escape.markdown`)."""
+    present. Values read from disk are escaped (:func:`flatlandia.plumbing.escape.markdown`)."""
     results = Path(results)
     this_run = {str(s) for s in scenes}
     listed = listed_scenes(results, scenes, known)
@@ -126,6 +126,6 @@ def write_summary(results: str | Path, scenes: list[str], known: list[str] | Non
     scene sheet's ids (every one with results in the folder is described too)."""
     text = summary(results, scenes, known)
     path = Path(results) / "summary.md"
-    with io.atomic_path(path) as tmp:
+    with files.atomic_path(path) as tmp:
         tmp.write_text(text)
     return text

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 #: longest problem an error line carries: whatever a message quotes from a hostile file (a 100 MB
-#: token, a 1 MB class name), the ERROR line stays readable (flatlandia.validate.shown cuts quotes)
+#: token, a 1 MB class name), the ERROR line stays readable (flatlandia.plumbing.validate.shown cuts quotes)
 MAX_PROBLEM_CHARS = 4000
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 #: bytes of each PLY scalar type
 TYPE_BYTES = {

@@ -5,7 +5,7 @@ or GeoJSON, a city index ``.npz``, a priors JSON, a poses CSV or Parquet, a prov
 reach numba kernels, pyproj and torch, which do not check what they are given: a pointer out of
 range is a segfault, a NaN a silently wrong pose, a size nobody bounded an hour of CPU or all the
 memory. Every reader calls the checks here before the data is used, and each failed check is one
-:class:`~flatlandia.errors.InputError` naming the file and the problem.
+:class:`~flatlandia.plumbing.errors.InputError` naming the file and the problem.
 
 The bounds are named constants, all of them here (docs/security.md says why each has its value;
 the README's "Untrusted inputs" lists them). Each is far above what the benchmark's own files
@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 MB = 1_000_000
 
@@ -126,7 +126,7 @@ def regular_file(path: str | Path, max_bytes: int | None = None, limit_name: str
 
 
 def _named(limit_name: str) -> str:
-    return f" (flatlandia.validate.{limit_name})" if limit_name else ""
+    return f" (flatlandia.plumbing.validate.{limit_name})" if limit_name else ""
 
 
 def read_bytes(path: str | Path, max_bytes: int, limit_name: str = "") -> bytes:

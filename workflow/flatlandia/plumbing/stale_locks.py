@@ -270,12 +270,14 @@ def install(workflow) -> bool:
             yield
 
     def flatlandia_write_locks(self, lock_type, keys):
-        from flatlandia.io import FULL_ERRNOS
+        from flatlandia.plumbing.files import FULL_ERRNOS
 
         try:
             write_locks(self, lock_type, keys)
         except OSError as e:
-            if e.errno in FULL_ERRNOS:  # one line, as for a rule that finds the disk full (flatlandia.runlog)
+            if (
+                e.errno in FULL_ERRNOS
+            ):  # one line, as for a rule that finds the disk full (flatlandia.plumbing.rule_log)
                 sys.exit(
                     f"ERROR: {self.path}: {FULL_ERRNOS[e.errno]} (Snakemake could not write its lock): free some "
                     "space, then rerun the same command"

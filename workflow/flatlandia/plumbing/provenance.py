@@ -1,6 +1,6 @@
 """Audit trail: which rule, inputs, settings, code version and commit produced each artifact.
 
-Every rule script run through :func:`flatlandia.runlog.run` leaves a provenance record in
+Every rule script run through :func:`flatlandia.plumbing.rule_log.run` leaves a provenance record in
 ``logs/provenance/{rule}/{wildcards}.json``: the rule and its wildcards; its inputs with their
 sha256 (their own producing rules are found from the other records); the settings the rule reads
 (its resolved ``params``: the config keys it names, ``config_keys(...)`` in rules/common.smk, by
@@ -30,7 +30,7 @@ from pathlib import Path
 import pandas as pd
 
 from flatlandia import __version__
-from flatlandia.io import sha256, write_json
+from flatlandia.plumbing.files import sha256, write_json
 
 PROVENANCE_DIR = Path("logs/provenance")
 CONFIGS_DIR = PROVENANCE_DIR / "configs"
@@ -55,7 +55,7 @@ SOFTWARE = [
     "matplotlib",
 ]
 
-#: when the rule's script started (set by :func:`flatlandia.runlog.run`)
+#: when the rule's script started (set by :func:`flatlandia.plumbing.rule_log.run`)
 _STARTED: dict[str, float] = {}
 
 
@@ -134,7 +134,7 @@ def workflow_state(folder: str) -> dict:
 def git_commit(folder: str | Path | None = None) -> str:
     """The commit of ``folder`` (default: this package's checkout), with '+dirty' when it has
     uncommitted changes."""
-    state = workflow_state(str(folder or Path(__file__).resolve().parents[2]))
+    state = workflow_state(str(folder or Path(__file__).resolve().parents[3]))
     return state["commit"] + ("+dirty" if state["dirty"] else "")
 
 
@@ -160,7 +160,7 @@ def _workflow_folder(smk) -> str:
     scriptdir = getattr(smk, "scriptdir", None)
     if scriptdir and _remote(str(scriptdir)):
         return str(scriptdir)
-    return str(Path(scriptdir).resolve().parent if scriptdir else Path(__file__).resolve().parents[1])
+    return str(Path(scriptdir).resolve().parent if scriptdir else Path(__file__).resolve().parents[2])
 
 
 def _remote(folder: str) -> bool:
@@ -283,10 +283,10 @@ def record_problem(rec) -> str | None:
 
 def records(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = None) -> list[dict]:
     """Every rule record under ``folder`` (the stored configs excluded). A file that is not one
-    (not a regular file, over :data:`flatlandia.validate.MAX_RECORD_BYTES`, invalid JSON, a record
+    (not a regular file, over :data:`flatlandia.plumbing.validate.MAX_RECORD_BYTES`, invalid JSON, a record
     lacking a key or naming an output outside the run) is left out, and said in ``skipped``."""
-    from flatlandia import validate
-    from flatlandia.errors import InputError
+    from flatlandia.plumbing import validate
+    from flatlandia.plumbing.errors import InputError
 
     folder = Path(folder)
     out = []
@@ -495,8 +495,8 @@ def check(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def stored_config(config_id: str, folder: str | Path = CONFIGS_DIR) -> dict | None:
-    from flatlandia import validate
-    from flatlandia.errors import InputError
+    from flatlandia.plumbing import validate
+    from flatlandia.plumbing.errors import InputError
 
     path = Path(folder) / f"{config_id}.json"
     if not (config_id and re.fullmatch(r"[0-9a-f]{1,64}", config_id) and path.exists()):

@@ -18,7 +18,7 @@ SKIPPED = ("torch_geometric.datasets", "torch_geometric.llm")
 
 if "torch_geometric" not in sys.modules:
     for _name in SKIPPED:
-        sys.modules.setdefault(_name, types.ModuleType(_name, "not imported by flatlandia.pyg"))
+        sys.modules.setdefault(_name, types.ModuleType(_name, "not imported by flatlandia.plumbing.pyg"))
 
 from torch_geometric.data import Batch, Data  # noqa: E402
 from torch_geometric.nn import GATConv, GATv2Conv, global_mean_pool  # noqa: E402

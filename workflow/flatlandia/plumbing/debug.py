@@ -21,7 +21,7 @@ import runpy
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 
-SNAKEFILE = Path(__file__).resolve().parents[1] / "Snakefile"
+SNAKEFILE = Path(__file__).resolve().parents[2] / "Snakefile"
 
 
 class DebugError(Exception):
@@ -143,10 +143,10 @@ def _inside(workdir: Path, path) -> bool:
 
 def check_wildcards(rule, wildcards: Mapping[str, str]) -> None:
     """Refuse (DebugError) wildcard values a real run could never give the rule: a value that is not
-    one plain name (:func:`flatlandia.names.name_problem`: ``../../x`` would write elsewhere) or one
+    one plain name (:func:`flatlandia.plumbing.names.name_problem`: ``../../x`` would write elsewhere) or one
     outside the rule's ``wildcard_constraints`` and the workflow's (an unknown scene, a region the
     rule does not build), checked as Snakemake matches a target against the rule's outputs."""
-    from flatlandia.names import name_problem
+    from flatlandia.plumbing.names import name_problem
 
     for key, value in wildcards.items():
         why = name_problem(value)
@@ -191,7 +191,7 @@ def run_script(smk, log_to_terminal: bool = False) -> None:
             f"`snakemake --cores 1 {' '.join(missing[:3])}`"
         )
     if log_to_terminal:
-        smk.log = type(smk.log)()  # an empty Snakemake Log: runlog.setup logs to stderr
+        smk.log = type(smk.log)()  # an empty Snakemake Log: rule_log.setup logs to stderr
     with _cwd(Path(smk.workdir)):
         for p in [*smk.output, *smk.log]:
             Path(p).parent.mkdir(parents=True, exist_ok=True)
