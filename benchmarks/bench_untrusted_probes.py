@@ -378,7 +378,7 @@ except fetch.FetchError as e:
             "export: tokens +cmd|calc, =HYPERLINK(...), city =HYPERLINK(...)",
             python(f"""
 import pandas as pd
-from flatlandia import export
+from flatlandia.data import export
 from flatlandia.plumbing import files
 ref = pd.read_parquet({str(p["map"])!r}); meta = files.read_parquet_metadata({str(p["map"])!r})
 q = pd.read_parquet({str(p["results"] / TINY_SCENE / "queries" / "queries.parquet")!r})

@@ -1,4 +1,4 @@
-"""Localize a whole split in one command (`flatlandia localize --batch`, flatlandia.batch): a new
+"""Localize a whole split in one command (`flatlandia localize --batch`, flatlandia.localize.batch): a new
 user's flow export -> batch localize -> score -> table row on the tiny scene (fast lane): the poses
 file scores as the solver's whole-map rows of the fine table; the same poses from the export and
 from the results folder, through a city index in each query's own scene frame; fixes per query;
@@ -17,11 +17,12 @@ import pytest
 from conftest import TINY_SCENE
 from tiny_results import tiny_scene
 
-from flatlandia import batch, cli, config, export, geo, paths, score, tables
+from flatlandia import cli, config, geo, paths, score, tables
 from flatlandia.city import index, tiling
-from flatlandia.data import reference_map
+from flatlandia.data import export, reference_map
 from flatlandia.fine import evaluation
 from flatlandia.fine import table as fine_table
+from flatlandia.localize import batch
 from flatlandia.plumbing import files
 
 #: the fine table's columns that are timings (query seconds) or name the run

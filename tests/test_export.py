@@ -1,4 +1,4 @@
-"""The benchmark exported as plain files (flatlandia.export, target `export`): the CSVs read back
+"""The benchmark exported as plain files (flatlandia.data.export, target `export`): the CSVs read back
 equal the Parquet values, the ground truth places each GT local map on its matched reference
 objects, theta_deg and heading_deg agree, the proposals are the workflow's. On the tiny scene
 (fast lane), a dry run of the target on it, and one real `snakemake export` on two scenes (slow)."""
@@ -14,9 +14,9 @@ from conftest import REPO, TINY_SCENE, smk_dry_run
 from snakemake_runner import job_stats, smk
 from tiny_results import tiny_scene
 
-from flatlandia import export, geo, proposals
+from flatlandia import geo, proposals
 from flatlandia.classes import CLASSES
-from flatlandia.data import reference_map
+from flatlandia.data import export, reference_map
 from flatlandia.plumbing import files
 from flatlandia.plumbing.errors import InputError
 

@@ -27,9 +27,9 @@ from PIL.TiffImagePlugin import IFDRational
 from tiny_results import tiny_scene
 from zip_archives import make_zip
 
-from flatlandia import checkpoints, cli, config, export, figures
+from flatlandia import checkpoints, cli, config, figures
 from flatlandia.classes import CLASSES
-from flatlandia.data import fetch, published, reference_map
+from flatlandia.data import export, fetch, published, reference_map
 from flatlandia.fine import learned
 from flatlandia.images import image_audit
 from flatlandia.objects import audit
@@ -373,7 +373,7 @@ def test_an_impossible_exif_geotag_is_a_drop_reason(tmp_path):
 def test_the_batch_reads_an_exports_csvs_within_bounds(tmp_path):
     """`localize --batch` (issue 36) reads a user's export: regular files within MAX_CSV_BYTES, local
     maps of finite coordinates, at most MAX_QUERY_OBJECTS objects."""
-    from flatlandia import batch
+    from flatlandia.localize import batch
     from flatlandia.plumbing import validate
 
     scene = tmp_path / "0"

@@ -255,7 +255,7 @@ def localize_batch(args) -> int:
     poses file that `flatlandia score` reads."""
     import sys
 
-    from flatlandia import batch
+    from flatlandia.localize import batch
 
     try:
         if args.query or args.sequence or args.near or args.gps or args.compass:

@@ -1,9 +1,9 @@
 """Rule export_index: results/export/README.md, classes.csv, scenes.csv and poses_template.csv
-(flatlandia.export.index_export) over every benchmark scene."""
+(flatlandia.data.export.index_export) over every benchmark scene."""
 
 import pandas as pd
 
-from flatlandia import export
+from flatlandia.data import export
 from flatlandia.plumbing import files, rule_log
 
 

@@ -3,14 +3,14 @@
 The reference map (CSV, GeoJSON) and its frame, the queries and their GT and depth local maps,
 the proposals (the oracle GT-BB box of every query; the coarse stages' tables that exist, test
 split) and, in files of their own, the ground truth (CSV, and the query cameras as GeoJSON points;
-flatlandia.export.scene_export).
+flatlandia.data.export.scene_export).
 """
 
 import json
 
 import pandas as pd
 
-from flatlandia import export
+from flatlandia.data import export
 from flatlandia.plumbing import files, rule_log
 
 

@@ -421,7 +421,7 @@ def readme_text(scenes: pd.DataFrame, sources: list[str], absent: list[str]) -> 
         "# Flatlandia benchmark: the inputs, exported",
         "",
         "Written by the Flatlandia workflow (`snakemake --cores 2 export`; rules `export_scene` and "
-        "`export_index`, module `flatlandia.export`). Object-based 3DoF visual localization: find the pose "
+        "`export_index`, module `flatlandia.data.export`). Object-based 3DoF visual localization: find the pose "
         "of a camera from the objects its photo sees (a query's local map) on the scene's map of classed "
         "objects (its reference map).",
         "",

@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import localize, paths, vocabulary
+from flatlandia import paths, vocabulary
 from flatlandia.classes import CLASSES
+from flatlandia.localize import gps_fixes, maps, query_files, solve
 from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
 
@@ -62,7 +63,7 @@ class Source:
     scenes: list[str]
     cities: dict = field(default_factory=dict)  # scene -> city name
 
-    def queries(self, scene: str, split: str, map_type: str) -> list[localize.Query]:
+    def queries(self, scene: str, split: str, map_type: str) -> list[query_files.Query]:
         """The ``split`` queries of a scene as localize reads them (id: the token), in the source's order."""
         if self.kind == "results":
             return _results_queries(self.root, scene, split, map_type)
@@ -101,7 +102,7 @@ class Source:
             raise InputError(path, f"obj_idx must be integers ({e})") from None
         return out, strategy
 
-    def scene_map(self, scene: str, learned, settings=None, proposal: str = PROPOSAL) -> localize.ObjectMap:
+    def scene_map(self, scene: str, learned, settings=None, proposal: str = PROPOSAL) -> maps.ObjectMap:
         """The scene's map with what the source gives the solver: a run's reference_map.parquet with
         its training cameras and learned priors (``learned`` "auto": those rule fine_eval reads for
         ``proposal``, paths.proposal_priors); an export's reference_map.geojson with the cameras of its
@@ -110,10 +111,10 @@ class Source:
             if learned == "auto":
                 learned = paths.within(self.root, paths.proposal_priors(proposal))
                 learned = learned if learned.is_file() else None
-            return localize.load_map(paths.within(self.root, paths.reference_map(scene)), settings, learned)
+            return maps.load_map(paths.within(self.root, paths.reference_map(scene)), settings, learned)
         folder = self.root / scene
-        m = localize.load_map(folder / "reference_map.geojson", settings, None if learned == "auto" else learned)
-        localize.set_training_priors(m, _export_training(folder / "ground_truth.csv"), folder / "ground_truth.csv")
+        m = maps.load_map(folder / "reference_map.geojson", settings, None if learned == "auto" else learned)
+        maps.set_training_priors(m, _export_training(folder / "ground_truth.csv"), folder / "ground_truth.csv")
         m.scene, m.cities = scene, dict(self.cities)
         return m
 
@@ -132,7 +133,7 @@ def open_source(path: str | Path) -> Source:
     record = root / score.BENCHMARK_RECORD
     if record.is_file():
         ids = [str(s) for s in pd.read_parquet(record, columns=["scene"])["scene"]]
-        return Source("results", root, ids, localize.scene_cities(root))
+        return Source("results", root, ids, maps.scene_cities(root))
     raise InputError(
         root,
         f"neither an export (no scenes.csv: `snakemake --cores 2 export` writes results/export) nor a results "
@@ -155,7 +156,7 @@ def _read_csv(path: Path, columns: list[str]) -> pd.DataFrame:
     return df
 
 
-def _results_queries(results: Path, scene: str, split: str, map_type: str) -> list[localize.Query]:
+def _results_queries(results: Path, scene: str, split: str, map_type: str) -> list[query_files.Query]:
     from flatlandia.data import localmaps
 
     path = paths.within(results, paths.queries(scene))
@@ -164,7 +165,7 @@ def _results_queries(results: Path, scene: str, split: str, map_type: str) -> li
     q = pd.read_parquet(path)
     q = q[q["split"] == split]
     return [
-        localize.Query(str(r.token), localmaps.local_map(r, map_type), np.asarray(r.classes, np.int64), str(path))
+        query_files.Query(str(r.token), localmaps.local_map(r, map_type), np.asarray(r.classes, np.int64), str(path))
         for r in q.itertuples(index=False)
     ]
 
@@ -186,7 +187,7 @@ def _results_proposals(
     return {str(t): [int(o) for o in p] for t, p in zip(props["token"], props["proposal"])}
 
 
-def _export_queries(export: Path, scene: str, split: str, map_type: str) -> list[localize.Query]:
+def _export_queries(export: Path, scene: str, split: str, map_type: str) -> list[query_files.Query]:
     path = export / scene / "local_maps.csv"
     tokens = _read_csv(export / scene / "queries.csv", ["token", "split"])
     tokens = tokens.loc[tokens["split"] == split, "token"].tolist()
@@ -207,7 +208,7 @@ def _export_queries(export: Path, scene: str, split: str, map_type: str) -> list
             raise InputError(path, f"query {t} ({split} in queries.csv) has no {map_type} local map")
         idx = idx[np.argsort(k[idx], kind="stable")]
         validate.local_map(xy[idx], cls[idx], path, f"query {validate.shown(t)}", len(CLASSES))
-        out.append(localize.Query(t, xy[idx], cls[idx], str(path)))
+        out.append(query_files.Query(t, xy[idx], cls[idx], str(path)))
     return out
 
 
@@ -250,7 +251,7 @@ def read_fixes(path: str | Path) -> dict[tuple[str, str], tuple[tuple, tuple | N
         except ValueError:
             raise InputError(path, f"{where}: lon, lat, sigma_m (and a compass pair) must be numbers") from None
         try:
-            localize._check_prior((lon, lat, sigma), heading)
+            gps_fixes.check_prior((lon, lat, sigma), heading)
         except InputError as e:
             raise InputError(path, f"{where}: {e.problem}") from None
         key = (str(r["scene"]), str(r["token"]))
@@ -333,7 +334,7 @@ def localize_batch(
     if unknown:
         shown = ", ".join(f"scene {s} token {t}" for s, t in unknown[:3])
         raise InputError("--fixes", f"{len(unknown)} fix(es) of queries not in the {split} split: {shown}")
-    cmap = localize.load_map(city, settings, learned) if city is not None else None
+    cmap = maps.load_map(city, settings, learned) if city is not None else None
     if cmap is not None and cmap.kind != "city":
         raise InputError(city, "--city takes a city index (results/city/{n}/index), not a scene map")
     regions = {s: src.proposals(s, split, map_type, proposal) for s, _ in work} if proposal != PROPOSAL else {}
@@ -360,7 +361,7 @@ def localize_batch(
             region = None
             if regions:  # the proposal's objects, in proposed order (a query without one: none)
                 region = np.array([pos[o] for o in regions[scene][0].get(q.id, []) if o in pos], np.int64)
-            answer = localize.localize(m, q, map_type, alternatives=0, gps=gps, compass=compass, rows=region)
+            answer = solve.localize(m, q, map_type, alternatives=0, gps=gps, compass=compass, rows=region)
             warnings += answer.get("warnings", [])
             rows.append(_row(m, scene, q.id, map_type, answer, proposal))
     if bar:
@@ -370,12 +371,12 @@ def localize_batch(
     return Batch(poses, notes, list(dict.fromkeys(warnings)))
 
 
-def _row(m: localize.ObjectMap, scene: str, token: str, map_type: str, answer: dict, proposal: str) -> dict:
+def _row(m: maps.ObjectMap, scene: str, token: str, map_type: str, answer: dict, proposal: str) -> dict:
     """One query's row of the poses file: its pose in its own scene's frame (a city's pose moved out
     of the tiled frame by its scene's tile), empty where it has none."""
     x = y = theta = None
     if answer["found"]:
-        xy = localize.scene_xy(m, scene, answer["x_m"], answer["y_m"])
+        xy = maps.scene_xy(m, scene, answer["x_m"], answer["y_m"])
         if xy is not None:
             x, y = xy
             theta = answer["theta_deg"]
@@ -398,7 +399,7 @@ def _row(m: localize.ObjectMap, scene: str, token: str, map_type: str, answer: d
 def write_poses(batch: Batch, path: str | Path) -> Path:
     """The poses file (``.csv``: floats exact, scene and token as text; or ``.parquet``), written
     atomically: the shape ``flatlandia score`` reads."""
-    from flatlandia import export
+    from flatlandia.data import export
     from flatlandia.plumbing import files
 
     path = Path(path)
