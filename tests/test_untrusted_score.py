@@ -21,6 +21,7 @@ from test_score import _cli, _geographic, _metric, _noisy, _truth, _write, tiny_
 from flatlandia import score
 from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
+from flatlandia.score import poses
 
 SCORE = ("--name", "mine", "--split", "train")
 
@@ -153,7 +154,7 @@ def test_a_cell_the_export_made_safe_reads_back_as_its_value(tiny_scenes, tmp_pa
     t["token"] = "'" + t["token"]  # a token that is text already: '123 stays '123 (not a formula)
     with pytest.raises(InputError, match="unknown token"):
         score.read_poses(_write(t, tmp_path / "q.csv"), tiny_scenes, "train")
-    assert score._text(["'=HYPERLINK(1)", "'-cmd|x", "-AB21Af_LPev08UY_96ptQ", "'abc"]) == [
+    assert poses._text(["'=HYPERLINK(1)", "'-cmd|x", "-AB21Af_LPev08UY_96ptQ", "'abc"]) == [
         "=HYPERLINK(1)",
         "-cmd|x",
         "-AB21Af_LPev08UY_96ptQ",
