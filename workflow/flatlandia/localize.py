@@ -59,7 +59,8 @@ from flatlandia.beyond import MIN_SIGMA_DEG, MIN_SIGMA_M
 from flatlandia.classes import CLASSES
 from flatlandia.errors import InputError
 
-if TYPE_CHECKING:  # the solver loads numba (2 s): only a loaded map needs it
+# the solver loads numba (seconds; docs/measurements.md, "Start-up costs"): only a loaded map needs it
+if TYPE_CHECKING:
     import pandas as pd
 
     from flatlandia import solver
@@ -329,7 +330,7 @@ def _workflow_paths(path: Path) -> tuple[Path | None, str | None, Path | None, P
 
 def _transformers(lon0: float, lat0: float):
     """(metres -> lon/lat, lon/lat -> metres) of a scene frame (:class:`flatlandia.geo.MetricFrame`),
-    built once: a transformer costs about 18 ms, a query's few points microseconds."""
+    built once: a transformer costs far more than a query's few points (docs/measurements.md, "Start-up costs")."""
     from pyproj import CRS, Transformer
 
     from flatlandia import geo
