@@ -1,5 +1,5 @@
 """Wall and CPU time of scoring an external method in the workflow (config ``external``) over a
-finished run: what README "Score your own method" quotes.
+finished run: what docs/usage.md, "Score your own method" quotes.
 
 Copies a finished run's folder (``results/`` with its files' times kept, ``cp -a``, so nothing
 built is redone) into a temporary folder, writes the solver's own whole-map depth poses as the

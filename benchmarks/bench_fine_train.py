@@ -10,7 +10,7 @@ Prints, for each ``--models`` x ``--map-types`` under the merged config (config/
 
 ``--simulated-proposals K`` adds K copies of every training (and validation) query with a
 simulated coarse proposal (``proposals.simulated_coarse_proposals``); ``--no-gtbb`` trains on
-those alone: the experiment behind the README's note on coarse proposals.
+those alone: the experiment behind docs/measurements.md, "Simulated coarse proposals".
 
 Targets: 1000 MLP epochs under 10 minutes on 2 CPU cores; MLP on depth maps with GT-BB
 median <= 5 m. Wall and CPU (process) seconds are both given, as the machine may be shared.

@@ -28,7 +28,7 @@ wall time (2 cores: jobs packed greedily, longest first, a lower bound; one GPU:
 another, and the longest job), and with ``--compare-cpu`` the largest relative difference between
 the CPU's and the device's training losses of each job (stated tolerance: :data:`LOSS_TOLERANCE`).
 Writes the table as CSV (``--out``). Sets the SLURM profile's runtimes (rules/inputs/*.smk) and the
-README's and docs/measurements.md's figures.
+docs/usage.md's and docs/measurements.md's figures.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Crash safety: a run killed with SIGKILL (its whole process group, as a power cut or the OOM
 killer of a session would) while a table is written, during a training and during SfM, then rerun
-with the README's command (nothing else: the stale lock, the incomplete outputs and the killed
+with the command of docs/usage.md (nothing else: the stale lock, the incomplete outputs and the killed
 jobs' temporaries are handled by the workflow and its default profile), ends with the outputs of a
 clean run. A disk that fills up mid-run ends the run with one ERROR line and nothing half-written;
 the same command after freeing space completes it, again with the clean run's outputs.
@@ -108,7 +108,7 @@ def run_and_kill(wd: Path, args: list[str], ready: Callable[[], bool], what: str
 
 
 def rerun(wd: Path, args: list[str]) -> subprocess.CompletedProcess:
-    """The README's command, as a user reruns it after the crash: ``snakemake --cores 2 ARGS``."""
+    """The command of docs/usage.md, as a user reruns it after the crash: ``snakemake --cores 2 ARGS``."""
     wd.mkdir(parents=True, exist_ok=True)
     res = smk(REPO, wd, "--cores", "2", *args)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
@@ -218,7 +218,7 @@ def tiny_clean(tmp_path_factory):
 
 
 def _assert_killed_then_rerun(wd: Path, args: list[str]) -> subprocess.CompletedProcess:
-    """After the kill: Snakemake's lock is left; the README's command removes it (one line) and
+    """After the kill: Snakemake's lock is left; docs/usage.md's command removes it (one line) and
     completes the run."""
     assert locked(wd)
     res = rerun(wd, args)

@@ -299,10 +299,10 @@ def test_index_files(tiny_parquet, tmp_path):
     assert "**Absent**" not in full
 
 
-def test_the_project_readme_carries_the_exports_text():
-    """README.md, section "Export the benchmark", holds what results/export/README.md says of its files."""
-    readme = (REPO / "README.md").read_text()
-    section = readme.split("## Export the benchmark", 1)[1].split("\n## ", 1)[0]
+def test_the_usage_page_carries_the_exports_text():
+    """docs/usage.md, section "Export the benchmark", holds what results/export/README.md says of its files."""
+    usage = (REPO / "docs" / "usage.md").read_text()
+    section = usage.split("## Export the benchmark", 1)[1].split("\n## ", 1)[0]
     assert export.FILES_MARKDOWN in section
 
 

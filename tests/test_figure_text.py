@@ -192,7 +192,6 @@ def test_map_audit_and_sfm_figures(tiny, saved, tmp_path):
         ref, q, tmp_path / "reference_map.png", f"scene {TINY_SCENE}: {len(ref)} objects, {len(q)} queries"
     )
     xy = ref[["x_m", "y_m"]].to_numpy(float)
-    audit.plot_audit(xy + 0.3, xy, tmp_path / "audit.png", f"scene {TINY_SCENE}: ours over the published map")
     audit.plot_audit_grid([(f"scene {s}", xy + 0.2, xy) for s in range(6)], tmp_path / "audit_grid.png")
     rng = np.random.default_rng(1)
     cams = pd.DataFrame(

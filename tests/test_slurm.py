@@ -1,6 +1,6 @@
 """The cluster path: `snakemake --profile workflow/profiles/slurm` through sbatch on a one-node SLURM
 (tests/slurm/start_slurm.sh: Debian's slurm-wlm and munge, accounting off) gives the same results
-as a local run; a killed run's leftover job is found and cancelled by the README's command; and
+as a local run; a killed run's leftover job is found and cancelled by the command of docs/usage.md; and
 every rule declares threads, mem_mb and runtime from one table (workflow/rules/resources.yaml)
 that covers what its jobs were measured to need and fits a small node.
 
@@ -334,9 +334,10 @@ def test_benchmark_of_two_scenes_through_slurm_equals_the_local_run(slurm, repo,
 
 
 def _readme_cancel_command() -> str:
-    """The README's command that cancels the jobs of a killed run (run in its folder)."""
-    readme = (REPO / "README.md").read_text()
-    commands = [line.strip() for line in readme.splitlines() if line.strip().startswith("scancel ")]
+    """The command of docs/usage.md ("Audit trail, report, cluster") that cancels the jobs of a killed
+    run (run in its folder)."""
+    usage = (REPO / "docs" / "usage.md").read_text()
+    commands = [line.strip() for line in usage.splitlines() if line.strip().startswith("scancel ")]
     assert len(commands) == 1, commands
     return commands[0]
 
@@ -344,7 +345,7 @@ def _readme_cancel_command() -> str:
 @pytest.mark.slow
 def test_a_killed_runs_job_keeps_running_and_the_readme_command_cancels_it(slurm, repo, tmp_path):
     """kill -9 of Snakemake while its SLURM job runs leaves the job running (a resumed run would
-    submit it again: the plugin's issue #109); the README's command, run in the run's folder, finds
+    submit it again: the plugin's issue #109); docs/usage.md's command, run in the run's folder, finds
     the job by the run's ID and cancels it before it writes its last output."""
     env = {k: v for k, v in os.environ.items() if k != "FLATLANDIA_ROOT"}
     cmd = [SNAKEMAKE, "-s", str(repo / "workflow" / "Snakefile"), "-d", str(tmp_path), "--profile", str(PROFILE)]

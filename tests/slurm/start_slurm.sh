@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A one-node SLURM cluster on this machine, for tests/test_slurm.py and for trying the cluster
-# profile by hand (README, "Audit trail, report, cluster"). Idempotent: run it again and it only
+# profile by hand (docs/usage.md, "Audit trail, report, cluster"). Idempotent: run it again and it only
 # checks that the cluster is up. Debian (apt-get) and root only.
 #
 #   bash tests/slurm/start_slurm.sh    install Debian's slurm-wlm and munge if missing, write

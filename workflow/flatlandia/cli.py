@@ -497,7 +497,7 @@ def main(argv: list[str] | None = None) -> int:
         help="score your own poses of the benchmark's queries, as the built-in methods are scored",
         description="Score a poses file (CSV or Parquet; one row per query: scene, token and either x_m, y_m, "
         "theta_deg in the scene's metric frame or lon, lat, heading_deg with a compass heading; optional map_type, "
-        "proposal, seconds: README 'Score your own method') against the benchmark of a results folder, with the "
+        "proposal, seconds: docs/usage.md 'Score your own method') against the benchmark of a results folder, with the "
         "functions of rule fine_eval. Writes OUT/{NAME}_{map_type}_{proposal}/errors.parquet and summary.json per "
         "setting and OUT/scores.md (its rows beside the built-in rows of the same setting); queries without a pose "
         "count as failures.",

@@ -7,7 +7,7 @@ called with values the file of one job: ``reference_map()`` is
 (inputs, outputs, the targets of ``all``), ``score``, ``localize``, ``export``, the tables, the
 figures, the tests and the benchmarks build their paths here; a results folder elsewhere (``flatlandia
 score --results``, a copy of a run) is reached with :func:`within`. The layout itself is described in
-README.md, "What you get".
+docs/usage.md, "What lands where".
 
 It imports nothing but the standard library and ``vocabulary``: the rules read it while Snakemake
 parses them.

@@ -95,9 +95,9 @@ def simulated_coarse_proposals(
     """Proposals that look like a coarse model's 2N_LM, for training the learned models on them.
 
     Why: a model trained on GT-BB proposals only has never seen wrong objects, and a coarse
-    proposal holds about half. Measured on the test split's Sim+Trip 2N_LM proposals: recall 0.52,
-    precision 0.26, 95 % of wrong objects of a class the query sees, median 16 m from a true one.
-    So each true object is kept with probability ``recall`` (at least one), and wrong objects of
+    proposal holds about half. The wrong ones are nearly all of a class the query
+    sees and lie near a true one (measured on the real proposals: docs/measurements.md, "Simulated coarse
+    proposals"). So each true object is kept with probability ``recall`` (at least one), and wrong objects of
     the query's classes fill ``size_factor`` x N, drawn with weight exp(-d / ``fp_scale_m``), d the
     distance to the nearest true object. Uses ground truth: training split only.
     """
@@ -134,8 +134,8 @@ def crop_to_densest(ref: pd.DataFrame, proposals: pd.DataFrame, radius_m: float)
     with most proposal objects within ``radius_m``; ties to the first).
 
     Why: a coarse 2N_LM proposal is about half wrong objects scattered over the map, and a learned
-    model centres its frame on the proposal: measured on the test split's Sim+Trip 2N_LM depth
-    proposals with the GT-BB-trained MLP, cropping to 30 m takes the median from 29.5 to 22.9 m.
+    model centres its frame on the proposal, and cropping lowers its error (docs/measurements.md, "Simulated
+    coarse proposals").
     ``radius_m <= 0`` returns the proposals unchanged.
     """
     if radius_m <= 0:
@@ -168,7 +168,8 @@ def training_proposals(
     simulated coarse proposals per query (:func:`simulated_coarse_proposals`, cut by
     :func:`crop_to_densest` to ``crop_m`` like the real ones at evaluation), plus GT-BB when
     ``keep_gtbb``. Why: a model that never saw wrong objects in training does worse on coarse
-    proposals (measured in the README). Uses ground truth: training and validation splits only.
+    proposals (docs/measurements.md, "Simulated coarse proposals"). Uses ground truth: training and
+    validation splits only.
     """
     if regime == "gtbb":
         return [gtbb_proposals(ref, queries)]

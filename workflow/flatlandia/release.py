@@ -49,5 +49,5 @@ def workflow_package_mismatch(pyproject: str | Path) -> str:
     return (
         f"the workflow is flatlandia {wanted}, but its rules would import the Python package flatlandia {have} "
         f"({Path(__file__).resolve().parent}): install the package of the same release, "
-        f"pip install 'flatlandia[workflow] @ git+<repository>@v{wanted}' (README, 'Use it from your own workflow')"
+        f"pip install 'flatlandia[workflow] @ git+<repository>@v{wanted}' (docs/usage.md, 'Use it from your own workflow')"
     )

@@ -384,7 +384,11 @@ def write_table(
 
 #: tables written under more than one name with the same columns (the city rows of beyond one
 #: frame sit in a file of their own, so `all` never reruns them)
-SAME_COLUMNS_AS = {"beyond_one_frame_city": "beyond_one_frame"}
+SAME_COLUMNS_AS = {
+    "beyond_one_frame_city": "beyond_one_frame",
+    "ablations": "fine_localization",  # target ablations: the ablation runs beside the runs they ablate
+    "ablations_one_frame": "beyond_one_frame",  # target ablations: the protocol's scene rows, camera prior on and off
+}
 
 
 def schema_markdown() -> str:

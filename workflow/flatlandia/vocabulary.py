@@ -42,6 +42,9 @@ METHOD_LABELS = {
 }
 #: the methods' names in the figures, as the paper writes them (its tables' keys)
 METHOD_SHORT_LABELS = {"solver": "solver", "solver-noprior": "solver, no camera prior", **LEARNED_METHODS}
+#: an ablation's method -> the method it ablates (the `ablations` target's table puts each ablation
+#: run beside that method's run on the same map type and proposal)
+ABLATES = {"solver-noprior": "solver"}
 #: the city rows' methods (rule city_eval): today's solver on the whole city, the city search
 CITY_METHODS = ("solver", "index")
 
@@ -180,6 +183,13 @@ def split_run(run: str) -> tuple[str, str, str]:
     """(method, map_type, proposal) of a run name (a method's slug may hold '_', the others not)."""
     method, map_type, proposal = run.rsplit("_", 2)
     return method, map_type, proposal
+
+
+def ablated_run(run: str) -> str | None:
+    """The run an ablation run ablates (``solver-noprior_depth_whole`` -> ``solver_depth_whole``);
+    None for a run that ablates nothing."""
+    method, map_type, proposal = split_run(run)
+    return run_name(ABLATES[method], map_type, proposal) if method in ABLATES else None
 
 
 #: how a learned model was trained (rule fine_train's ``train`` wildcard): on the oracle box (the

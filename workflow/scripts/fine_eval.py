@@ -37,7 +37,7 @@ def main(smk, log):
         log.info("learned priors: %s", learned)
         progress = lambda what: rule_log.progress(log, what)  # noqa: E731
         errors = evaluation.solver_errors(scenes, mt, proposal, settings, learned, coarse, strategy, progress=progress)
-    else:  # torch only here: the solver's runs start 4 s faster without it
+    else:  # torch only here: the solver's runs start faster without it (docs/measurements.md, "Start-up costs")
         import torch
 
         from flatlandia import checkpoints

@@ -2,12 +2,12 @@
 
 Why views rather than the map alone: a depth query is 3-17 objects whose bearings are accurate but
 whose ranges and scale are not, so a map-only vote (pairs of same-class objects, each giving a
-camera pose through its noisy ranges) puts the right 40 m cell in the top 10 for only about half
-of the validation queries of the 20-scene city. The mapping views (the training split's cameras
-and the objects each saw) carry what the detector finds from a place, and a query is taken near
-one of them: ranking views by the query's classes (an idf-weighted bag of classes) and then by
-how well its bearings line up with a view's objects puts the right place among the 10 best
-distinct places for about 93 %.
+camera pose through its noisy ranges) puts the right 40 m cell in the top 10 for too few validation
+queries of the 20-scene city (docs/measurements.md, "City search"). The mapping views (the training
+split's cameras and the objects each saw) carry what the detector finds from a place, and a query is
+taken near one of them: ranking views by the query's classes (an idf-weighted bag of classes) and
+then by how well its bearings line up with a view's objects puts the right place among the 10 best
+distinct places for most queries (measured: docs/measurements.md, "City search").
 
 The index holds the map (positions, classes, ``obj_idx``), the views (pose, seen objects as
 rows of the map) and the class weights; it is built once per map and saved as one ``.npz``.

@@ -1,7 +1,8 @@
 """Compiled (numba) loop of the city index: how well a query lines up with each candidate view.
 
 Why compiled: every query checks a few hundred views, each by trying every same-class (query
-object, seen object) pair as the alignment; in Python that is about 1 ms per view.
+object, seen object) pair as the alignment; in Python that costs more than the
+solver's whole search (docs/measurements.md, "City search").
 """
 
 from __future__ import annotations

@@ -8,8 +8,7 @@ one heading offset and one scale align with a view's objects, and keeps the ``re
 distinct places (views at least ``nms_m`` apart). The solver then runs once on the objects within
 ``region_radius_m`` of those places, with the priors of the views there (its camera prior,
 co-visibility and verifier read only views near a pose), so a query's cost grows slowly with the
-city (validation split: 15 ms of CPU at 2,354 objects, 34 ms at 100,000, where the whole-map solver
-takes 42 ms and, at 10,000 objects, 1.3 s).
+city, where the whole-map solver's grows faster than the map (measured: docs/measurements.md, "City search").
 
 The index ranked every place of the city, so an answer's probability is lowered by the cities'
 map-size correction (:class:`flatlandia.solver.calibration.MapSize`, in ``learned``'s calibration:

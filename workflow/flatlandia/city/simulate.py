@@ -5,11 +5,10 @@ query taken there, which no method can tell apart. A synthetic tile is a publish
 at random) mirrored, turned by a random angle and with every object moved by a Gaussian jitter:
 its class counts, class co-occurrences, spacing and mapping views are those of the published
 scenes, but it is no rigid copy of a real place (a mirrored street is the same street only where
-it is symmetric, as a real city's repeated streets are). Measured on the validation split at the
-20-scene size, a scene among synthetic tiles drawn from the *other* scenes is about as hard as
-among the real ones (28.3 % wrong scene against 26.4 %, 57.5 % against 59.0 % within (5 m, 5 deg)),
-while tiles drawn from the scene itself are harder (33.5 %): hence the callers keep the query's own
-scene out of the templates.
+it is symmetric, as a real city's repeated streets are). At the 20-scene size, a scene among
+synthetic tiles drawn from the *other* scenes is about as hard as among the real ones, while tiles
+drawn from the scene itself are harder (measured: docs/measurements.md, "City search"): hence the callers keep
+the query's own scene out of the templates.
 """
 
 from __future__ import annotations

@@ -37,8 +37,6 @@ one (hypotheses x query objects x neighbourhood) array per chunk.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pandas as pd
 
@@ -75,7 +73,6 @@ class SceneIndex:
         self.nbr = order  # (n, k)
         self.valid = np.take_along_axis(d, order, 1) <= cfg.radius_m + 1e-9
         self.valid[np.arange(n), 0] |= True
-        self.nbr_dist = np.take_along_axis(d, order, 1)
         # anchors: (node i, slot p, slot q) with p != q both valid
         kk = np.arange(k)
         P, Q = np.meshgrid(kk, kk, indexing="ij")
@@ -238,13 +235,3 @@ def scene_similarity(
         out[c] = out[c].astype(np.float32)
     out["n_matched"] = out["n_matched"].astype(np.int16)
     return out[cols]
-
-
-def benchmark(ref: pd.DataFrame, queries: pd.DataFrame, cfg: SimilarityConfig = DEFAULT_SIMILARITY) -> dict:
-    """Seconds for the scene index and per query (mean) of :func:`scene_similarity`."""
-    t0 = time.perf_counter()
-    SceneIndex(ref[["x_m", "y_m"]].to_numpy(float), ref["class_id"].to_numpy(), cfg)
-    t1 = time.perf_counter()
-    scene_similarity(ref, queries, cfg)
-    t2 = time.perf_counter()
-    return {"index_s": t1 - t0, "per_query_s": (t2 - t1) / max(len(queries), 1), "queries": len(queries)}

@@ -13,16 +13,16 @@ Losses:
   "weighted by normalised S"; the floor keeps dissimilar nodes in the loss), normalised per query;
 * **Sim+Trip**: their sum (``trip_weight`` scales the triplet term).
 
-Adam over batches of ``batch_size`` (query graph, reference graph) pairs, learning rate ``lr``
-with a per-step cosine decay (``lr_schedule``) so that short runs (the default 20 epochs)
-converge. With ``batching: scene`` (default) a batch holds queries of one scene, so a step embeds
-that scene's reference graph and the batch's query graphs in one forward pass over their
-disjoint union (about 4x faster per epoch than ``mixed`` batches, which embed every scene the
-batch touches); each query is then compared with the nodes of its own scene. One model per loss,
-trained on GT and depth local maps (each epoch draws the map type of every training query at
-random from ``train_maps``). Seeded and deterministic on CPU (config ``device``: the same code on a
-GPU, the data moved there once, :func:`train`); the best-on-validation weights are
-kept (criterion: mean of the 2N_LM recall and the R_30 success over GT and depth maps, every
+Adam over batches of ``batch_size`` (query graph, reference graph) pairs, learning rate ``lr`` with
+a per-step cosine decay (``lr_schedule``) so that short runs (the default 20 epochs) converge. With
+``batching: scene`` (default) a batch holds queries of one scene, so a step embeds that scene's
+reference graph and the batch's query graphs in one forward pass over their disjoint union (several
+times faster per epoch than ``mixed`` batches, which embed every scene the batch touches;
+docs/measurements.md, "Code paths"); each query is then compared with the nodes of its own scene.
+One model per loss, trained on GT and depth local maps (each epoch draws the map type of every
+training query at random from ``train_maps``). Seeded and deterministic on CPU (config ``device``:
+the same code on a GPU, the data moved there once, :func:`train`); the best-on-validation weights
+are kept (criterion: mean of the 2N_LM recall and the R_30 success over GT and depth maps, every
 ``eval_every`` epochs).
 """
 

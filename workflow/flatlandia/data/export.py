@@ -6,7 +6,7 @@ proposed for them, and apart from those the ground truth; beside them the classe
 a template of the poses a method fills to be scored. Entry functions: :func:`scene_export` (rule
 ``export_scene``) and :func:`index_export` (rule ``export_index``); :func:`csv_text` is how every
 table is written. What each file holds is :data:`FILES_MARKDOWN`, the text of the export's
-``README.md`` and of the README section "Export the benchmark".
+``README.md`` and of the section "Export the benchmark" of docs/usage.md.
 
 Floats are written in positional notation with the fewest digits that read back to the same
 double (``numpy.format_float_positional(unique=True)``): the CSVs hold exactly the Parquet values.
@@ -53,8 +53,8 @@ SCENE_COLUMNS = [
 ]
 TEMPLATE_COLUMNS = ["scene", "token", "x_m", "y_m", "theta_deg"]
 
-#: what the export's files hold: the body of results/export/README.md and of the README section
-#: "Export the benchmark" (tests/test_export.py checks that the README carries it verbatim)
+#: what the export's files hold: the body of results/export/README.md and of the section "Export the
+#: benchmark" of docs/usage.md (tests/test_export.py checks that it carries it verbatim)
 FILES_MARKDOWN = """\
 | file | one row per | columns |
 |---|---|---|

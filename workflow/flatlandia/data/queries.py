@@ -9,7 +9,7 @@ from flatlandia import config, geo
 from flatlandia.data.localmaps import metric_local_map, normalise_depth_map, oracle_scale, published_to_metric_frame
 from flatlandia.plumbing.errors import InputError
 
-#: the columns of queries.parquet, in order (README "queries.parquet", docs/tables.md)
+#: the columns of queries.parquet, in order (docs/usage.md, "queries.parquet"; docs/tables.md)
 QUERY_COLUMNS = [
     "scene",
     "token",

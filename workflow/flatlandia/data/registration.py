@@ -42,10 +42,6 @@ class Recovery:
     best: Solution
     others: list[Solution] = field(default_factory=list)
 
-    @property
-    def second_rms_m(self) -> float:
-        return self.others[0].rms_m if self.others else float("nan")
-
 
 class PairIndex:
     """All ordered pairs of reference objects sorted by length, for fast anchor look-up."""

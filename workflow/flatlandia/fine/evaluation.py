@@ -23,7 +23,9 @@ from flatlandia import proposals as proposals_module
 from flatlandia.data import localmaps
 from flatlandia.geo import pose_errors  # noqa: F401 - the errors of this module's tables, for its readers
 
-if TYPE_CHECKING:  # torch and torch-geometric load in 4 s: only the learned models' evaluation needs them
+# torch and torch-geometric load slowly (docs/measurements.md, "Start-up costs"): only the learned
+# models' evaluation needs them
+if TYPE_CHECKING:
     from torch import nn
 
     from flatlandia.fine import learned
@@ -76,7 +78,8 @@ def solvable(query_classes, proposal_classes, min_objects: int = geo.MIN_OBJECTS
 @functools.lru_cache(maxsize=256)
 def metres_per_unit(lat: float) -> float:
     """Mean true metres per published local-map unit (tf/2 degrees) at a latitude (cached: a
-    projection is built per call, 18 ms, and evaluation asks once per query)."""
+    projection is built per call, dear beside a query, and evaluation asks once per query; docs/measurements.md,
+    "Start-up costs")."""
     mx, my = geo.MetricFrame(0.0, float(lat)).metres_per_degree()
     return geo.UNIT_DEG * (mx + my) / 2
 

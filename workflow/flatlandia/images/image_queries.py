@@ -153,7 +153,7 @@ def scene_queries(
     min_points: int = _IMAGES["min_points"],
     lift=None,
 ) -> pd.DataFrame:
-    """The queries table of an images scene, in the published scenes' schema (see README).
+    """The queries table of an images scene, in the published scenes' schema (docs/usage.md, "queries.parquet").
 
     ``lift(view, box)`` gives a detection's world point for the depth local map (default: the
     sparse SfM depth; see :mod:`flatlandia.images.depth` for the monocular backend).

@@ -20,7 +20,8 @@ from flatlandia.localize.query_files import class_ids
 from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
 
-if TYPE_CHECKING:  # the solver loads numba (2 s): only a loaded map needs it
+# the solver loads numba (seconds; docs/measurements.md, "Start-up costs"): only a loaded map needs it
+if TYPE_CHECKING:
     import pandas as pd
 
     from flatlandia import solver
@@ -111,7 +112,8 @@ def _workflow_paths(path: Path) -> tuple[Path | None, str | None, Path | None, P
 
 def _transformers(lon0: float, lat0: float):
     """(metres -> lon/lat, lon/lat -> metres) of a scene frame (:class:`flatlandia.geo.MetricFrame`),
-    built once: a transformer costs about 18 ms, a query's few points microseconds."""
+    built once: a transformer costs far more than a query's few points (docs/measurements.md,
+    "Start-up costs")."""
     from pyproj import CRS, Transformer
 
     frame = geo.MetricFrame(lon0, lat0)

@@ -89,24 +89,6 @@ def audit_scene(
     return row
 
 
-def plot_audit(ours_xy: np.ndarray, ref_xy: np.ndarray, path: str | Path, title: str) -> None:
-    """Ours over theirs, in metres."""
-    plt = figures.pyplot()
-
-    fig, ax = plt.subplots(figsize=(7, 7), dpi=100)
-    ax.scatter(ref_xy[:, 0], ref_xy[:, 1], s=40, facecolor="none", edgecolor="k", label=f"published ({len(ref_xy)})")
-    ax.scatter(ours_xy[:, 0], ours_xy[:, 1], s=8, color="tab:red", label=f"ours ({len(ours_xy)})")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x east (m)")
-    ax.set_ylabel("y north (m)")
-    ax.set_title(escape.mathtext(title))  # titles carry scene ids: '$' would start mathtext
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", bbox_inches="tight")
-    plt.close(fig)
-
-
 def audit_objects(
     scene: str,
     ours: pd.DataFrame,

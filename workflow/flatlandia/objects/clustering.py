@@ -4,28 +4,25 @@ Measured on the published data (docs/conventions.md, "Class clouds and reference
 
 - A reference object is the mean of the points of one object, so the centroid we report is
   the plain mean of the cluster's points (not the box centre).
-- The published procedure, measured: for each published object we searched the single-linkage
-  dendrogram of its colour's 3D points (equivalent to DBSCAN with min_samples <= 3 at every
-  radius) for a node whose mean is the object to 1e-4 m: 643 of the 757 objects outside scene
-  2 are such a 3D cluster (2D clustering of projected points: 480; z weighted 0.5 or 2: fewer).
-  Each object's admissible radius range, in metres through
-  :func:`flatlandia.objects.cloud.metres_per_unit`, is tight and class dependent: signs, lights
-  and markings 1.24 m (per scene 0.93-1.30 m; in SfM units the spread is 4x, so the radius is
-  metric), poles 0.40 m, manholes and traffic lights 0.88 m. DBSCAN min_samples 1-3 give
-  identical objects, 4+ lose a third; every published object has >= 3 points. These are the
-  defaults of :class:`ClusterParams`.
+- The published procedure, measured (figures: docs/measurements.md, "Objects from the published
+  clouds"): for each published object we searched the single-linkage dendrogram of its colour's 3D
+  points (equivalent to DBSCAN with min_samples <= 3 at every radius) for a node whose mean is the
+  object; most objects outside scene 2 are such a 3D cluster (fewer with 2D clustering of projected
+  points, or with z weighted). Each object's admissible radius range, in metres through
+  :func:`flatlandia.objects.cloud.metres_per_unit`, is tight and class dependent (in SfM units it
+  spreads far wider, so the radius is metric); DBSCAN min_samples 1-3 give identical objects, more
+  lose objects. These are the defaults of :class:`ClusterParams`.
 - Splitting same-class neighbours: with images, :func:`instance_parts` splits a cluster into the
   image instances its points were seen on (the paper's check against instance masks; the images
   branch with ``segment.instances_dir``). A class cloud alone has only the extent-based
   re-clustering (``split_extent_m``, off by default).
 - What is not reproduced (bounds in :mod:`flatlandia.objects.bounds`,
-  ``benchmarks/reproduction_bounds.py``): 152 published objects are not a cluster at any radius
-  (the paper splits clusters by reprojecting them into instance masks, which needs the images);
-  even the best radius per scene and class chosen with the answer reaches 87.5 % within 0.5 m.
-  The published maps drop clusters that the cloud cannot tell apart from kept ones (scene 4:
-  166 clusters, 158 published boxes, 73 objects; scene 2's cloud is 99.7% coloured, 511
-  published boxes, 97 objects; on scene 2 no cluster or SfM-track feature separates kept from
-  dropped, ROC AUC 0.47-0.65) - presumably objects without matched detections.
+  ``benchmarks/reproduction_bounds.py``; figures: docs/measurements.md, "Objects from the published
+  clouds"): some published objects are not a cluster at any radius (the paper splits clusters by
+  reprojecting them into instance masks, which needs the images), and even the best radius per scene
+  and class chosen with the answer stays below the reproduction target. The published maps drop
+  clusters that the cloud cannot tell apart from kept ones (scenes 2 and 4; on scene 2 no cluster
+  or SfM-track feature separates kept from dropped) - presumably objects without matched detections.
 """
 
 from __future__ import annotations

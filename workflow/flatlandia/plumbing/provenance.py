@@ -131,13 +131,6 @@ def workflow_state(folder: str) -> dict:
     return {"commit": head or "unknown", "dirty": bool(changed), "modified": changed[:50]}
 
 
-def git_commit(folder: str | Path | None = None) -> str:
-    """The commit of ``folder`` (default: this package's checkout), with '+dirty' when it has
-    uncommitted changes."""
-    state = workflow_state(str(folder or Path(__file__).resolve().parents[3]))
-    return state["commit"] + ("+dirty" if state["dirty"] else "")
-
-
 def software_versions() -> dict:
     """Python and the versions of the listed packages this process imported."""
     out = {"python": sys.version.split()[0], "flatlandia": __version__}

@@ -2,8 +2,8 @@
 
 Why: ``import torch_geometric`` (2.8) imports every subpackage, among them ``datasets``, which
 pulls in its LLM toolkit and, with it, ``transformers`` (installed here for the segmentation and
-depth backends): about 1 s of CPU in each of the ~30 jobs that train or evaluate a learned model,
-for code none of them runs. Those two subpackages are marked as loaded (empty modules) before
+depth backends): CPU in each of the jobs that train or evaluate a learned model, for code none of
+them runs (docs/measurements.md, "Start-up costs"). Those two subpackages are marked as loaded (empty modules) before
 torch-geometric is imported, unless something imported it already; every model module imports
 torch-geometric through this one (tests/test_fine.py checks the classes are the real ones).
 """

@@ -6,8 +6,7 @@ by the default job rate limit ``--max-jobs-per-timespan 100/1s``). A pass woken 
 starts a timer too, and that timer's pass starts the next: every finished job adds a chain of
 wake-ups that never ends. After K finished jobs the scheduler runs about K passes a second, each
 walking every ready job (their params and resources reset, inputs checked, the job selector run),
-so its own CPU grows with the square of the run's jobs. In the default run (249 jobs) it took 8 of
-25 minutes of CPU, taken from the jobs on a 2-core machine.
+so its own CPU grows with the square of the run's jobs, taken from the jobs on a 2-core machine.
 
 :func:`install` (called when the Snakefile is read) keeps at most one wake-up pending: a pass that
 finds a timer already armed starts none. The scheduler still wakes at least once a second while

@@ -19,7 +19,7 @@ from flatlandia.plumbing import escape, files
 #: why a scene's map can be empty, for the files that do not say it themselves
 EMPTY_MAP_HINT = (
     "no objects: the segmentation backend labelled no SfM point with an object class "
-    "(the offline backend finds none; see README 'Own photos')"
+    "(the offline backend finds none; see docs/usage.md, 'Your own photos')"
 )
 
 

@@ -7,9 +7,9 @@ range is a segfault, a NaN a silently wrong pose, a size nobody bounded an hour 
 memory. Every reader calls the checks here before the data is used, and each failed check is one
 :class:`~flatlandia.plumbing.errors.InputError` naming the file and the problem.
 
-The bounds are named constants, all of them here (docs/security.md says why each has its value;
-the README's "Untrusted inputs" lists them). Each is far above what the benchmark's own files
-need (noted beside it).
+The bounds are named constants, all of them here (docs/security.md says why each has its value and
+what its worst input cost, measured). Each is far above what the benchmark's own files need (noted
+beside it).
 """
 
 from __future__ import annotations
@@ -36,16 +36,16 @@ MAX_QUERY_JSON_BYTES = 8 * MB
 #: nesting of any JSON value (a query file needs 4 levels, a provenance record 4, a checkpoint's config 3)
 MAX_JSON_DEPTH = 32
 #: nesting of a config value (the schema's deepest key: 4 levels; Snakemake's own YAML loader
-#: fails on its own past about 250)
+#: fails on its own far deeper: docs/security.md, "The bounds")
 MAX_CONFIG_DEPTH = 16
 #: digits of a JSON integer read as an integer (longer ones are read as floats, so 10**400 is inf)
 MAX_INT_DIGITS = 30
-#: objects of one query (the published local maps hold at most 17; 10,000 ran past 240 s)
+#: objects of one query (the published local maps hold at most 17; far more ran for minutes:
+#: docs/security.md, "The bounds")
 MAX_QUERY_OBJECTS = 100
 #: queries of one query file (the benchmark's test split: 215)
 MAX_QUERIES = 10_000
-#: frames of one sequence (the benchmark's sequences: 5; 20 frames of 17 objects on a map of
-#: MAX_CLASS_OBJECTS street lights: 36 s)
+#: frames of one sequence (the benchmark's sequences: 5; the cost grows with the frames: docs/security.md, "The bounds")
 MAX_SEQUENCE_FRAMES = 20
 #: largest coordinate of a query's local map, any unit (metres of a GT map: a camera sees 100 m)
 MAX_LOCAL_COORD = 1e6
@@ -55,12 +55,11 @@ MAX_ODOMETRY_M = 10_000.0
 MAX_PRIOR_M = 1_000_000.0
 #: largest compass sigma, degrees (beyond half a turn a compass says nothing)
 MAX_COMPASS_SIGMA_DEG = 180.0
-#: objects of a scene map file (a scene: about 120; the solver searches 20,000 of 42 classes in 4-30 s,
-#: 200,000 in 4 min: a larger map is a city, searched through its index)
+#: objects of a scene map file (a scene: about 120; the solver's time grows with the map,
+#: docs/security.md, "The bounds": a larger map is a city, searched through its index)
 MAX_MAP_OBJECTS = 20_000
-#: objects of one class in a scene map (a published scene: at most 86): the solver's candidates grow
-#: with it (300 street lights in 300 x 200 m and a depth query of 100: 43 s; 1,000: 4 min; 2,000:
-#: over 5 min for a query of 17)
+#: objects of one class in a scene map (a published scene: at most 86): the solver's candidates, and
+#: its time, grow with it (docs/security.md, "The bounds")
 MAX_CLASS_OBJECTS = 300
 #: objects of a city index (the simulated city: 100,000)
 MAX_INDEX_OBJECTS = 1_000_000

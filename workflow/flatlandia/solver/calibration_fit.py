@@ -6,7 +6,7 @@ with every learned prior but the calibration, answers each validation query on i
 frame, as rule fine_eval) and, on the whole map, each validation anchor's sequences (as rule
 beyond_scene, at every frame count of ``beyond.frames`` above one); each answer's pool share and
 whether it came out within (5 m, 5 deg) are what the logistic maps learn from. Rule solver_priors
-runs it once per benchmark (about 15 s of CPU).
+runs it once per benchmark (docs/measurements.md, "Code paths").
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Compiled (numba) scoring loops of the geometric solver.
 
 Why: scoring every hypothesis against every same-class candidate as padded (C, M, K) numpy arrays
-spent most of a whole-map query (about 60 % of 47 ms) building temporaries for candidates that a
+spent most of a whole-map query (docs/measurements.md, "Code paths") building temporaries for candidates that a
 bearing test rejects at once. Here each (hypothesis, query object) walks only its own class's
 candidates and skips a candidate as soon as its bearing cost alone cannot beat the best so far or
 the inlier cap; the result is the same MSAC data term, inlier mask and matches as the numpy

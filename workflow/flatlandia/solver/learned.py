@@ -5,7 +5,7 @@ Why one value written once: the fine runs, the coarse stage's proposals and the 
 solve depth maps with the same priors learned from the benchmark's training split; rule
 solver_priors fits them once per region the queries are solved on (the verifier learns on the
 region the test queries get: the whole map, or the GT-BB box) and writes them as JSON, which the
-other rules read (fitting took 13-28 s of CPU per rule that needed it).
+other rules read (fitting in every rule that needed it cost seconds each: docs/measurements.md, "Code paths").
 """
 
 from __future__ import annotations

@@ -202,9 +202,9 @@ class PriorGate:
     """Which points lie within ``radius`` of a prior camera: an exact tree query, and once the tree
     has answered about as many points as a 1 m grid over the cameras has cells (``GRID_AFTER``), a
     grid of sure-inside / sure-outside cells with the tree only for boundary cells. Same answer
-    either way; cached per set of prior cameras. Why lazily: the grid costs 16 ms at 230 m and
-    0.3 s at 1 km, which pays off over the many queries of a scene, not for the camera set the
-    city search hands one query (a grid per query took its p90 to 0.5 s)."""
+    either way; cached per set of prior cameras. Why lazily: the grid's cost grows with the cameras'
+    extent, which pays off over the many queries of a scene, not for the camera set the city search
+    hands one query (docs/measurements.md, "Code paths")."""
 
     CELL = 1.0
     GRID_AFTER = 0.125  # build the grid once the points queried exceed this share of its cells

@@ -1,8 +1,8 @@
 """Verification: which of the solver's best refined hypotheses is the right pose.
 
-Why: on the whole map the cheapest hypothesis is often wrong while a near-tie is right (validation
-split, depth maps: a pose within (5 m, 5 deg) is among the 12 cheapest refined hypotheses for about
-82 % of queries, the cheapest is one for about 61 %). What separates them is evidence the MSAC
+Why: on the whole map the cheapest hypothesis is often wrong while a near-tie is right (a pose within
+(5 m, 5 deg) is among the 12 cheapest refined hypotheses far more often than it is the cheapest:
+docs/measurements.md, "Geometric solver"). What separates them is evidence the MSAC
 cost weighs poorly or not at all: how well the matched objects agree with what the training
 cameras near the pose saw (Jaccard overlap, visibility, objects seen there but not matched),
 how dense the training cameras are there, and the cost's own terms. A linear score of these
@@ -33,8 +33,8 @@ FEATURES = (
     "camera_m",  # distance to the nearest training camera
     "log_scale",  # log metres per local unit
 )
-#: kernel of "nearby" training cameras: position and heading widths, radius (validation split:
-#: 3 m / 20 deg and 8 m / 45 deg choose alike)
+#: kernel of "nearby" training cameras: position and heading widths, radius (other widths choose
+#: alike: docs/measurements.md, "Geometric solver")
 KERNEL_M, KERNEL_DEG, KERNEL_RADIUS_M = 5.0, 30.0, 15.0
 #: training cameras looked at per hypothesis
 KERNEL_KNN = 32

@@ -110,7 +110,8 @@ def query_figure(view: SceneView, q: QueryView):
     plt = figures.pyplot()
     fig, ax = plt.subplots(figsize=(6.2, 7.2))
     draw_query(ax, view, q, view.featured)
-    fig.subplots_adjust(left=0.13, right=0.97, top=0.95, bottom=0.22)  # fixed: a layout pass per figure cost 20 %
+    # fixed margins: a layout pass per figure is dear (docs/measurements.md, "Code paths")
+    fig.subplots_adjust(left=0.13, right=0.97, top=0.95, bottom=0.22)
     return fig
 
 

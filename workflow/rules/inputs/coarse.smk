@@ -3,7 +3,8 @@
 
 
 COARSE = config["coarse"]
-#: CPU seconds per coarse training epoch on one core (benchmarks/bench_paper_config.py: 0.95-1.01 s)
+#: CPU seconds per coarse training epoch on one core (benchmarks/bench_paper_config.py;
+#: docs/measurements.md, "Code paths")
 COARSE_EPOCH_S = 1.0
 
 

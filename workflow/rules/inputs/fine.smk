@@ -63,7 +63,7 @@ def fine_train_regime(proposal):
     """Training proposals of the learned model a run evaluates (vocabulary.train_regime): ``coarse``
     (simulated coarse proposals) for runs on coarse proposals when fine.coarse_training.enabled, else
     ``gtbb``; the solver's box proposals (strategy BB) are what the GT-BB-trained model knows (on them
-    it is 7.2 m against 10.5 m for the coarse-trained one, depth maps, validation split)."""
+    it beats the coarse-trained one: docs/measurements.md, "Training-free coarse proposals")."""
     strategy = vocabulary.coarse_strategy(proposal, config)
     return vocabulary.train_regime(proposal, strategy, config["fine"]["coarse_training"]["enabled"])
 
@@ -90,9 +90,9 @@ def strategy_reads(wildcards):
     return {key} if key else set()
 
 
-#: the order of ready trainings: the longest first (a clean default run: GAT+ATT 110 s, GAT 85 s,
-#: MLP+ATT 56 s, MLP 31-37 s), ahead of the evaluations and figures, so the run does not end on one
-#: long training with the other core idle (it did: 35 s idle before the last evaluations)
+#: the order of ready trainings: the longest first, ahead of the evaluations and figures, so the run
+#: does not end on one long training with the other core idle (it did: docs/measurements.md,
+#: "Code paths")
 FINE_TRAIN_PRIORITY = {"gat_att": 4, "gat": 3, "mlp_att": 2, "mlp": 1}
 
 

@@ -52,5 +52,5 @@ def segment_gpus():
 
 def segment_mem_mb():
     """Memory for segment (MB): 1000 + 80 per megapixel of images.max_megapixels, the largest image
-    the audit lets through (offline backend: 3.4 GB measured for one 49.9 MP photo, 0.7 GB for 8 MP)."""
+    the audit lets through (measured on the offline backend: docs/measurements.md, "Images branch")."""
     return int(1000 + 80 * config["images"]["max_megapixels"])
