@@ -24,9 +24,10 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import machine  # noqa: E402
 
-from flatlandia import paths, score, tables  # noqa: E402
-from flatlandia.fine import table as fine_table  # noqa: E402
+from flatlandia import paths, score  # noqa: E402
+from flatlandia.fine import fine_table  # noqa: E402
 from flatlandia.localize import batch  # noqa: E402
+from flatlandia.report import tables
 
 NAME_COLUMNS = {"run", "method", "method_label"}
 #: positions come back bit for bit, headings through degrees (1e-13 deg)

@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/bench_objects.py [--root ../shared/flatlandia]
 Runs per scene what rules objects, principal_plane and reproduction_audit run, through their
-entry functions (flatlandia.objects.scene.published_objects, principal_plane.published_plane_report,
+entry functions (flatlandia.objects.scene_objects.published_objects, principal_plane.published_plane_report,
 audit.audit_objects) with the default config. Prints per scene: published objects, ours, matched
 within 0.05 / 0.5 / 2 m, median distance, extra objects (ours not within 0.5 m of a published one),
 the principal-plane angle to the published one (degrees) and the wall time (read + cluster +
@@ -20,8 +20,7 @@ import pandas as pd
 
 from flatlandia import config
 from flatlandia.data import published
-from flatlandia.objects import audit, cloud, principal_plane
-from flatlandia.objects import scene as scene_objects
+from flatlandia.objects import audit, cloud, principal_plane, scene_objects
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]

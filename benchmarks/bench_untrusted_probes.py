@@ -266,10 +266,10 @@ def build(out: Path) -> dict:
     import torch
 
     from flatlandia import checkpoints
-    from flatlandia.fine import learned
+    from flatlandia.fine import models
 
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
-    state = learned.build_model(cfg).state_dict()
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    state = models.build_model(cfg).state_dict()
     nan = {k: torch.full_like(v, float("nan")) if v.is_floating_point() else v for k, v in state.items()}
     for name, st, text in (
         ("ck_nan.pt", nan, json.dumps({"config": cfg.to_dict()})),
@@ -482,8 +482,8 @@ published.read_transformations({str(p["transformations_nan.json"])!r})
             "checkpoint with NaN weights",
             python(f"""
 from flatlandia import checkpoints
-from flatlandia.fine import learned
-checkpoints.load_checkpoint({str(p["ck_nan.pt"])!r}, learned.FineTrainConfig, learned.build_model)
+from flatlandia.fine import models
+checkpoints.load_checkpoint({str(p["ck_nan.pt"])!r}, models.FineTrainConfig, models.build_model)
 """),
             None,
         ),
@@ -542,8 +542,8 @@ checkpoints.load_checkpoint({str(p["ck_nan.pt"])!r}, learned.FineTrainConfig, le
             "checkpoint config hidden=200000, heads=64",
             python(f"""
 from flatlandia import checkpoints
-from flatlandia.fine import learned
-checkpoints.load_checkpoint({str(p["ck_huge.pt"])!r}, learned.FineTrainConfig, learned.build_model)
+from flatlandia.fine import models
+checkpoints.load_checkpoint({str(p["ck_huge.pt"])!r}, models.FineTrainConfig, models.build_model)
 """),
             None,
         ),
@@ -552,8 +552,8 @@ checkpoints.load_checkpoint({str(p["ck_huge.pt"])!r}, learned.FineTrainConfig, l
             "checkpoint meta nested 100,000 deep",
             python(f"""
 from flatlandia import checkpoints
-from flatlandia.fine import learned
-checkpoints.load_checkpoint({str(p["ck_deep.pt"])!r}, learned.FineTrainConfig, learned.build_model)
+from flatlandia.fine import models
+checkpoints.load_checkpoint({str(p["ck_deep.pt"])!r}, models.FineTrainConfig, models.build_model)
 """),
             None,
         ),

@@ -17,13 +17,13 @@ import pytest
 from conftest import TINY_SCENE
 from tiny_results import tiny_scene
 
-from flatlandia import cli, config, geo, paths, score, tables
+from flatlandia import cli, config, geo, paths, score
 from flatlandia.city import index, tiling
 from flatlandia.data import export, reference_map
-from flatlandia.fine import evaluation
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import evaluation, fine_table
 from flatlandia.localize import batch
 from flatlandia.plumbing import files
+from flatlandia.report import tables
 
 #: the fine table's columns that are timings (query seconds) or name the run
 NAME_COLUMNS = {"run", "method", "method_label"}

@@ -10,15 +10,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import tables
-from flatlandia.city import table as city_table
+from flatlandia.city import city_table
 from flatlandia.coarse import evaluation as coarse_evaluation
 from flatlandia.data import stats
-from flatlandia.fine import evaluation, scene_localization
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import evaluation, fine_table, scene_localization
 from flatlandia.plumbing import escape, files, summary
+from flatlandia.report import tables
 from flatlandia.viewer import page
-from flatlandia.viewer.scene import SceneView
+from flatlandia.viewer.scene_view import SceneView
 
 #: a scene sheet's `city` (free text a user or a download controls)
 HOSTILE = r"\input{secret.tex}<img src=x onerror=alert(1)>|pipe"

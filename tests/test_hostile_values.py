@@ -19,7 +19,7 @@ from snakemake_runner import smk
 
 from flatlandia import checkpoints, config
 from flatlandia.data import ingest
-from flatlandia.fine import learned
+from flatlandia.fine import models
 from flatlandia.objects import cloud
 from flatlandia.plumbing import names, ply, rule_log
 from flatlandia.plumbing.errors import InputError
@@ -216,7 +216,7 @@ def test_every_published_ply_passes_the_header_check(flat_root):
 
 
 def _checkpoint(tmp_path: Path, state_dict: dict, **cfg_over) -> Path:
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
     cfg_dict = {**cfg.to_dict(), **cfg_over}
     path = tmp_path / "ck.pt"
     torch.save({"format": checkpoints.FORMAT, "state_dict": state_dict, "meta": json.dumps({"config": cfg_dict})}, path)
@@ -225,8 +225,8 @@ def _checkpoint(tmp_path: Path, state_dict: dict, **cfg_over) -> Path:
 
 @pytest.mark.parametrize("case", ["shape", "missing", "extra", "not_tensors", "bad_config"])
 def test_a_checkpoint_whose_weights_do_not_fit_is_one_error(tmp_path, capsys, case):
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
-    state = learned.build_model(cfg).state_dict()
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    state = models.build_model(cfg).state_dict()
     key = next(iter(state))
     over = {}
     if case == "shape":
@@ -242,7 +242,7 @@ def test_a_checkpoint_whose_weights_do_not_fit_is_one_error(tmp_path, capsys, ca
     path = _checkpoint(tmp_path, state, **over)
 
     def main(smk, log):  # as a rule script loads it
-        checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+        checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
 
     with pytest.raises(SystemExit):
         rule_log.run(main, SimpleNamespace(log=[]))

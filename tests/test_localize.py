@@ -185,13 +185,13 @@ def test_near_restricts_the_search(tiny_scene, tiny_map, tmp_path):
 
 
 def test_alternatives_come_from_the_same_pool(tiny_scene):
-    """solver.localize: its best is solve's, its alternatives distinct poses ranked behind it."""
+    """solver.locate: its best is solve's, its alternatives distinct poses ranked behind it."""
     ref, _, q = tiny_scene
     xy, cls = ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy()
     n_alts = 0
     for r in q.itertuples(index=False):
         local = localmaps.local_map(r, "depth")
-        found = solver.localize(local, np.asarray(r.classes), xy, cls, metric=False, alternatives=5)
+        found = solver.locate(local, np.asarray(r.classes), xy, cls, metric=False, alternatives=5)
         best = solver.solve(local, np.asarray(r.classes), xy, cls, metric=False)
         assert found.best == best and found.best.behind == 0.0
         poses = [found.best, *found.alternatives]
@@ -203,7 +203,7 @@ def test_alternatives_come_from_the_same_pool(tiny_scene):
                 turn = abs((a.theta - b.theta + np.pi) % (2 * np.pi) - np.pi)
                 assert math.hypot(a.x - b.x, a.y - b.y) >= solver.pipeline.DISTINCT_M or turn >= np.radians(5.0)
         n_alts += len(found.alternatives)
-        assert solver.localize(local, np.asarray(r.classes), xy, cls).alternatives == []
+        assert solver.locate(local, np.asarray(r.classes), xy, cls).alternatives == []
     assert n_alts > 0
 
 

@@ -8,7 +8,7 @@ import sys
 def test_the_model_modules_get_torch_geometric_without_its_datasets():
     code = (
         "import sys\n"
-        "from flatlandia.fine import learned, training\n"
+        "from flatlandia.fine import models, training\n"
         "from flatlandia.coarse import retrieval\n"
         "from flatlandia.plumbing import pyg\n"
         "assert pyg.GATv2Conv.__module__.startswith('torch_geometric.nn'), pyg.GATv2Conv.__module__\n"

@@ -17,10 +17,9 @@ from flatlandia.coarse import evaluation as coarse_evaluation
 from flatlandia.coarse import retrieval
 from flatlandia.coarse import training as coarse_training
 from flatlandia.data import published, queries, reference_map
-from flatlandia.fine import learned, training
+from flatlandia.fine import models, training
 from flatlandia.images import gps_alignment
-from flatlandia.objects import cloud, clustering, labels, principal_plane
-from flatlandia.objects import scene as scene_objects
+from flatlandia.objects import cloud, clustering, labels, principal_plane, scene_objects
 from flatlandia.plumbing.errors import InputError
 
 CLUSTER = config.section_defaults("objects.cluster")
@@ -190,7 +189,7 @@ def test_scene_alignment_local_and_gps():
     by_hand = gps_alignment.local_frame(
         np.array([centres[n] for n in sorted(centres)]), np.array([images[0].cam_from_world().matrix()[:, :3]] * 6)
     )
-    assert gps_alignment.is_local(local) and np.allclose(local["A"], by_hand["A"]) and "no GPS" in local["method"]
+    assert geo.alignment_is_local(local) and np.allclose(local["A"], by_hand["A"]) and "no GPS" in local["method"]
     out = gps_alignment.scene_alignment("s", rec, table, align, 0, source="cameras")
     assert out["cameras"] == sorted(centres) and out["method"].endswith("RANSAC similarity to GPS")
     assert out["metres_per_sfm_unit"] == pytest.approx(2.0, rel=1e-3)
@@ -210,7 +209,7 @@ FINE = dict(model="MLP", map_type="gt", hidden=16, epochs=2, batch_size=32, augm
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_training_samples_per_regime(scene9_pair):
-    cfg = learned.FineTrainConfig(**FINE)
+    cfg = models.FineTrainConfig(**FINE)
     q = scene9_pair[0][1]
     n_train, n_val = int((q["split"] == "train").sum()), int((q["split"] == "val").sum())
     ct = {"copies": 2, "keep_gtbb": True, "crop_m": 0.0}
@@ -226,7 +225,7 @@ def test_training_samples_per_regime(scene9_pair):
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_fine_train_model_is_training_on_those_samples(scene9_pair, tmp_path):
-    cfg = learned.FineTrainConfig(**FINE)
+    cfg = models.FineTrainConfig(**FINE)
     ct = {"copies": 1, "keep_gtbb": True, "crop_m": 0.0}
     res, history, meta = training.train_model(scene9_pair, cfg, "gtbb", ct)
     by_hand = training.train(*training.training_samples(scene9_pair, cfg, "gtbb", ct), cfg)

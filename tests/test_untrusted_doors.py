@@ -27,15 +27,16 @@ from PIL.TiffImagePlugin import IFDRational
 from tiny_results import tiny_scene
 from zip_archives import make_zip
 
-from flatlandia import checkpoints, cli, config, figures
+from flatlandia import checkpoints, cli, config
 from flatlandia.classes import CLASSES
 from flatlandia.data import export, fetch, published, reference_map
-from flatlandia.fine import learned
+from flatlandia.fine import models
 from flatlandia.images import image_audit
 from flatlandia.objects import audit
 from flatlandia.plumbing import escape, files, rule_log
 from flatlandia.plumbing.errors import InputError
-from flatlandia.viewer import query_figures, scene
+from flatlandia.report import figures
+from flatlandia.viewer import query_figures, scene_view
 
 
 def tree(root: Path) -> set[str]:
@@ -258,7 +259,7 @@ def test_nan_in_the_published_transforms_is_refused(tmp_path, value):
 
 
 def _checkpoint(tmp_path: Path, state: dict, meta: str | None = None, **cfg_over) -> Path:
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
     path = tmp_path / "ck.pt"
     text = meta if meta is not None else json.dumps({"config": {**cfg.to_dict(), **cfg_over}})
     torch.save({"format": checkpoints.FORMAT, "state_dict": state, "meta": text}, path)
@@ -267,7 +268,7 @@ def _checkpoint(tmp_path: Path, state: dict, meta: str | None = None, **cfg_over
 
 def _load_error(path: Path, capsys) -> str:
     def main(smk, log):  # as a rule script loads it
-        checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+        checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
 
     with pytest.raises(SystemExit):
         rule_log.run(main, SimpleNamespace(log=[]))
@@ -278,7 +279,7 @@ def _load_error(path: Path, capsys) -> str:
 
 
 def test_a_checkpoint_with_nan_weights_is_refused(tmp_path, capsys):
-    state = learned.build_model(learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)).state_dict()
+    state = models.build_model(models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)).state_dict()
     key = next(k for k, v in state.items() if v.is_floating_point())
     state[key] = torch.full_like(state[key], float("nan"))
     assert f"the weights {key} hold NaN or inf" in _load_error(_checkpoint(tmp_path, state), capsys)
@@ -286,7 +287,7 @@ def test_a_checkpoint_with_nan_weights_is_refused(tmp_path, capsys):
 
 def test_a_checkpoint_asking_for_terabytes_or_nested_too_deep_is_one_line(tmp_path, capsys):
     """hidden=200000, heads=64 tried to allocate 10 TB; meta nested 100,000 deep was a RecursionError."""
-    state = learned.build_model(learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)).state_dict()
+    state = models.build_model(models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)).state_dict()
     t0 = time.process_time()
     line = _load_error(_checkpoint(tmp_path, state, hidden=200000, heads=64), capsys)
     assert "the weights do not fit the model its config describes" in line and time.process_time() - t0 < 10
@@ -325,7 +326,7 @@ def test_data_text_in_figures_is_drawn_as_text_not_mathtext(tiny, tmp_path):
     hist = pd.DataFrame({"epoch": [0, 1], "train_loss": [1.0, 0.5]})
     figures.plot_training_curves({SECRET: hist}, tmp_path / "curves.png")
     q2 = q.assign(token=[f"{SECRET}{k}" for k in range(len(q))])
-    view = scene.scene_view(SECRET, ref, q2, {}, axes=(SECRET, "y $x$"))
+    view = scene_view.scene_view(SECRET, ref, q2, {}, axes=(SECRET, "y $x$"))
     fig = query_figures.query_figure(view, view.queries[0])
     fig.savefig(tmp_path / "query.png")
     figures.pyplot().close(fig)

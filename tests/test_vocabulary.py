@@ -260,7 +260,8 @@ def test_a_new_proposal_type_is_two_edits(tmp_path):
     assert "results/fine/models/mlp_depth_coarse/checkpoint.pt" in planned  # trained on simulated coarse proposals
 
     check = (
-        "from flatlandia import figures, score, vocabulary\n"
+        "from flatlandia import score, vocabulary\n"
+        "from flatlandia.report import figures\n"
         "from flatlandia.data import export\n"
         "assert 'coarse-demo' in export.COARSE_SOURCES and figures.PROPOSAL_LABELS['coarse-demo']\n"
         "assert vocabulary.strategy_label('coarse-demo', '2N_LM') == 'Demo 2N_LM'\n"

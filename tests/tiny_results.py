@@ -16,8 +16,7 @@ from conftest import TINY_ROOT, TINY_SCENE
 
 from flatlandia import config, score
 from flatlandia.data import scene_inputs
-from flatlandia.fine import evaluation
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import evaluation, fine_table
 from flatlandia.plumbing import files
 
 

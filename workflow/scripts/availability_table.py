@@ -4,8 +4,8 @@ import json
 
 import pandas as pd
 
-from flatlandia import tables
 from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):

@@ -1,12 +1,12 @@
 """Rule city_table: results/tables/city_scale.{parquet,md}, today's solver beside the city
-search at every city size, tiled and simulated (flatlandia.city.table)."""
+search at every city size, tiled and simulated (flatlandia.city.city_table)."""
 
 import json
 from pathlib import Path
 
-from flatlandia import tables
-from flatlandia.city import table as city_table
+from flatlandia.city import city_table
 from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):

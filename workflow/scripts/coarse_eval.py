@@ -12,10 +12,11 @@ also a flat markdown ``coarse_localization_rows.md`` and LaTeX) and markdown lai
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, tables
+from flatlandia import checkpoints
 from flatlandia import device as device_module
 from flatlandia.coarse import evaluation, retrieval
 from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):

@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import tables
 from flatlandia.data import stats
 from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):

@@ -3,9 +3,10 @@
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, figures
+from flatlandia import checkpoints
 from flatlandia.coarse import retrieval
 from flatlandia.plumbing import rule_log
+from flatlandia.report import figures
 
 
 def main(smk, log):

@@ -3,8 +3,8 @@
 import numpy as np
 import pandas as pd
 
-from flatlandia import figures
 from flatlandia.plumbing import rule_log
+from flatlandia.report import figures
 
 
 def main(smk, log):

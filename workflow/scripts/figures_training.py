@@ -2,8 +2,8 @@
 
 import pandas as pd
 
-from flatlandia import figures
 from flatlandia.plumbing import rule_log
+from flatlandia.report import figures
 
 
 def main(smk, log):

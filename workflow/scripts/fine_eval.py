@@ -42,7 +42,7 @@ def main(smk, log):
 
         from flatlandia import checkpoints
         from flatlandia import device as device_module
-        from flatlandia.fine import learned as models
+        from flatlandia.fine import models
 
         torch.set_num_threads(int(smk.threads))
         device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line

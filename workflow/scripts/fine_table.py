@@ -10,9 +10,9 @@ import json
 
 import pandas as pd
 
-from flatlandia import tables
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import fine_table
 from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):

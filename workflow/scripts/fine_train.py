@@ -13,7 +13,7 @@ import torch
 
 from flatlandia import checkpoints, proposals
 from flatlandia import device as device_module
-from flatlandia.fine import learned, training
+from flatlandia.fine import models, training
 from flatlandia.plumbing import files, rule_log
 
 
@@ -24,7 +24,7 @@ def main(smk, log):
     p, regime = smk.params, smk.wildcards.train
     coarse_training = dict(p["fine.coarse_training"])
     train = proposals.training_settings(p["fine.train"], p["fine.train_overrides.{model}"], coarse_training, regime)
-    cfg = learned.FineTrainConfig.from_dict({**train, "model": p.model, "map_type": smk.wildcards.map_type})
+    cfg = models.FineTrainConfig.from_dict({**train, "model": p.model, "map_type": smk.wildcards.map_type})
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
     res, history, meta = training.train_model(
         scenes,

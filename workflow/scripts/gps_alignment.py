@@ -8,6 +8,7 @@ keeps the SfM frame on its ground plane (photos without GPS: SfM units, no lon/l
 import pandas as pd
 import pycolmap
 
+from flatlandia import geo
 from flatlandia.images import gps_alignment
 from flatlandia.plumbing import files, rule_log
 
@@ -24,7 +25,7 @@ def main(smk, log):
         log=log,
     )
     files.write_json(out, smk.output.json)
-    if gps_alignment.is_local(out):
+    if geo.alignment_is_local(out):
         log.info(
             "scene %s: local frame on the SfM ground plane of %d cameras, unit: %s",
             scene,

@@ -3,21 +3,21 @@
 The scene's source (config/scenes.tsv) decides the input: a published scene starts from its
 class point cloud and takes positions through the published chain and 42-class labels by label
 transfer (:mod:`flatlandia.objects.labels`); an images scene starts from its classified SfM
-points and takes positions through its GPS alignment. The logic: :mod:`flatlandia.objects.scene`.
+points and takes positions through its GPS alignment. The logic: :mod:`flatlandia.objects.scene_objects`.
 """
 
 import pandas as pd
 
 from flatlandia.classes import CLASSES
 from flatlandia.data import published
-from flatlandia.objects import cloud, clustering, scene
+from flatlandia.objects import cloud, clustering, scene_objects
 from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
     name, cluster = smk.wildcards.scene, dict(smk.params["objects.cluster"])
     if smk.params.source == "images":
-        out = scene.images_objects(
+        out = scene_objects.images_objects(
             name,
             pd.read_parquet(smk.input.points),
             files.read_json(smk.input.alignment),
@@ -27,7 +27,7 @@ def main(smk, log):
         )
     else:
         pts, point_labels = cloud.read_classified_cloud(smk.input.cloud)
-        out = scene.published_objects(
+        out = scene_objects.published_objects(
             name,
             pts,
             point_labels,

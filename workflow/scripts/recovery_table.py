@@ -2,8 +2,8 @@
 
 import pandas as pd
 
-from flatlandia import tables
 from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):

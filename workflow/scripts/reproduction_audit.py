@@ -3,10 +3,10 @@
 
 import pandas as pd
 
-from flatlandia import tables
 from flatlandia.data import published
 from flatlandia.objects import audit, cloud
 from flatlandia.plumbing import rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):

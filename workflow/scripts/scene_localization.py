@@ -6,7 +6,7 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints
-from flatlandia.fine import learned, scene_localization
+from flatlandia.fine import scene_localization
 from flatlandia.plumbing import files, rule_log
 
 
@@ -20,7 +20,7 @@ def main(smk, log):
         log.warning("scene %s: %s", scene, meta["empty_because"])
     models = {}
     for path in smk.input.checkpoints:
-        model, cfg = checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+        model, cfg = checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
         slug = Path(path).parent.name.rsplit("_", 2)[0]  # {model}_{map_type}_{train}
         models[(slug, cfg.map_type)] = (model, cfg)
     rows = scene_localization.scene_rows(

@@ -24,7 +24,7 @@ from scipy import sparse
 from scipy.spatial import cKDTree
 
 from flatlandia import classes
-from flatlandia.city import kernels
+from flatlandia.city import view_kernels
 from flatlandia.plumbing import files
 
 #: arrays of the saved index
@@ -55,7 +55,7 @@ class ViewIndex:
         rel = self.obj_xy[self.view_obj] - self.cam[rows, :2]
         #: per seen object: bearing from its view (relative to the view's heading) and log range
         self.view_bear = np.angle(np.exp(1j * (np.arctan2(rel[:, 1], rel[:, 0]) - self.cam[rows, 2])))
-        self.view_logr = np.log(np.hypot(rel[:, 0], rel[:, 1]) + kernels.RANGE_FLOOR_M)
+        self.view_logr = np.log(np.hypot(rel[:, 0], rel[:, 1]) + view_kernels.RANGE_FLOOR_M)
         self.obj_tree = cKDTree(self.obj_xy)
         self.cam_tree = cKDTree(self.cam[:, :2]) if n_views else None
 

@@ -17,11 +17,12 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import config, paper, proposals, tables, vocabulary
+from flatlandia import config, paper, proposals, vocabulary
 from flatlandia import device as device_module
 from flatlandia.coarse import retrieval
 from flatlandia.plumbing import escape
 from flatlandia.proposals import proposal_metrics  # noqa: F401  (this module's API too)
+from flatlandia.report import tables
 
 STRATEGIES = [*vocabulary.COARSE_STRATEGIES, vocabulary.ORACLE_STRATEGY]
 #: Defaults: the `coarse.train` section of workflow/schemas/config.schema.yaml (R_30's radius, GT-BB's enlargement).

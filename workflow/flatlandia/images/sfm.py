@@ -12,9 +12,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, figures
+from flatlandia import config
+from flatlandia.images.views import views_from_colmap
 from flatlandia.plumbing import escape
 from flatlandia.plumbing.errors import InputError
+from flatlandia.report import figures
 
 TESTED_PYCOLMAP = "4.2.1"
 
@@ -276,12 +278,12 @@ def clean_cameras(
     factor ``height_mad_k``), then, among the others, cameras over ``gps_max_residual_m`` from
     their own GPS fix once the model is aligned to GPS (:func:`flatlandia.images.gps_alignment.gps_outliers`:
     up axes + RANSAC, seeded). ``gps`` is indexed by image name with lon, lat (NaN: no GPS)."""
-    from flatlandia.images import gps_alignment, image_queries
+    from flatlandia.images import gps_alignment
 
     cams = camera_centres(rec)
     bad = height_outliers(cams[["x", "y", "z"]].to_numpy(), height_mad_k)
     removed = cams.loc[bad, ["image_id", "name"]].assign(reason="off the street-level camera plane")
-    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
+    views = {v.name: v for v in views_from_colmap(rec)}
     kept = cams.loc[~bad].reset_index(drop=True)
     far = gps_alignment.gps_outliers(
         kept[["x", "y", "z"]].to_numpy(),

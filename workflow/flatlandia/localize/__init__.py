@@ -1,7 +1,7 @@
 """Localize your own query: the camera pose of one image's objects on a reference map.
 
 The Python side of ``flatlandia localize`` (workflow/flatlandia/cli.py), on the benchmark's code
-path: the pose is :func:`flatlandia.solver.localize`'s, the function rule fine_eval and the city
+path: the pose is :func:`flatlandia.solver.locate`'s, the function rule fine_eval and the city
 search call, so a published test query written as a query file comes back with the pose the
 benchmark's whole-map run gives it.
 

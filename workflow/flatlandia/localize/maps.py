@@ -302,7 +302,7 @@ def set_training_priors(m: ObjectMap, training: pd.DataFrame | None, source: Pat
         if training is not None:
             m.priors[map_type] = solver.scene_priors(ref, training, m.settings, lp)
         else:
-            m.priors[map_type] = solver.TrainingPriors().with_learned(lp) if lp is not None else None
+            m.priors[map_type] = solver.with_learned(solver.TrainingPriors(), lp) if lp is not None else None
     cams = m.priors["gt"].cameras if m.priors["gt"] is not None else None
     m.cameras = 0 if cams is None else len(cams)
     m.queries_path = source if training is not None else None
@@ -340,7 +340,7 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
     m.learned = solver.LearnedPriors.read(m.learned_path) if m.learned_path else None
     correction = paths.within(city_dir.parent.parent, paths.city_calibration())  # rule city_calibration
     if m.learned is not None and path.parent.name == "index" and correction.is_file():
-        from flatlandia.solver.learned import read_map_size
+        from flatlandia.solver.learned_priors import read_map_size
 
         m.learned, m.map_size_path = m.learned.with_map_size(read_map_size(correction)), correction
     table = city_dir / "map.parquet"

@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 
 from flatlandia import geo
-from flatlandia.beyond import MIN_SIGMA_DEG, MIN_SIGMA_M
 from flatlandia.classes import CLASSES
 from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
+from flatlandia.sequences import MIN_SIGMA_DEG, MIN_SIGMA_M
 
 #: fewest objects a query needs (a 2-point fit and one object to check it)
 MIN_OBJECTS = geo.MIN_OBJECTS

@@ -1,8 +1,8 @@
 """Localizing on a loaded map: one query (:func:`localize`), a sequence (:func:`localize_sequence`),
 the files of ``flatlandia localize`` (:func:`localize_file`).
 
-The pose is :func:`flatlandia.solver.localize`'s on a scene map (the function rule fine_eval
-calls) and :func:`flatlandia.city.search.localize`'s on a city index.
+The pose is :func:`flatlandia.solver.locate`'s on a scene map (the function rule fine_eval
+calls) and :func:`flatlandia.city.search.search_city`'s on a city index.
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ def localize(
         if near is not None:
             rows, centres = near_rows(m, near, radius_m)
         search = m.search if near is None else _replace(m.search, region_radius_m=float(radius_m))
-        found = city_search.localize(
+        found = city_search.search_city(
             m.index, xy, q.cls, search, m.settings, m.learned, metric, alternatives, centres=centres
         )
         best, alts, rows = found.solution, found.alternatives, found.rows
@@ -146,7 +146,7 @@ def _solve_rows(m: ObjectMap, xy, cls, rows: np.ndarray, metric: bool, map_type:
     if len(rows) < 2:
         return solver.Localization(None)
     priors = m.priors[map_type]
-    return solver.localize(
+    return solver.locate(
         xy,
         cls,
         m.xy[rows],
@@ -168,7 +168,7 @@ def _localize_with_fix(m: ObjectMap, xy, cls, metric: bool, alternatives: int, f
     answers = []
     for fix in fx:
         if m.kind == "city":
-            found = city_search.localize(
+            found = city_search.search_city(
                 m.index, xy, cls, m.search, m.settings, m.learned, metric, alternatives, fix=fix
             )
             answers.append((found.solution, found.alternatives, found.rows))
@@ -190,8 +190,8 @@ def localize_sequence(
     alternatives: int = ALTERNATIVES,
     settings=None,
 ) -> dict:
-    """A sequence's anchor pose on a loaded map (depth local maps): :func:`flatlandia.solver.localize_sequence`
-    on a scene map, :func:`flatlandia.city.search.localize_sequence` on a city index, with the
+    """A sequence's anchor pose on a loaded map (depth local maps): :func:`flatlandia.solver.locate_sequence`
+    on a scene map, :func:`flatlandia.city.search.search_city_sequence` on a city index, with the
     map's priors and an optional fix (``gps``, ``compass`` as :func:`localize`) of the anchor. The
     answer is :func:`localize`'s for the anchor (its ``matches`` are the anchor's objects'), plus
     ``frames``: every frame's pose (``id``, lon, lat, x_m, y_m, heading_deg, theta_deg, scale),
@@ -210,7 +210,7 @@ def localize_sequence(
     answers = []
     for fix in fx:
         if m.kind == "city":
-            found, located = city_search.localize_sequence(
+            found, located = city_search.search_city_sequence(
                 m.index, frames, seq.rel, m.search, m.settings, settings, m.learned, seq.sigma, fix, None, alternatives
             )
             rows = located.rows
@@ -218,7 +218,7 @@ def localize_sequence(
             rows = np.arange(len(m.xy)) if fix is None else np.flatnonzero(np.hypot(*(m.xy - fix.xy).T) <= fix.crop_m)
             priors = m.priors["depth"]
             found = (
-                solver.localize_sequence(
+                solver.locate_sequence(
                     frames,
                     seq.rel,
                     m.xy[rows],

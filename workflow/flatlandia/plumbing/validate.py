@@ -446,7 +446,7 @@ def map_size_calibration(d: Any, source: str | Path, max_shift: float, max_per_l
 
 
 def learned_priors(d: Any, source: str | Path, n_features: int) -> None:
-    """A solver priors JSON (:class:`flatlandia.solver.learned.LearnedPriors`): ``scale_prior``
+    """A solver priors JSON (:class:`flatlandia.solver.learned_priors.LearnedPriors`): ``scale_prior``
     null or (mean, std) finite with std > 0; ``verifier`` null or ``weights``, ``mean``,
     ``scale`` of ``n_features`` finite numbers each, every scale > 0."""
     if not isinstance(d, dict):

@@ -29,7 +29,7 @@ SCORE_COLUMNS = (
 def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
     """scores.md: per setting, the method's row beside the built-in rows of the same map type
     and proposal (every threshold and recall column)."""
-    from flatlandia.fine import table as fine_table
+    from flatlandia.fine import fine_table
 
     thresholds = [f"{m:g} m & {d:g}°" for m, d in paper.THRESHOLDS]
     heads = (

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from flatlandia import figures
-from flatlandia.figures import MAP_TYPE_DASHES, TRUTH_COLOUR
 from flatlandia.plumbing import escape, files
+from flatlandia.report import figures
+from flatlandia.report.figures import MAP_TYPE_DASHES, TRUTH_COLOUR
 from flatlandia.viewer.query_figures import WRONG_COLOUR
-from flatlandia.viewer.scene import Estimate, QueryView, SceneView
+from flatlandia.viewer.scene_view import Estimate, QueryView, SceneView
 
 ASSETS = Path(__file__).parent / "assets"
 #: query cameras by split, as results/{scene}/maps/reference_map.png draws them

@@ -1,4 +1,4 @@
-"""Errors of the anchors of "beyond one frame" (:mod:`flatlandia.beyond.protocol`) and their summaries.
+"""Errors of the anchors of "beyond one frame" (:mod:`flatlandia.sequences.protocol`) and their summaries.
 
 Rows are anchors (test queries) under one setting: the map (a scene's whole map, the tiled city of
 20 scenes, or a simulated city), the frames used (the anchor and its nearest companions), the GPS
@@ -19,14 +19,14 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import geo, solver
-from flatlandia.beyond import protocol
 from flatlandia.city import index as city_index
 from flatlandia.city import search, simulate
 from flatlandia.data import localmaps
 from flatlandia.fine import evaluation
+from flatlandia.sequences import protocol
 from flatlandia.solver.sequence import SequenceConfig, true_match_poses
 
-#: a pose farther than this from the truth is in the wrong scene (flatlandia.city.evaluate)
+#: a pose farther than this from the truth is in the wrong scene (flatlandia.city.evaluation)
 WRONG_SCENE_M = evaluation.WRONG_SCENE_M
 #: (5 m, 5 deg): the share a user would call localized
 WITHIN_M, WITHIN_DEG = evaluation.WITHIN
@@ -69,7 +69,7 @@ class Anchor:
 
 
 def anchors(queries: pd.DataFrame, split: str, beyond: dict, seed: int, candidates: pd.DataFrame | None = None):
-    """The anchors of one scene's ``split`` queries (:func:`flatlandia.beyond.protocol.sequence_rows`:
+    """The anchors of one scene's ``split`` queries (:func:`flatlandia.sequences.protocol.sequence_rows`:
     companions among ``candidates``, default ``queries``, which must hold the anchors)."""
     pool = queries if candidates is None else candidates
     pool = pool.reset_index(drop=True)
@@ -192,14 +192,14 @@ def scene_errors(
         ref_xy, ref_cls = ref[["x_m", "y_m"]].to_numpy(float), ref["class_id"].to_numpy()
         pos = {int(o): k for k, o in enumerate(ref["obj_idx"])}
         full = solver.scene_priors(ref, q, solver_settings, learned)
-        off = solver.TrainingPriors().with_learned(learned)
+        off = solver.with_learned(solver.TrainingPriors(), learned)
         for a in anchors(q, split, beyond, seed)[::every]:
             cache: dict = {}
             for s in settings:
                 k = min(s.frames, len(a.frames))
                 given = protocol.leave_out(full, q, a.tokens[1:k]) if s.camera_prior else off
                 t0, c0 = time.perf_counter(), time.process_time()
-                found = solver.localize_sequence(
+                found = solver.locate_sequence(
                     a.frames[:k], a.odo.rel[:k], ref_xy, ref_cls, cfg, given, seq, a.odo.sigma[:k], _fix(a, s)
                 )
                 cpu, wall = time.process_time() - c0, time.perf_counter() - t0
@@ -237,7 +237,7 @@ def city_anchor_errors(
             k = min(s.frames, len(a.frames))
             exclude = np.array([view_of[t] for t in a.tokens[1:k] if t in view_of], np.int64)
             t0, c0 = time.perf_counter(), time.process_time()
-            found, _ = search.localize_sequence(
+            found, _ = search.search_city_sequence(
                 ix,
                 a.frames[:k],
                 a.odo.rel[:k],
@@ -361,7 +361,7 @@ def warm_up_sequence() -> None:
     frames = [(rng.uniform(1, 20, (5, 2)), ref_cls[:5]), (rng.uniform(1, 20, (4, 2)), ref_cls[5:9])]
     rel = np.array([[0, 0, 0], [2.0, 0.5, 0.1]])
     prior, seen = rng.uniform(-50, 50, (20, 3)), rng.random((20, 30)) < 0.3
-    solver.localize_sequence(
+    solver.locate_sequence(
         frames,
         rel,
         ref,

@@ -14,7 +14,6 @@ import pandas as pd
 
 from flatlandia import geo
 from flatlandia.classes import CLASSES
-from flatlandia.images import gps_alignment
 from flatlandia.objects import cloud, clustering, labels
 
 
@@ -100,7 +99,7 @@ def images_objects(
     objs, member = labels.images_scene_objects(
         scene, points, alignment, params, CLASSES, source=source, instances=instances
     )
-    local = gps_alignment.is_local(alignment)
+    local = geo.alignment_is_local(alignment)
     meta = {
         "scene": scene,
         "frame": "local" if local else "gps",

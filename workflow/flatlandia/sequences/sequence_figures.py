@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import figures
 from flatlandia.fine.evaluation import WITHIN, WRONG_SCENE_M
 from flatlandia.plumbing import escape
+from flatlandia.report import figures
 from flatlandia.solver import calibration
 
 #: the frame counts drawn

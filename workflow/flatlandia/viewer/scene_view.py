@@ -16,8 +16,8 @@ import pandas as pd
 from flatlandia import geo, vocabulary
 from flatlandia.data import localmaps
 from flatlandia.data import reference_map as reference_map_module
-from flatlandia.figures import Run
 from flatlandia.plumbing import files
+from flatlandia.report.figures import Run
 
 #: the solver's match of each local-map object (reference ``obj_idx``, -1: none), where the run's
 #: errors table stores it; without it an estimate's objects are linked to their true positions

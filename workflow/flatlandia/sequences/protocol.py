@@ -38,7 +38,7 @@ import pandas as pd
 from scipy.spatial import cKDTree
 
 from flatlandia import geo, solver
-from flatlandia.beyond import MIN_SIGMA_DEG, MIN_SIGMA_M  # noqa: F401  (the floors, this module's API too)
+from flatlandia.sequences import MIN_SIGMA_DEG, MIN_SIGMA_M  # noqa: F401  (the floors, this module's API too)
 from flatlandia.solver.priors import Fix
 from flatlandia.solver.sequence import relative_pose
 

@@ -56,7 +56,7 @@ def index_errors(
     for r in queries[queries["split"] == split].itertuples(index=False):
         q = localmaps.local_map(r, "depth")
         t0, c0 = time.perf_counter(), time.process_time()
-        found = search.localize(ix, q, np.asarray(r.classes), cfg, solver_settings, learned)
+        found = search.search_city(ix, q, np.asarray(r.classes), cfg, solver_settings, learned)
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
         sol = found.solution
         if sol is None:

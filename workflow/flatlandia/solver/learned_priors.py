@@ -20,7 +20,7 @@ from flatlandia.plumbing import files
 from flatlandia.solver import calibration, likelihood, verify, verify_fit
 from flatlandia.solver.calibration import Calibration, MapSize
 from flatlandia.solver.likelihood import LikelihoodModel
-from flatlandia.solver.priors import depth_scale_prior
+from flatlandia.solver.priors import TrainingPriors, camera_priors, depth_scale_prior
 from flatlandia.solver.settings import SolverConfig
 
 #: the regions a verifier can be learned on (:data:`verify_fit.REGIONS`); on any other region
@@ -85,6 +85,28 @@ class LearnedPriors:
             return cls.from_dict(d)
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(path, f"not the solver's learned priors ({e}); delete it to have it refitted") from None
+
+
+def with_learned(priors: TrainingPriors, learned: LearnedPriors | None) -> TrainingPriors:
+    """``priors`` with a benchmark's learned scale prior, verifier, likelihood model and calibration
+    (None: without)."""
+    if learned is None:
+        return replace(priors, scale=None, verifier=None, likelihood=None, calibration=None)
+    return replace(
+        priors,
+        scale=learned.scale,
+        verifier=learned.verifier,
+        likelihood=learned.likelihood,
+        calibration=learned.calibration,
+    )
+
+
+def scene_priors(
+    ref: pd.DataFrame, queries: pd.DataFrame, settings: dict | None = None, learned: LearnedPriors | None = None
+) -> TrainingPriors:
+    """The priors of one scene's whole map (rows of ``ref``): its training cameras and what they
+    saw (:func:`flatlandia.solver.priors.camera_priors`), with a benchmark's ``learned`` priors."""
+    return with_learned(camera_priors(ref, queries, settings), learned)
 
 
 def read_map_size(path: str | Path) -> MapSize:

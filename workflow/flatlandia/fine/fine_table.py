@@ -8,9 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import paper, tables, vocabulary
+from flatlandia import paper, vocabulary
 from flatlandia.fine import evaluation
 from flatlandia.plumbing import escape
+from flatlandia.report import tables
 
 #: method slugs (rule wildcards) and their display names (vocabulary.METHOD_LABELS); an external
 #: method (config ``external``, ``flatlandia score``) is shown by its summary's ``method``, its name

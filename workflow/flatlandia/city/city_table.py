@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import pandas as pd
 
-from flatlandia import tables
+from flatlandia.report import tables
 
-#: columns of results/tables/city_scale.parquet, in order (schema: flatlandia.tables)
+#: columns of results/tables/city_scale.parquet, in order (schema: flatlandia.report.tables)
 COLUMNS = [c.name for c in tables.SCHEMAS["city_scale"]]
 
 

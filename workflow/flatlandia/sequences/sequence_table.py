@@ -2,7 +2,7 @@
 beyond_one_frame_city.{parquet,md} (the same columns, the scene and city rows).
 
 One row per (map, frames, GPS sigma, camera prior) from the summaries of rules beyond_scene and
-beyond_city (:func:`flatlandia.beyond.evaluate.summaries`); the Markdown puts the headline columns
+beyond_city (:func:`flatlandia.sequences.evaluation.summaries`); the Markdown puts the headline columns
 first, the true-match bound beside them, and OrienterNet's published recalls under them, labelled
 as another task.
 """
@@ -12,11 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from flatlandia import paper, tables
+from flatlandia import paper
 from flatlandia.fine import evaluation
 from flatlandia.plumbing import escape
+from flatlandia.report import tables
 
-#: columns of results/tables/beyond_one_frame.parquet, in order (schema: flatlandia.tables)
+#: columns of results/tables/beyond_one_frame.parquet, in order (schema: flatlandia.report.tables)
 COLUMNS = [c.name for c in tables.SCHEMAS["beyond_one_frame"]]
 #: maps in the table's order
 MAP_ORDER = ("scene", "city", "simulated")
