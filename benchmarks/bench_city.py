@@ -107,7 +107,7 @@ def main():
     settings, cfg = solver.SolverConfig.from_dict(solver_dict), search.SearchConfig()
     sim = config.section_defaults("city.simulate")
     c0 = time.process_time()
-    learned = solver.learned.fit([(r, q) for _, r, q in scenes], solver_dict)
+    learned = solver.learned_priors.fit([(r, q) for _, r, q in scenes], solver_dict)
     print(f"priors fitted in {time.process_time() - c0:.1f} s CPU")
     solver.warm_up()
     if args.bound:

@@ -284,7 +284,7 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
     learned = {}
     for region in ("whole", "gtbb"):  # rule solver_priors: a verifier per region
         priors = paths.within(results, paths.proposal_priors(region))  # as rule fine_eval reads them
-        solver.learned.fit(scenes, settings, region).write(priors)
+        solver.learned_priors.fit(scenes, settings, region).write(priors)
         learned[region] = solver.LearnedPriors.read(priors)
     stats = []
     for ref, q in scenes:
