@@ -1,7 +1,7 @@
 """Rule ingest: check a scene's published files and report what is available."""
 
-from flatlandia import io, runlog
 from flatlandia.data import ingest
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -14,7 +14,7 @@ def main(smk, log):
             f["problem"],
         )
     log.info("scene %s: %d queries", rep["scene"], rep["n_queries"])
-    io.write_json(rep, smk.output.report)
+    files.write_json(rep, smk.output.report)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821
