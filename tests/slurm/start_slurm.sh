@@ -134,6 +134,8 @@ scontrol ping 2>/dev/null | grep -q UP || failed "slurmctld does not answer: $(l
 if ! alive /run/slurmd.pid; then
   slurmd || failed "slurmd did not start: $(last_log "$LOGS/slurmd.log")"
   touch "$RUN/slurmd"
+  # the daemon writes its pid file after the command returns (over a stale one of a killed slurmd)
+  for _ in $(seq 40); do alive /run/slurmd.pid && break; sleep 0.25; done
 fi
 
 # ---------------------------------------------------------------- the node
