@@ -198,6 +198,26 @@ def images_scenes():
     return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "images"]
 
 
+def check_images_folders():
+    """Stop before any job when a selected images scene's folder (the sheet's path) is not a folder
+    and no url fetches it: otherwise the first rule's input function fails inside Snakemake, with
+    a traceback."""
+    for scene in images_scenes():
+        row = SCENES_SHEET.loc[scene]
+        path = config_path(row["path"]) if row.get("path", "") else None
+        if path is not None and path.exists() and not path.is_dir():
+            sys.exit(f"ERROR: {config['scenes']}: images scene {scene}: its path {str(path)!r} is a file, not a folder")
+        if (path is None or not path.exists()) and not row.get("url", ""):
+            given = f"its path {str(path)!r} does not exist" if path is not None else "its path is empty"
+            sys.exit(
+                f"ERROR: {config['scenes']}: images scene {scene}: {given} and the row gives no url to fetch "
+                "the photos from (give the folder of photos in the path column; the sheet is tab-separated)"
+            )
+
+
+check_images_folders()
+
+
 def localization_scenes():
     """Images scenes whose queries the benchmark's methods localize (scene_localization), those
     on a GPS-aligned map (a local frame has no metres to measure errors in)."""

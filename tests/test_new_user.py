@@ -1,0 +1,45 @@
+"""What a new user trips over, found by following README.md from a fresh clone: each ends in a
+result or one clear ERROR/WARNING line, never a traceback or a silent success."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from conftest import REPO, smk_dry_run
+
+TINY = REPO / "config" / "test" / "tiny.yaml"
+SHEET_HEAD = "scene\tsource\tcity\tname\tpath\turl\tsubfolder\n"
+
+
+def _plan_with_sheet(tmp_path: Path, row: str):
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text(SHEET_HEAD + row + "\n")
+    return smk_dry_run(REPO, tmp_path, "maps", "--configfile", str(TINY), "--config", f"scenes={sheet}")
+
+
+def _one_error(res) -> str:
+    assert res.returncode != 0 and "Traceback" not in res.stderr + res.stdout, (res.stdout + res.stderr)[-3000:]
+    errors = [ln for ln in (res.stdout + res.stderr).splitlines() if ln.startswith("ERROR:")]
+    assert len(errors) == 1, (res.stdout + res.stderr)[-3000:]
+    return errors[0]
+
+
+def test_an_images_scene_whose_folder_is_missing_is_one_error_line_before_any_job(tmp_path):
+    """A typo in the sheet's path column: was Snakemake's InputFunctionException with a traceback."""
+    line = _one_error(_plan_with_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{tmp_path / 'my_wlak'}\t\t"))
+    assert "images scene mine" in line and "my_wlak' does not exist" in line and "no url" in line
+    line = _one_error(_plan_with_sheet(tmp_path, "mine\timages\tLund\tmy_walk\t\t\t"))
+    assert "images scene mine: its path is empty" in line
+
+
+def test_an_images_scene_whose_path_is_a_photo_is_one_error_line(tmp_path):
+    photo = tmp_path / "01.jpg"
+    photo.write_bytes(b"\xff\xd8\xff")
+    line = _one_error(_plan_with_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{photo}\t\t"))
+    assert f"its path '{photo}' is a file, not a folder" in line
+
+
+def test_an_images_scene_with_its_folder_still_plans(tmp_path):
+    (tmp_path / "photos").mkdir()
+    res = _plan_with_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{tmp_path / 'photos'}\t\t")
+    assert res.returncode == 0 and "image_audit" in res.stdout, res.stderr[-3000:]
