@@ -3,9 +3,12 @@ result or one clear ERROR/WARNING line, never a traceback or a silent success.""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
-from conftest import REPO, smk_dry_run
+from conftest import REPO, TINY_ROOT, smk_dry_run
+
+from flatlandia.data import ingest
 
 TINY = REPO / "config" / "test" / "tiny.yaml"
 SHEET_HEAD = "scene\tsource\tcity\tname\tpath\turl\tsubfolder\n"
@@ -43,3 +46,16 @@ def test_an_images_scene_with_its_folder_still_plans(tmp_path):
     (tmp_path / "photos").mkdir()
     res = _plan_with_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{tmp_path / 'photos'}\t\t")
     assert res.returncode == 0 and "image_audit" in res.stdout, res.stderr[-3000:]
+
+
+def test_a_broken_optional_published_file_is_said_a_missing_one_is_not(tmp_path):
+    """A truncated tokens.txt let the run end with status 0 and a PROBLEM line only in the rule's log."""
+    root = tmp_path / "flat"
+    shutil.copytree(TINY_ROOT, root)
+    assert ingest.optional_problems(ingest.ingest_scene(root, "0")) == []
+    tokens = root / "maps/0/tokens.txt"
+    tokens.write_bytes(tokens.read_bytes()[:-5])
+    (line,) = ingest.optional_problems(ingest.ingest_scene(root, "0"))
+    assert line.startswith(f"{tokens}: size ") and "truncated" in line and "scene 0" in line
+    tokens.unlink()  # absent: the published data's normal state for some scenes
+    assert ingest.optional_problems(ingest.ingest_scene(root, "0")) == []
