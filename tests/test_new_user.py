@@ -3,11 +3,13 @@ result or one clear ERROR/WARNING line, never a traceback or a silent success.""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
 from conftest import REPO, TINY_ROOT, smk_dry_run
 
+from flatlandia import cli
 from flatlandia.data import ingest
 
 TINY = REPO / "config" / "test" / "tiny.yaml"
@@ -59,3 +61,43 @@ def test_a_broken_optional_published_file_is_said_a_missing_one_is_not(tmp_path)
     assert line.startswith(f"{tokens}: size ") and "truncated" in line and "scene 0" in line
     tokens.unlink()  # absent: the published data's normal state for some scenes
     assert ingest.optional_problems(ingest.ingest_scene(root, "0")) == []
+
+
+def _one_record(run: Path) -> Path:
+    """A run folder holding one artifact and its provenance record, as a rule script leaves them."""
+    artifact = run / "results/0/maps/reference_map.parquet"
+    artifact.parent.mkdir(parents=True)
+    artifact.write_bytes(b"map")
+    from flatlandia import provenance
+
+    digest, size = provenance.path_digest(artifact)
+    rec = {
+        "rule": "reference_map",
+        "wildcards": {"scene": "0"},
+        "inputs": {},
+        "outputs": {"results/0/maps/reference_map.parquet": {"sha256": digest, "bytes": size}},
+        "config_hash": "0" * 16,
+        "package_version": "0.1.0",
+        "git_commit": "abc",
+        "finished_at": "2026-11-28T00:00:00+00:00",
+    }
+    (run / "logs/provenance/reference_map").mkdir(parents=True)
+    (run / "logs/provenance/reference_map/scene-0.json").write_text(json.dumps(rec))
+    return artifact
+
+
+def test_audit_takes_an_artifact_by_its_absolute_path(tmp_path, monkeypatch, capsys):
+    """`flatlandia audit /full/path/results/...` in the run's folder said "no audit record"."""
+    artifact = _one_record(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["audit", str(artifact)]) == 0
+    assert "artifact: results/0/maps/reference_map.parquet" in capsys.readouterr().out
+
+
+def test_audit_outside_the_run_folder_says_where_it_looked(tmp_path, monkeypatch, capsys):
+    artifact = _one_record(tmp_path / "run")
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    assert cli.main(["audit", str(artifact)]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith(f"ERROR: no audit records in {tmp_path / 'elsewhere'}: run flatlandia audit in the run's")

@@ -99,10 +99,25 @@ def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -
     return "\n".join(lines)
 
 
+def _run_relative(artifact: str) -> str:
+    """An artifact as the records name it: relative to the run's folder (the working folder), also
+    when given as an absolute path inside it (a shell's completion, a file manager's copy)."""
+    path = Path(artifact)
+    if path.is_absolute():
+        try:
+            path = path.resolve().relative_to(Path.cwd().resolve())
+        except (OSError, ValueError):  # outside the run's folder: no record names it
+            pass
+    return str(path)
+
+
 def audit(args) -> int:
     df = _records(args)
     if df.empty:
-        print(f"ERROR: no audit records: run the workflow first ({args.manifest} and {args.provenance} are empty)")
+        print(
+            f"ERROR: no audit records in {Path.cwd()}: run flatlandia audit in the run's folder, or run the workflow "
+            f"first ({args.manifest} and {args.provenance} are empty)"
+        )
         return 1
     if args.check:  # every recorded artifact re-hashed
         bad = provenance.check(df)
@@ -114,7 +129,7 @@ def audit(args) -> int:
             print(f"  {r.artifact} (rule {r.rule}): recorded {_short(r.recorded)}, now {_short(r.now)}")
         return 1
     if args.artifact:
-        text = audit_artifact(df, str(Path(args.artifact)), args.tree, Path(args.provenance) / "configs")
+        text = audit_artifact(df, _run_relative(args.artifact), args.tree, Path(args.provenance) / "configs")
         if not text:
             near = [a for a in df["artifact"] if Path(a).name == Path(args.artifact).name][:5]
             print(
