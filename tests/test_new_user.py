@@ -44,6 +44,19 @@ def test_an_images_scene_whose_path_is_a_photo_is_one_error_line(tmp_path):
     assert f"its path '{photo}' is a file, not a folder" in line
 
 
+def test_a_sheet_row_written_with_spaces_is_one_error_saying_tabs(tmp_path):
+    """An editor that turns tabs into spaces: was a schema dump about the scene id's pattern."""
+    line = _one_error(_plan_with_sheet(tmp_path, "mine    images  Lund    my_walk /data/my_walk"))
+    assert line.endswith(
+        "line 2: 'mine    images  Lund    my_walk /data/my_walk' is one column: the sheet's "
+        "columns are separated by tabs, not spaces"
+    )
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text("scene source city\n0 flatlandia Tinytown\n")
+    res = smk_dry_run(REPO, tmp_path, "maps", "--configfile", str(TINY), "--config", f"scenes={sheet}")
+    assert "line 1: 'scene source city' is one column: the sheet's columns are separated by tabs" in _one_error(res)
+
+
 def test_an_images_scene_with_its_folder_still_plans(tmp_path):
     (tmp_path / "photos").mkdir()
     res = _plan_with_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{tmp_path / 'photos'}\t\t")

@@ -101,12 +101,27 @@ def config_path(path):
     return beside_repo if beside_repo.exists() else p
 
 
+def separated_by_spaces(sheet):
+    """The first line of the sheet written with spaces between its columns (an editor that turns
+    tabs into spaces), as 'line N: ...'; None when there is none."""
+    if len(sheet.columns) == 1 and len(str(sheet.columns[0]).split()) > 1:
+        return f"line 1: {str(sheet.columns[0])[:80]!r} is one column"
+    if "scene" in sheet.columns:
+        for i, cell in enumerate(sheet["scene"]):
+            if len(str(cell).split()) > 1:
+                return f"line {i + 2}: {str(cell)[:80]!r} is one column"
+    return None
+
+
 def read_scene_sheet(path):
     """The scene sheet, checked against its schema: a problem stops the run with one ERROR line."""
     try:
         sheet = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False)
     except (OSError, ValueError) as err:
         sys.exit(f"ERROR: {path}: unreadable scene sheet ({err})")
+    spaced = separated_by_spaces(sheet)
+    if spaced:
+        sys.exit(f"ERROR: {path}: {spaced}: the sheet's columns are separated by tabs, not spaces")
     try:
         validate(sheet, schema="../schemas/scenes.schema.yaml")
     except WorkflowError as err:
