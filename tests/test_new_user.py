@@ -114,3 +114,17 @@ def test_audit_outside_the_run_folder_says_where_it_looked(tmp_path, monkeypatch
     assert cli.main(["audit", str(artifact)]) == 1
     out = capsys.readouterr().out
     assert out.startswith(f"ERROR: no audit records in {tmp_path / 'elsewhere'}: run flatlandia audit in the run's")
+
+
+def test_an_external_method_whose_poses_file_is_missing_is_one_error_line(tmp_path):
+    """A misspelt `external[].poses`: the method was left out of every table, the run status 0."""
+    import yaml
+
+    cfg = tmp_path / "my.yaml"
+    cfg.write_text(yaml.safe_dump({"external": [{"name": "poor", "poses": "poor_poses.cvs"}]}))
+    res = smk_dry_run(REPO, tmp_path, "all", "--configfile", str(TINY), str(cfg))
+    line = _one_error(res)
+    assert line.startswith("ERROR: config: 'external.0.poses': 'poor_poses.cvs' is not a file") and "'poor'" in line
+    (tmp_path / "poor_poses.cvs").write_text("scene,token,x_m,y_m,theta_deg\n")
+    res = smk_dry_run(REPO, tmp_path, "all", "--configfile", str(TINY), str(cfg))
+    assert res.returncode == 0 and "external_eval" in res.stdout, res.stderr[-3000:]
