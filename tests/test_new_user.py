@@ -128,3 +128,13 @@ def test_an_external_method_whose_poses_file_is_missing_is_one_error_line(tmp_pa
     (tmp_path / "poor_poses.cvs").write_text("scene,token,x_m,y_m,theta_deg\n")
     res = smk_dry_run(REPO, tmp_path, "all", "--configfile", str(TINY), str(cfg))
     assert res.returncode == 0 and "external_eval" in res.stdout, res.stderr[-3000:]
+
+
+def test_flatlandia_config_says_the_files_are_up_to_date(capsys):
+    """The check printed nothing on success: a user who just ran it could not tell what it did."""
+    from flatlandia import config
+
+    assert cli.main(["config", "--repo", str(REPO)]) == 0
+    out = capsys.readouterr().out
+    assert "config/config.yaml" in out and "config/README.md" in out
+    assert out.rstrip().endswith(f"up to date with {config.SCHEMA_PATH}")

@@ -162,9 +162,10 @@ def config_files(args) -> int:
     if release.pyproject_version(Path(args.repo) / "pyproject.toml") is None:
         print(f"ERROR: {args.repo} is not a clone of the workflow (no flatlandia pyproject.toml): give --repo")
         return 1
-    stale = []
+    stale, fresh = [], []
     for path, text in config.generated_files(Path(args.repo)).items():
         if path.exists() and path.read_text() == text:
+            fresh.append(str(path))
             continue
         if args.write:
             path.write_text(text)
@@ -174,6 +175,8 @@ def config_files(args) -> int:
     if stale:
         print(f"ERROR: {', '.join(stale)} out of date with {config.SCHEMA_PATH}: run `flatlandia config --write`")
         return 1
+    if fresh:  # a check that passes says so (it printed nothing)
+        print(f"{', '.join(fresh)}: up to date with {config.SCHEMA_PATH}")
     return 0
 
 
