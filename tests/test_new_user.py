@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import pytest
 from conftest import REPO, TINY_ROOT, smk_dry_run
 
 from flatlandia import cli
@@ -138,3 +139,19 @@ def test_flatlandia_config_says_the_files_are_up_to_date(capsys):
     out = capsys.readouterr().out
     assert "config/config.yaml" in out and "config/README.md" in out
     assert out.rstrip().endswith(f"up to date with {config.SCHEMA_PATH}")
+
+
+@pytest.mark.slow  # a Snakemake job (the fetch, which fails at once)
+def test_a_mistyped_data_folder_says_it_does_not_exist_when_the_fetch_fails(tmp_path):
+    """`--config flatlandia_root=/typo`: the fetch's ERROR told to set flatlandia_root, which was set."""
+    from snakemake_runner import smk
+
+    cfg = tmp_path / "typo.yaml"
+    cfg.write_text(
+        f"flatlandia_root: {tmp_path / 'flatlandai'}\n"
+        f"fetch: {{url: '{(tmp_path / 'no_archive.zip').as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
+    )
+    res = smk(REPO, tmp_path, "--cores", "1", "maps", "--configfile", str(TINY), str(cfg))
+    line = _one_error(res)
+    assert line.startswith(f"ERROR: the data folder {tmp_path / 'flatlandai'} (flatlandia_root) does not exist, so")
+    assert "flatlandia_root=/path/to/data" in line and not (tmp_path / "fetched").exists()
