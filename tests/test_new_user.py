@@ -155,3 +155,17 @@ def test_a_mistyped_data_folder_says_it_does_not_exist_when_the_fetch_fails(tmp_
     line = _one_error(res)
     assert line.startswith(f"ERROR: the data folder {tmp_path / 'flatlandai'} (flatlandia_root) does not exist, so")
     assert "flatlandia_root=/path/to/data" in line and not (tmp_path / "fetched").exists()
+
+
+def test_audit_write_never_overwrites_an_artifact_of_the_run(tmp_path, monkeypatch, capsys):
+    """`flatlandia audit --write results/.../reference_map.parquet` replaced the map with the manifest."""
+    artifact = _one_record(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    for given in ("results/0/maps/reference_map.parquet", str(artifact)):
+        assert cli.main(["audit", "--write", given]) == 1
+        assert capsys.readouterr().out.startswith(
+            f"ERROR: --write {given}: an artifact of this run (rule reference_map)"
+        )
+        assert artifact.read_bytes() == b"map"
+    assert cli.main(["audit", "--write", "my_manifest.parquet"]) == 0
+    assert "wrote my_manifest.parquet: 1 artifacts" in capsys.readouterr().out

@@ -119,6 +119,7 @@ def audit(args) -> int:
             f"first ({args.manifest} and {args.provenance} are empty)"
         )
         return 1
+    made_by = dict(zip(df["artifact"], df["rule"]))  # every recorded artifact, before --scene narrows df
     if args.check:  # every recorded artifact re-hashed
         bad = provenance.check(df)
         if bad.empty:
@@ -146,6 +147,10 @@ def audit(args) -> int:
             print(f"ERROR: no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}")
             return 1
     if args.write:  # the manifest of any run, whatever its target (rule manifest comes with `all`)
+        rule = made_by.get(_run_relative(args.write))
+        if rule:  # a run's own artifact overwritten with its manifest would break the run it audits
+            print(f"ERROR: --write {args.write}: an artifact of this run (rule {rule}): give a new file")
+            return 1
         io.write_parquet(df.reset_index(drop=True), args.write)
         print(f"wrote {args.write}: {len(df)} artifacts from {df['rule'].nunique()} rules")
         return 0
