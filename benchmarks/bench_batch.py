@@ -2,7 +2,7 @@
 
 For each solver row of RESULTS/tables/fine_localization.parquet (map type x proposal: the whole
 map, GT-BB, the coarse proposals), localizes every test query of RESULTS on its scene map and that
-proposal (the command's own code, flatlandia.batch), scores the poses file with `flatlandia score`
+proposal (the command's own code, flatlandia.localize.batch), scores the poses file with `flatlandia score`
 (flatlandia.score) and compares the score's table row with the solver's in every non-timing column
 (positions exact; headings go through degrees: floats to 1e-9). Prints the wall and CPU time of
 each step, the machine and its load.
@@ -24,8 +24,10 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import machine  # noqa: E402
 
-from flatlandia import batch, paths, score, tables  # noqa: E402
-from flatlandia.fine import table as fine_table  # noqa: E402
+from flatlandia import paths, score  # noqa: E402
+from flatlandia.fine import fine_table  # noqa: E402
+from flatlandia.localize import batch  # noqa: E402
+from flatlandia.report import tables
 
 NAME_COLUMNS = {"run", "method", "method_label"}
 #: positions come back bit for bit, headings through degrees (1e-13 deg)

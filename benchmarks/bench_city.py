@@ -38,7 +38,7 @@ from flatlandia import (  # noqa: E402
     proposals,
     solver,  # noqa: E402
 )
-from flatlandia.city import evaluate, index, search, simulate  # noqa: E402
+from flatlandia.city import evaluation, index, search, simulate  # noqa: E402
 from flatlandia.data import localmaps  # noqa: E402
 
 
@@ -107,7 +107,7 @@ def main():
     settings, cfg = solver.SolverConfig.from_dict(solver_dict), search.SearchConfig()
     sim = config.section_defaults("city.simulate")
     c0 = time.process_time()
-    learned = solver.learned.fit([(r, q) for _, r, q in scenes], solver_dict)
+    learned = solver.learned_priors.fit([(r, q) for _, r, q in scenes], solver_dict)
     print(f"priors fitted in {time.process_time() - c0:.1f} s CPU")
     solver.warm_up()
     if args.bound:
@@ -137,7 +137,7 @@ def main():
                 parts.append(stages(ix, mine, cfg, settings, learned))
             if n in args.solver_objects:
                 keep = (cq["split"] == "train") | cq["token"].isin(mine["token"])
-                whole.append(evaluate.solver_errors(ref, cq[keep], args.split, solver_dict, learned))
+                whole.append(evaluation.solver_errors(ref, cq[keep], args.split, solver_dict, learned))
         b = np.array(build)
         print(f"\n{n:,} objects: index build {b[:, 0].mean():.2f} s CPU, {b[:, 1].mean():.2f} MB (mean per city)")
         if parts:
@@ -150,12 +150,12 @@ def main():
                 + f", total {total.median():.1f} / {total.quantile(0.9):.1f}"
             )
             ok = (e["error_m"] < 5) & (e["error_deg"] < 5)
-            wrong = np.isfinite(e["error_m"]) & (e["error_m"] > evaluate.WRONG_SCENE_M)
+            wrong = np.isfinite(e["error_m"]) & (e["error_m"] > evaluation.WRONG_SCENE_M)
             print(
                 f"  n={len(e)} true place in regions {100 * e['hit'].mean():.1f} %, within (5 m, 5 deg) {100 * ok.mean():.1f} %, wrong scene {100 * wrong.mean():.1f} %"
             )
         if whole:
-            s = evaluate.summary(pd.concat(whole, ignore_index=True))
+            s = evaluation.summary(pd.concat(whole, ignore_index=True))
             print(
                 f"  today's whole-map solver: CPU ms median / p90 {s['cpu_median_ms']:.1f} / {s['cpu_p90_ms']:.1f}, "
                 f"within (5 m, 5 deg) {s['within_5m_5deg']:.1f} %, wrong scene {s['wrong_scene_pct']:.1f} %"

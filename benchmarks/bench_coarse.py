@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io
+from flatlandia import checkpoints, config
 from flatlandia.coarse import evaluation, retrieval, target, training
 
 TARGET_800_S = 15 * 60
@@ -185,7 +185,7 @@ def main() -> None:
     scenes = args.scenes or sorted(
         (p.parent.parent.name for p in args.results.glob("*/coarse/target.parquet")), key=lambda s: (len(s), s)
     )
-    cfg = io.config_section(args.config, "coarse")
+    cfg = config.config_section(args.config, "coarse")
     print(
         f"# Coarse localization benchmark: {len(scenes)} scenes, config {[str(p) for p in args.config]}, "
         f"{args.threads} thread(s)"

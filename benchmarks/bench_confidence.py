@@ -8,7 +8,7 @@ validation split, as rule solver_priors does (or reads ``--priors``, a results/s
 then measures every row of the issue's targets once on ``--split``: the scene map (each scene's
 whole map), the tiled city of 20 scenes and the simulated city of 100,000 objects, with 1 and 5
 frames and a 25 m GPS fix, through the entry functions of rules beyond_scene and beyond_city
-(flatlandia.beyond.evaluate). Prints the targets table (measured, target, the issue's figure of
+(flatlandia.sequences.evaluation). Prints the targets table (measured, target, the issue's figure of
 today) and every row's answers; writes the per-anchor rows (``errors.parquet``: probability,
 answered, errors) and the fitted priors to ``--out``. ``--today``: the same rows with the solver of
 before the issue (no likelihood ratio, no frames' answers) beside, its `confidence` as the
@@ -36,10 +36,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fine_solver import load  # noqa: E402
 
 from flatlandia import config  # noqa: E402
-from flatlandia.beyond import evaluate as be  # noqa: E402
 from flatlandia.city import index, tiling  # noqa: E402
 from flatlandia.fine import evaluation  # noqa: E402
-from flatlandia.solver import calibration, calibration_fit, learned  # noqa: E402
+from flatlandia.sequences import evaluation as be  # noqa: E402
+from flatlandia.sequences import validation  # noqa: E402
+from flatlandia.solver import calibration, learned_priors  # noqa: E402
 
 #: (row, map, frames, GPS sigma, figure, target, today: the issue's measurement of main)
 TARGETS = [
@@ -61,13 +62,15 @@ TARGETS = [
 TODAY = {"solver": {"likelihood_weight": 0.0}, "sequence": {"frame_answers": 0}}
 
 
-def priors(scenes, solver_cfg: dict, beyond: dict, seed: int, path: Path | None, out: Path) -> learned.LearnedPriors:
+def priors(
+    scenes, solver_cfg: dict, beyond: dict, seed: int, path: Path | None, out: Path
+) -> learned_priors.LearnedPriors:
     """The learned priors of the whole map, fitted and calibrated as rule solver_priors does, or read."""
     if path is not None:
-        return learned.LearnedPriors.read(path)
+        return learned_priors.LearnedPriors.read(path)
     c0 = time.process_time()
-    fitted = learned.fit(scenes, solver_cfg, "whole")
-    fitted, answers = calibration_fit.calibrated(scenes, solver_cfg, fitted, "whole", beyond, seed)
+    fitted = learned_priors.fit(scenes, solver_cfg, "whole")
+    fitted, answers = validation.calibrated(scenes, solver_cfg, fitted, "whole", beyond, seed)
     print(f"priors fitted (train) and calibrated (val, {len(answers)} answers) in {time.process_time() - c0:.0f} s CPU")
     fitted.write(out / "whole.json")
     return fitted
@@ -104,7 +107,7 @@ def measure(named, solver_cfg, beyond, search, simulate, spacing, lp, seed, spli
 
 
 def summaries(errors: pd.DataFrame) -> dict:
-    """(map, frames, GPS sigma) -> summary (flatlandia.beyond.evaluate.summary)."""
+    """(map, frames, GPS sigma) -> summary (flatlandia.sequences.evaluation.summary)."""
     out = {}
     key = errors["gps_sigma_m"].fillna(-1.0)
     for (m, k, g), e in errors.groupby(["map", "frames", key]):
@@ -147,14 +150,14 @@ def main(argv=None) -> int:
     t0, c0 = time.perf_counter(), time.process_time()
     lp = priors(scenes, cfg["solver"], beyond, cfg["seed"], args.priors, args.out)
     if args.city_calibration is not None:
-        lp = lp.with_map_size(learned.read_map_size(args.city_calibration))
+        lp = lp.with_map_size(learned_priors.read_map_size(args.city_calibration))
         print(f"map-size correction: {lp.calibration.map_size}")
     runs = {"ours": (cfg["solver"], beyond, lp)}
     if args.today:
         old_beyond = {**beyond, "sequence": {**beyond["sequence"], **TODAY["sequence"]}}
         runs["today"] = ({**cfg["solver"], **TODAY["solver"]}, old_beyond, lp)
     results = {}
-    for name, (solver_cfg, seq_beyond, learned_priors) in runs.items():
+    for name, (solver_cfg, seq_beyond, fitted) in runs.items():
         errors = measure(
             named,
             solver_cfg,
@@ -162,7 +165,7 @@ def main(argv=None) -> int:
             cfg["city"]["search"],
             cfg["city"]["simulate"],
             float(cfg["city"]["spacing_m"]),
-            learned_priors,
+            fitted,
             cfg["seed"],
             args.split,
             args.every,

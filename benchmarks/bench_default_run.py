@@ -130,7 +130,7 @@ def main() -> None:
     report(job_times(folder), wall, cpu, target=args.target)
     print(
         f"the Snakemake process itself: {own_cpu:.0f} s CPU ({100 * own_cpu / max(cpu, 1e-9):.1f} % of the run's CPU; "
-        "flatlandia.scheduler keeps it low)"
+        "flatlandia.plumbing.scheduler keeps it low)"
     )
     load1 = machine.load()
     state = (

@@ -73,7 +73,7 @@ def solver_errors(
     if map_type == "depth":
         c0 = time.process_time()
         region = proposal if proposal in ("whole", "gtbb") else None
-        learned = solver.learned.fit([(ref, q) for _, ref, q in scenes], solver_settings, region, **fit)
+        learned = solver.learned_priors.fit([(ref, q) for _, ref, q in scenes], solver_settings, region, **fit)
         if learned.verifier is not None:
             print(f"verifier learned from the training split in {time.process_time() - c0:.0f} s CPU")
     coarse = None

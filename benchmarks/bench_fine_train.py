@@ -28,8 +28,8 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io, proposals
-from flatlandia.fine import learned, training
+from flatlandia import checkpoints, config, proposals
+from flatlandia.fine import models, training
 
 MODEL_NAMES = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 TARGET_1000_S = 10 * 60
@@ -38,7 +38,7 @@ TARGET_MEDIAN_M = 5.0
 
 def load_samples(
     results: Path,
-    cfg: learned.FineTrainConfig,
+    cfg: models.FineTrainConfig,
     simulated: int = 0,
     gtbb: bool = True,
     crop_m: float = 0.0,
@@ -61,10 +61,10 @@ def load_samples(
         ref, q = pd.read_parquet(ref_p), pd.read_parquet(qp)
         scenes.append((ref, q))
         qs = q[q["split"] == "test"]
-        out["test"] += learned.samples_from_queries(ref, qs, proposals.gtbb_proposals(ref, qs), cfg)[0]
+        out["test"] += models.samples_from_queries(ref, qs, proposals.gtbb_proposals(ref, qs), cfg)[0]
         if coarse is not None:
             props = proposals.crop_to_densest(ref, coarse[coarse["scene"].astype(str) == qp.parts[-3]], crop_m)
-            out["test_coarse"] += learned.samples_from_queries(ref, qs, props, cfg)[0]
+            out["test_coarse"] += models.samples_from_queries(ref, qs, props, cfg)[0]
     ct = {"copies": simulated, "keep_gtbb": gtbb, "crop_m": crop_m}
     out["train"], out["val"] = training.training_samples(
         scenes, cfg, "coarse" if simulated else "gtbb", ct, val_keep_gtbb=gtbb and not val_coarse_only
@@ -102,7 +102,7 @@ def main() -> None:
     )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    fcfg = io.config_section([Path("config/config.yaml"), *args.configfile], "fine")
+    fcfg = config.config_section([Path("config/config.yaml"), *args.configfile], "fine")
     print(f"# Fine training benchmark, {args.threads} thread(s)")
     print(
         "| model | map | train / val / test | epochs | s / epoch | CPU s / epoch | 1000 epochs (min) | best epoch |"
@@ -112,7 +112,7 @@ def main() -> None:
     for slug in args.models:
         for mt in args.map_types:
             train_cfg = {**fcfg.get("train", {}), **fcfg.get("train_overrides", {}).get(slug, {})}
-            cfg = learned.FineTrainConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
+            cfg = models.FineTrainConfig.from_dict({**train_cfg, "model": MODEL_NAMES[slug], "map_type": mt})
             if not args.full:
                 cfg.epochs = args.epochs
             s = load_samples(
@@ -128,13 +128,11 @@ def main() -> None:
             per, per_cpu = wall / cfg.epochs, cpu / cfg.epochs
             test = within = coarse = "-"
             if args.full and s["test"]:
-                e_m, e_deg = learned.errors_metres(learned.predict(res["model"], s["test"]), s["test"], cfg)
+                e_m, e_deg = models.errors_metres(models.predict(res["model"], s["test"]), s["test"], cfg)
                 test = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
                 within = f"{100 * np.mean((e_m < 10) & (e_deg < 20)):.1f} %"
             if args.full and s["test_coarse"]:
-                e_m, e_deg = learned.errors_metres(
-                    learned.predict(res["model"], s["test_coarse"]), s["test_coarse"], cfg
-                )
+                e_m, e_deg = models.errors_metres(models.predict(res["model"], s["test_coarse"]), s["test_coarse"], cfg)
                 coarse = f"{np.median(e_m):.2f} m, {np.median(e_deg):.1f}°"
             sizes = "/".join(str(len(s[k])) for k in ("train", "val", "test"))
             print(

@@ -2,7 +2,7 @@
 
 Usage: python benchmarks/bench_objects.py [--root ../shared/flatlandia]
 Runs per scene what rules objects, principal_plane and reproduction_audit run, through their
-entry functions (flatlandia.objects.scene.published_objects, principal_plane.published_plane_report,
+entry functions (flatlandia.objects.scene_objects.published_objects, principal_plane.published_plane_report,
 audit.audit_objects) with the default config. Prints per scene: published objects, ours, matched
 within 0.05 / 0.5 / 2 m, median distance, extra objects (ours not within 0.5 m of a published one),
 the principal-plane angle to the published one (degrees) and the wall time (read + cluster +
@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import config, io
-from flatlandia.objects import audit, cloud, principal_plane
-from flatlandia.objects import scene as scene_objects
+from flatlandia import config
+from flatlandia.data import published
+from flatlandia.objects import audit, cloud, principal_plane, scene_objects
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -39,13 +39,13 @@ def main() -> None:
         t0 = time.perf_counter()
         cloud_path = root / "maps" / scene / "class_segmented_point_cloud.ply"
         pts, labels = cloud.read_classified_cloud(cloud_path)
-        t = io.read_transformations(root / "maps" / scene / "transformations.json")
-        published = io.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
+        t = published.read_transformations(root / "maps" / scene / "transformations.json")
+        published_map = published.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
         # labels are not audited: no other scene's map is read for the label transfer
         ours = scene_objects.published_objects(
-            scene, pts, labels, t, published[0], [], cluster, source=str(cloud_path)
+            scene, pts, labels, t, published_map[0], [], cluster, source=str(cloud_path)
         ).objects
-        row, _ = audit.audit_objects(scene, ours, (pts, labels), t, published)
+        row, _ = audit.audit_objects(scene, ours, (pts, labels), t, published_map)
         plane = principal_plane.published_plane_report(scene, pts, labels, t, **plane_cfg, source=str(cloud_path))
         row["plane_deg"] = plane["plane_angle_deg"]
         row["seconds"] = time.perf_counter() - t0

@@ -193,7 +193,7 @@ def _per_epoch(dev: torch.device, cpu_s: float, clock: EpochClock, epochs: int) 
 
 
 def time_fine(cfg_all: dict, scenes: list[dict], model: str, map_type: str, regime: str, epochs: int, dev) -> dict:
-    from flatlandia.fine import learned, training
+    from flatlandia.fine import models, training
 
     fine = cfg_all["fine"]
     p = {**fine["train"], **fine["train_overrides"][model]}
@@ -201,7 +201,7 @@ def time_fine(cfg_all: dict, scenes: list[dict], model: str, map_type: str, regi
     if regime == "coarse" and fine["coarse_training"]["epochs"]:
         full = int(fine["coarse_training"]["epochs"])
     p["epochs"] = epochs
-    cfg = learned.FineTrainConfig.from_dict(p, model=MODELS[model], map_type=map_type)
+    cfg = models.FineTrainConfig.from_dict(p, model=MODELS[model], map_type=map_type)
     sc = [(s["reference_map"], s["queries"]) for s in scenes]
     c0 = cpu()
     train_s, val_s = training.training_samples(sc, cfg, regime, fine["coarse_training"])
@@ -332,7 +332,7 @@ def main(argv=None) -> int:
     bundle = load_inputs(a)
     use_schema(bundle["schema"])
     from flatlandia import device
-    from flatlandia.errors import InputError
+    from flatlandia.plumbing.errors import InputError
 
     torch.set_num_threads(1)
     cfg_all, scenes = bundle["config"], bundle["scenes"]

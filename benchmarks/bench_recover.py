@@ -12,9 +12,10 @@ import os
 import time
 from pathlib import Path
 
-from flatlandia import config, io
+from flatlandia import config
 from flatlandia.classes import CLASSES
-from flatlandia.data import recover
+from flatlandia.data import published, recover
+from flatlandia.plumbing import files
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -30,10 +31,12 @@ def main() -> None:
     for _ in range(args.repeat):
         t0 = time.perf_counter()
         compute, n, per_scene = 0.0, 0, {}
-        for scene in sorted(io.read_json(root / "local_maps.json"), key=int):
+        for scene in sorted(files.read_json(root / "local_maps.json"), key=int):
             # read as rule recover reads them (one job per scene), then its entry function
-            lonlat, classes = io.read_reference_map(root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
-            local = io.read_local_maps(root / "local_maps.json", scene)
+            lonlat, classes = published.read_reference_map(
+                root / f"individual_reference_maps/map_{scene}.json", len(CLASSES)
+            )
+            local = published.read_local_maps(root / "local_maps.json", scene)
             t1 = time.perf_counter()
             rec = recover.recover_scene(scene, lonlat, classes, local, tol_m=tol_m)
             dt = time.perf_counter() - t1

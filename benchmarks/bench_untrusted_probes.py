@@ -35,9 +35,16 @@ sys.path.insert(0, str(REPO / "workflow"))
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from flatlandia import geo, io, localize, validate  # noqa: E402
+from flatlandia import geo, localize  # noqa: E402
 from flatlandia.classes import CLASSES  # noqa: E402
-from flatlandia.data import localmaps, queries, recover, reference_map  # noqa: E402
+from flatlandia.data import (  # noqa: E402
+    localmaps,
+    published,  # noqa: E402
+    queries,
+    recover,
+    reference_map,
+)
+from flatlandia.plumbing import files, validate  # noqa: E402
 
 TINY_ROOT, TINY_SCENE = REPO / "tests" / "data" / "tiny", "0"
 FLATLANDIA = [sys.executable, "-m", "flatlandia.cli"]
@@ -45,11 +52,11 @@ FLATLANDIA = [sys.executable, "-m", "flatlandia.cli"]
 
 def build(out: Path) -> dict:
     """Every probe's input under ``out``; the paths by name."""
-    lonlat, classes = io.read_reference_map(
+    lonlat, classes = published.read_reference_map(
         TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
     )
     ref, meta = reference_map.published_reference_map(TINY_SCENE, lonlat, classes)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
+    local = published.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
     rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local)
     split = queries.split_queries(list(rec["token"]), 0, salt=TINY_SCENE)
     q = queries.build_queries(TINY_SCENE, rec, ref, local, geo.MetricFrame(meta["lon0"], meta["lat0"]), split)
@@ -57,8 +64,8 @@ def build(out: Path) -> dict:
     maps = results / TINY_SCENE / "maps"
     reference_map.write_geoparquet(ref, meta, maps / "reference_map.parquet")
     reference_map.write_geojson(ref, meta, maps / "reference_map.geojson")
-    io.write_parquet(q, results / TINY_SCENE / "queries" / "queries.parquet")
-    io.write_parquet(pd.DataFrame({"scene": [TINY_SCENE]}), results / "tables" / "dataset_stats_per_scene.parquet")
+    files.write_parquet(q, results / TINY_SCENE / "queries" / "queries.parquet")
+    files.write_parquet(pd.DataFrame({"scene": [TINY_SCENE]}), results / "tables" / "dataset_stats_per_scene.parquet")
     p = {"results": results, "map": maps / "reference_map.parquet", "geojson": maps / "reference_map.geojson"}
     d = out / "in"
     d.mkdir(parents=True, exist_ok=True)
@@ -253,16 +260,16 @@ def build(out: Path) -> dict:
     good = run / "results" / "good.txt"
     good.write_text("good")
     (prov / "good").mkdir()
-    rec = {**base, "rule": "good", "outputs": {"results/good.txt": {"sha256": io.sha256(good), "bytes": 4}}}
+    rec = {**base, "rule": "good", "outputs": {"results/good.txt": {"sha256": files.sha256(good), "bytes": 4}}}
     (prov / "good" / "all.json").write_text(json.dumps(rec))
     # 8: checkpoints
     import torch
 
     from flatlandia import checkpoints
-    from flatlandia.fine import learned
+    from flatlandia.fine import models
 
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
-    state = learned.build_model(cfg).state_dict()
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    state = models.build_model(cfg).state_dict()
     nan = {k: torch.full_like(v, float("nan")) if v.is_floating_point() else v for k, v in state.items()}
     for name, st, text in (
         ("ck_nan.pt", nan, json.dumps({"config": cfg.to_dict()})),
@@ -298,7 +305,7 @@ def build(out: Path) -> dict:
 
 def python(code: str) -> list[str]:
     """A probe that calls the rule's entry from Python, as its script does (one ERROR line on InputError)."""
-    head = "import sys\nfrom flatlandia.errors import InputError\ntry:\n"
+    head = "import sys\nfrom flatlandia.plumbing.errors import InputError\ntry:\n"
     body = "".join(f"    {line}\n" for line in code.strip().splitlines())
     tail = "except InputError as e:\n    print(f'ERROR: {e}')\n    sys.exit(1)\n"
     return [sys.executable, "-c", head + body + tail]
@@ -371,8 +378,9 @@ except fetch.FetchError as e:
             "export: tokens +cmd|calc, =HYPERLINK(...), city =HYPERLINK(...)",
             python(f"""
 import pandas as pd
-from flatlandia import export, io
-ref = pd.read_parquet({str(p["map"])!r}); meta = io.read_parquet_metadata({str(p["map"])!r})
+from flatlandia.data import export
+from flatlandia.plumbing import files
+ref = pd.read_parquet({str(p["map"])!r}); meta = files.read_parquet_metadata({str(p["map"])!r})
 q = pd.read_parquet({str(p["results"] / TINY_SCENE / "queries" / "queries.parquet")!r})
 q['token'] = ['+cmd|calc' if k == 0 else '=HYPERLINK("x")' if k == 1 else t for k, t in enumerate(q['token'])]
 out = export.scene_export('0', ref, meta, q)
@@ -452,8 +460,8 @@ except fetch.FetchError as e:
             "6",
             "transformations.json with a NaN rotation",
             python(f"""
-from flatlandia import io
-io.read_transformations({str(p["transformations_nan.json"])!r})
+from flatlandia.data import published
+published.read_transformations({str(p["transformations_nan.json"])!r})
 """),
             None,
         ),
@@ -474,8 +482,8 @@ io.read_transformations({str(p["transformations_nan.json"])!r})
             "checkpoint with NaN weights",
             python(f"""
 from flatlandia import checkpoints
-from flatlandia.fine import learned
-checkpoints.load_checkpoint({str(p["ck_nan.pt"])!r}, learned.FineTrainConfig, learned.build_model)
+from flatlandia.fine import models
+checkpoints.load_checkpoint({str(p["ck_nan.pt"])!r}, models.FineTrainConfig, models.build_model)
 """),
             None,
         ),
@@ -534,8 +542,8 @@ checkpoints.load_checkpoint({str(p["ck_nan.pt"])!r}, learned.FineTrainConfig, le
             "checkpoint config hidden=200000, heads=64",
             python(f"""
 from flatlandia import checkpoints
-from flatlandia.fine import learned
-checkpoints.load_checkpoint({str(p["ck_huge.pt"])!r}, learned.FineTrainConfig, learned.build_model)
+from flatlandia.fine import models
+checkpoints.load_checkpoint({str(p["ck_huge.pt"])!r}, models.FineTrainConfig, models.build_model)
 """),
             None,
         ),
@@ -544,8 +552,8 @@ checkpoints.load_checkpoint({str(p["ck_huge.pt"])!r}, learned.FineTrainConfig, l
             "checkpoint meta nested 100,000 deep",
             python(f"""
 from flatlandia import checkpoints
-from flatlandia.fine import learned
-checkpoints.load_checkpoint({str(p["ck_deep.pt"])!r}, learned.FineTrainConfig, learned.build_model)
+from flatlandia.fine import models
+checkpoints.load_checkpoint({str(p["ck_deep.pt"])!r}, models.FineTrainConfig, models.build_model)
 """),
             None,
         ),

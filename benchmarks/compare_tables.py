@@ -3,9 +3,9 @@
     python benchmarks/compare_tables.py RESULTS_A RESULTS_B [--tolerance 0]
 
 Every ``tables/*.parquet`` of both folders is read with pandas. Columns that measure time on the
-machine (seconds, milliseconds, training minutes: flatlandia.tables.timing_columns) differ run to
+machine (seconds, milliseconds, training minutes: flatlandia.report.tables.timing_columns) differ run to
 run and are compared by presence only; every other column must be equal (exactly, or within
-``--tolerance`` for floats; NaN equals NaN: flatlandia.tables.table_differences). Prints one line per table and exits 1 if any table differs.
+``--tolerance`` for floats; NaN equals NaN: flatlandia.report.tables.table_differences). Prints one line per table and exits 1 if any table differs.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia.tables import table_differences, timing_columns
+from flatlandia.report.tables import table_differences, timing_columns
 
 
 def main() -> int:

@@ -28,8 +28,10 @@ import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
 
-from flatlandia import geo, io
+from flatlandia import geo
+from flatlandia.data import published
 from flatlandia.objects import audit, bounds, cloud, clustering
+from flatlandia.plumbing import files
 
 REPO = Path(__file__).resolve().parents[1]
 SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -39,8 +41,8 @@ RADII_M = np.round(np.arange(0.20, 2.501, 0.02), 2)
 def scene_bounds(root: Path, scene: str, params: clustering.ClusterParams) -> dict:
     maps = root / "maps" / scene
     pts, labels = cloud.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
-    t = io.read_transformations(maps / "transformations.json")
-    ref_ll, ref_cl = io.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
+    t = published.read_transformations(maps / "transformations.json")
+    ref_ll, ref_cl = published.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
     mpu = cloud.metres_per_unit(t)
     frame = geo.frame_for(ref_ll)
     xy, ref_xy = frame.to_xy(geo.sfm_to_lonlat(pts, t)), frame.to_xy(ref_ll)
@@ -116,7 +118,7 @@ def main() -> None:
         extra = df[f"{k}_clusters"].sum() - df[f"{k}_0.5m"].sum()
         print(f"  {k} extra objects {extra} ({extra / pub:.1%} of published)")
     if args.out:
-        io.write_parquet(df, args.out)
+        files.write_parquet(df, args.out)
 
 
 if __name__ == "__main__":

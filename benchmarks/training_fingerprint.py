@@ -64,14 +64,14 @@ def fingerprint(results: Path, scenes: list[str], epochs: int) -> dict:
     from flatlandia.coarse import retrieval
     from flatlandia.coarse import training as coarse_training
     from flatlandia.fine import evaluation as fine_eval
-    from flatlandia.fine import learned
+    from flatlandia.fine import models
     from flatlandia.fine import training as fine_training
 
     torch.set_num_threads(1)
     cfg_all = config.resolve({})
     out: dict = {}
     with_target = _scenes(results, scenes, target=True)
-    models = {}
+    coarse_models = {}
     for loss, batching in COARSE_JOBS:
         t0 = time.perf_counter()
         p = {**cfg_all["coarse"]["train"], "epochs": epochs, "batching": batching}
@@ -81,10 +81,10 @@ def fingerprint(results: Path, scenes: list[str], epochs: int) -> dict:
         key = f"coarse {loss} {batching}"
         out[key] = {"history": history.drop(columns=["epoch_seconds"]).to_dict("list"), "state_dict": res["state_dict"]}
         if batching == "scene":
-            models[retrieval.LOSSES[loss]] = (res["model"], cfg)
+            coarse_models[retrieval.LOSSES[loss]] = (res["model"], cfg)
         print(f"{key}: {time.perf_counter() - t0:.1f} s", flush=True)
     empty = pd.DataFrame(columns=["scene", "token", "loss", "map_type", "strategy", "proposal", "seconds"])
-    ev = coarse_eval.evaluate_models(models, with_target, empty, seed=0)
+    ev = coarse_eval.evaluate_models(coarse_models, with_target, empty, seed=0)
     out["coarse_eval"] = {k: _timing_free(v) for k, v in ev.proposals.items()}
     plain = _scenes(results, scenes, target=False)
     fine = cfg_all["fine"]
@@ -92,7 +92,7 @@ def fingerprint(results: Path, scenes: list[str], epochs: int) -> dict:
         t0 = time.perf_counter()
         slug = {"MLP": "mlp", "MLP+ATT": "mlp_att", "GAT": "gat", "GAT+ATT": "gat_att"}[model]
         p = {**fine["train"], **fine["train_overrides"][slug], "epochs": epochs, **over}
-        cfg = learned.FineTrainConfig.from_dict(p, model=model, map_type=map_type)
+        cfg = models.FineTrainConfig.from_dict(p, model=model, map_type=map_type)
         res, history, _ = fine_training.train_model(plain, cfg, regime, dict(fine["coarse_training"]))
         key = f"fine {model} {map_type} {regime}" + "".join(f" {k}={v}" for k, v in over.items())
         errors = fine_eval.model_errors(plain, res["model"], cfg, "gtbb")

@@ -155,11 +155,12 @@ def find_photos(
 
 def _fetch_photos(what, shared, dest, src, env, url, shared_is) -> tuple[Path, str]:
     """:func:`find_photos` under :func:`fetch_lock`: an earlier complete fetch, else a fetch now."""
-    from flatlandia import config, io
+    from flatlandia import config
     from flatlandia.data import fetch
+    from flatlandia.plumbing import files
 
     if fetch.fetched_before(dest, fetch_workdir(dest)):
-        marker = io.read_json(dest / fetch.FETCH_MARKER)
+        marker = files.read_json(dest / fetch.FETCH_MARKER)
         if marker.get("url") == url and marker.get("subfolder", src["subfolder"]) == src["subfolder"]:
             return dest, ""
     cfg = config.section_defaults("fetch")
@@ -268,9 +269,9 @@ def berlin() -> Path:
 
 @pytest.fixture(scope="session")
 def all_local_maps(flat_root):
-    from flatlandia import io
+    from flatlandia.plumbing import files
 
-    return io.read_json(flat_root / "local_maps.json")
+    return files.read_json(flat_root / "local_maps.json")
 
 
 def published_scene(flat_root: Path, scene: str):

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from conftest import data_root
 
-from flatlandia import geo, io, scaled_rigid
-from flatlandia.errors import InputError
+from flatlandia import geo, scaled_rigid
+from flatlandia.data import published
 from flatlandia.objects import cloud, principal_plane
+from flatlandia.plumbing.errors import InputError
 
 ROOT = data_root()
 
@@ -117,7 +118,7 @@ def scene12(tmp_path_factory):
         (d / f).write_bytes((sfm / f).read_bytes())
     rec = pycolmap.Reconstruction(str(d))
     centres = np.array([im.projection_center() for im in rec.images.values()])
-    t = io.read_transformations(ROOT / "maps/12/transformations.json")
+    t = published.read_transformations(ROOT / "maps/12/transformations.json")
     return centres, t
 
 
@@ -187,7 +188,7 @@ def test_ground_plane_all_class_clouds():
     angles = {}
     for s in CLASS_CLOUD_SCENES:
         pts, labels = cloud.read_classified_cloud(ROOT / f"maps/{s}/class_segmented_point_cloud.ply")
-        t = io.read_transformations(ROOT / f"maps/{s}/transformations.json")
+        t = published.read_transformations(ROOT / f"maps/{s}/transformations.json")
         pl, _ = principal_plane.fit_ground_plane(pts, labels, cloud.metres_per_unit(t), source=s)
         angles[s] = principal_plane.normal_angle_deg(
             pl.normal, principal_plane.published_normal(t["to_principal_plane"])

@@ -11,7 +11,7 @@ import pytest
 from conftest import REPO
 from snakemake_runner import smk
 
-from flatlandia import provenance, rerun
+from flatlandia.plumbing import provenance, rerun_notice
 
 TINY = REPO / "config" / "test" / "tiny.yaml"
 
@@ -22,7 +22,7 @@ TINY = REPO / "config" / "test" / "tiny.yaml"
 def test_changed_keys_name_every_difference_but_the_selection():
     old = {"select": [], "solver": {"top_k": 6, "tau": 3.0}, "seed": 0}
     new = {"select": ["12"], "solver": {"top_k": 8, "tau": 3.0}, "seed": 1}
-    assert rerun.changed_keys(old, new) == ["seed: 0 -> 1", "solver.top_k: 6 -> 8"]
+    assert rerun_notice.changed_keys(old, new) == ["seed: 0 -> 1", "solver.top_k: 6 -> 8"]
 
 
 def test_the_notice_counts_only_jobs_that_replace_existing_results(tmp_path, monkeypatch):
@@ -30,15 +30,15 @@ def test_the_notice_counts_only_jobs_that_replace_existing_results(tmp_path, mon
     Path("a.txt").write_text("x")
     Path("b.txt").write_text("x")
     jobs = [
-        rerun.PlannedJob("fine_train", ("a.txt",), params_changed=True),
-        rerun.PlannedJob("fine_eval", ("b.txt",), code_changed=True),
-        rerun.PlannedJob("fine_eval", ("new.txt",), params_changed=True),  # nothing to replace
-        rerun.PlannedJob("queries", ("b.txt",)),  # input updated: not a change of settings or code
+        rerun_notice.PlannedJob("fine_train", ("a.txt",), params_changed=True),
+        rerun_notice.PlannedJob("fine_eval", ("b.txt",), code_changed=True),
+        rerun_notice.PlannedJob("fine_eval", ("new.txt",), params_changed=True),  # nothing to replace
+        rerun_notice.PlannedJob("queries", ("b.txt",)),  # input updated: not a change of settings or code
     ]
-    text = rerun.notice(jobs, {"seed": 0}, tmp_path / "none")
+    text = rerun_notice.notice(jobs, {"seed": 0}, tmp_path / "none")
     assert "redoes 2 job(s)" in text and "fine_train 1" in text and "fine_eval 1" in text
     assert "snakemake -d runs/<name>" in text
-    assert rerun.notice(jobs[2:], {"seed": 0}, tmp_path / "none") is None
+    assert rerun_notice.notice(jobs[2:], {"seed": 0}, tmp_path / "none") is None
 
 
 # ----------------------------------------------------------------------------- end to end (tiny scene)

@@ -8,7 +8,7 @@ import json
 
 import pandas as pd
 
-from flatlandia import provenance
+from flatlandia.plumbing import provenance
 
 SCENES = [str(s) for s in range(1, 21)]
 RUNS = [
@@ -115,7 +115,7 @@ def test_a_record_lists_only_the_settings_its_rule_read(tmp_path):
     trained or solved (an external method on the whole map reads no setting at all)."""
     from conftest import REPO
 
-    from flatlandia import debug
+    from flatlandia.plumbing import debug
 
     tiny = [REPO / "config" / "test" / "tiny.yaml"]
     poses = tmp_path / "mine.csv"

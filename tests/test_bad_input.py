@@ -7,14 +7,15 @@ import os
 import pandas as pd
 import pytest
 
-from flatlandia import io
-from flatlandia.data import ingest
-from flatlandia.errors import InputError
+from flatlandia import config
+from flatlandia.data import ingest, published
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 
 
 def test_missing_file(tmp_path):
     with pytest.raises(InputError, match="map_3.json: file is missing"):
-        io.read_reference_map(tmp_path / "map_3.json")
+        published.read_reference_map(tmp_path / "map_3.json")
 
 
 @pytest.mark.slow  # the published data (flat_root)
@@ -23,55 +24,55 @@ def test_truncated_json(tmp_path, flat_root):
     p = tmp_path / "map_12.json"
     p.write_text(src[: len(src) // 2])
     with pytest.raises(InputError, match=r"map_12.json: invalid JSON"):
-        io.read_reference_map(p)
+        published.read_reference_map(p)
 
 
 def test_invalid_json_and_wrong_shape(tmp_path):
     p = tmp_path / "local_maps.json"
     p.write_text("{not json")
     with pytest.raises(InputError, match="local_maps.json: invalid JSON"):
-        io.read_local_maps(p, "0")
+        published.read_local_maps(p, "0")
     p.write_text(json.dumps([1, 2, 3]))
     with pytest.raises(InputError, match="local_maps.json: expected"):
-        io.read_local_maps(p, "0")
+        published.read_local_maps(p, "0")
 
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_unknown_scene(tmp_path, flat_root):
     with pytest.raises(InputError, match="unknown scene id '42'"):
-        io.read_local_maps(flat_root / "local_maps.json", "42")
+        published.read_local_maps(flat_root / "local_maps.json", "42")
 
 
 def test_local_map_with_too_few_objects(tmp_path):
     p = tmp_path / "local_maps.json"
     p.write_text(json.dumps({"0": {"123": {"GT": [[1, 0], [2, 0]], "depth": [[1, 0], [2, 0]]}}}))
     with pytest.raises(InputError, match="query 123: local map has 2 object"):
-        io.read_local_maps(p, "0")
+        published.read_local_maps(p, "0")
 
 
 def test_reference_map_with_nan(tmp_path):
     p = tmp_path / "map_0.json"
     p.write_text(json.dumps([[[2.0, 48.0], 1], [[math.nan, 48.0], 2]]).replace("NaN", "NaN"))
     with pytest.raises(InputError, match="map_0.json: 1 object.*NaN"):
-        io.read_reference_map(p)
+        published.read_reference_map(p)
 
 
 def test_reference_map_with_bad_class(tmp_path):
     p = tmp_path / "map_0.json"
     p.write_text(json.dumps([[[2.0, 48.0], 1], [[2.1, 48.0], 99]]))
     with pytest.raises(InputError, match="class ids outside"):
-        io.read_reference_map(p, n_classes=42)
+        published.read_reference_map(p, n_classes=42)
 
 
 def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     out = tmp_path / "t.parquet"
     bad = pd.DataFrame({"a": [object()]})  # pyarrow cannot serialise this
     with pytest.raises(Exception):  # noqa: B017 - whichever error pyarrow raises, nothing may be left behind
-        io.write_parquet(bad, out)
+        files.write_parquet(bad, out)
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
-    io.write_parquet(pd.DataFrame({"a": [1, 2]}), out, {"k": 1})
-    assert io.read_parquet_metadata(out) == {"k": 1}
+    files.write_parquet(pd.DataFrame({"a": [1, 2]}), out, {"k": 1})
+    assert files.read_parquet_metadata(out) == {"k": 1}
 
 
 def _copy_scene(flat_root, dst, scene="12"):
@@ -122,17 +123,17 @@ def test_config_section_layers_files_like_configfile(tmp_path):
     base, over = tmp_path / "a.yaml", tmp_path / "b.yaml"
     base.write_text("fine:\n  train: {epochs: 300, lr: 0.002}\n  coarse_strategy: 2N_LM\ncoarse: {x: 1}\n")
     over.write_text("fine:\n  train: {epochs: 1000}\n")
-    got = io.config_section([base, tmp_path / "missing.yaml", over], "fine")
+    got = config.config_section([base, tmp_path / "missing.yaml", over], "fine")
     assert got == {"train": {"epochs": 1000, "lr": 0.002}, "coarse_strategy": "2N_LM"}
-    assert io.config_section([over], "coarse") == {}
+    assert config.config_section([over], "coarse") == {}
 
 
 def test_written_files_take_the_umask_mode(tmp_path):
     """Temporary files are created 0600; the renamed result gets the mode of any new file."""
     old = os.umask(0o022)
     try:
-        io.write_parquet(pd.DataFrame({"a": [1]}), tmp_path / "t.parquet")
-        io.write_json({"a": 1}, tmp_path / "t.json")
+        files.write_parquet(pd.DataFrame({"a": [1]}), tmp_path / "t.parquet")
+        files.write_json({"a": 1}, tmp_path / "t.json")
     finally:
         os.umask(old)
     assert {oct(p.stat().st_mode & 0o777) for p in tmp_path.iterdir()} == {oct(0o644)}

@@ -1,4 +1,4 @@
-"""Localize a whole split in one command (`flatlandia localize --batch`, flatlandia.batch): a new
+"""Localize a whole split in one command (`flatlandia localize --batch`, flatlandia.localize.batch): a new
 user's flow export -> batch localize -> score -> table row on the tiny scene (fast lane): the poses
 file scores as the solver's whole-map rows of the fine table; the same poses from the export and
 from the results folder, through a city index in each query's own scene frame; fixes per query;
@@ -17,11 +17,13 @@ import pytest
 from conftest import TINY_SCENE
 from tiny_results import tiny_scene
 
-from flatlandia import batch, cli, config, export, geo, io, paths, score, tables
+from flatlandia import cli, config, geo, paths, score
 from flatlandia.city import index, tiling
-from flatlandia.data import reference_map
-from flatlandia.fine import evaluation
-from flatlandia.fine import table as fine_table
+from flatlandia.data import export, reference_map
+from flatlandia.fine import evaluation, fine_table
+from flatlandia.localize import batch
+from flatlandia.plumbing import files
+from flatlandia.report import tables
 
 #: the fine table's columns that are timings (query seconds) or name the run
 NAME_COLUMNS = {"run", "method", "method_label"}
@@ -58,7 +60,7 @@ def tiny_run(tmp_path_factory):
     tiny = tiny_scene()
     meta, q = tiny.meta, tiny.queries
     tiny.write(results)
-    io.write_parquet(pd.DataFrame({"scene": [TINY_SCENE], "city": ["Flatland"]}), results / score.BENCHMARK_RECORD)
+    files.write_parquet(pd.DataFrame({"scene": [TINY_SCENE], "city": ["Flatland"]}), results / score.BENCHMARK_RECORD)
     ref = pd.read_parquet(results / TINY_SCENE / "maps" / "reference_map.parquet")
     summaries = []
     for map_type in ("gt", "depth"):
@@ -66,19 +68,19 @@ def tiny_run(tmp_path_factory):
             e = evaluation.solver_errors([(ref, q)], map_type, proposal, config.section_defaults("solver"), split=SPLIT)
             e["strategy"] = label
             folder = results / "fine" / f"solver_{map_type}_{proposal}"
-            io.write_parquet(e, folder / "errors.parquet")
+            files.write_parquet(e, folder / "errors.parquet")
             summaries.append(_summary(e, "solver", map_type, proposal, label, ref))
-            io.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
-    io.write_parquet(fine_table.table_rows(summaries), results / "tables" / "fine_localization.parquet")
+            files.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
+    files.write_parquet(fine_table.table_rows(summaries), results / "tables" / "fine_localization.parquet")
     ex = results / "export"
     out = export.scene_export(TINY_SCENE, ref, meta, q)
     for name in ("reference_map", "queries", "local_maps", "proposals", "ground_truth"):
-        io.write_text(export.csv_text(out[name]), ex / TINY_SCENE / f"{name}.csv")
-    io.write_text(json.dumps(out["reference_geojson"], indent=1) + "\n", ex / TINY_SCENE / "reference_map.geojson")
-    io.write_json(out["frame"], ex / TINY_SCENE / "frame.json")
+        files.write_text(export.csv_text(out[name]), ex / TINY_SCENE / f"{name}.csv")
+    files.write_text(json.dumps(out["reference_geojson"], indent=1) + "\n", ex / TINY_SCENE / "reference_map.geojson")
+    files.write_json(out["frame"], ex / TINY_SCENE / "frame.json")
     idx = export.index_export([{"scene": TINY_SCENE, "city": "Flatland", "ref": ref, "meta": meta, "queries": q}], [])
     for name in ("classes", "scenes", "template"):
-        io.write_text(export.csv_text(idx[name]), ex / f"{'poses_template' if name == 'template' else name}.csv")
+        files.write_text(export.csv_text(idx[name]), ex / f"{'poses_template' if name == 'template' else name}.csv")
     return results
 
 
@@ -190,7 +192,7 @@ def test_a_city_index_gives_poses_in_each_querys_scene_frame(tiny_run, tmp_path)
     city = tiny_run / "city" / "1"
     cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
     (city / "index").mkdir(parents=True, exist_ok=True)
-    io.write_parquet(cref.drop(columns=["geometry"], errors="ignore").assign(city=0), city / "map.parquet")
+    files.write_parquet(cref.drop(columns=["geometry"], errors="ignore").assign(city=0), city / "map.parquet")
     index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
     on_city = batch.localize_batch(tiny_run, SPLIT, "gt", city=city / "index", progress=False).poses
     on_scene = batch.localize_batch(tiny_run, SPLIT, "gt", progress=False).poses
@@ -282,7 +284,7 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
     learned = {}
     for region in ("whole", "gtbb"):  # rule solver_priors: a verifier per region
         priors = paths.within(results, paths.proposal_priors(region))  # as rule fine_eval reads them
-        solver.learned.fit(scenes, settings, region).write(priors)
+        solver.learned_priors.fit(scenes, settings, region).write(priors)
         learned[region] = solver.LearnedPriors.read(priors)
     stats = []
     for ref, q in scenes:
@@ -290,14 +292,14 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
         lonlat = ref[["lon", "lat"]].to_numpy(float)
         meta = reference_map.frame_metadata(s, geo.frame_for(lonlat))
         reference_map.write_geoparquet(ref, meta, results / s / "maps" / "reference_map.parquet")
-        io.write_parquet(q, results / s / "queries" / "queries.parquet")
+        files.write_parquet(q, results / s / "queries" / "queries.parquet")
         stats.append({"scene": s, "city": cities[s]})
         out = export.scene_export(s, ref, meta, q)
         for name in ("reference_map", "queries", "local_maps", "ground_truth"):
-            io.write_text(export.csv_text(out[name]), results / "export" / s / f"{name}.csv")
-        io.write_text(json.dumps(out["reference_geojson"]), results / "export" / s / "reference_map.geojson")
-    io.write_parquet(pd.DataFrame(stats), results / score.BENCHMARK_RECORD)
-    io.write_text(export.csv_text(pd.DataFrame(stats)), results / "export" / "scenes.csv")
+            files.write_text(export.csv_text(out[name]), results / "export" / s / f"{name}.csv")
+        files.write_text(json.dumps(out["reference_geojson"]), results / "export" / s / "reference_map.geojson")
+    files.write_parquet(pd.DataFrame(stats), results / score.BENCHMARK_RECORD)
+    files.write_text(export.csv_text(pd.DataFrame(stats)), results / "export" / "scenes.csv")
     read = [
         (
             pd.read_parquet(results / s / "maps" / "reference_map.parquet"),
@@ -338,7 +340,8 @@ def test_the_learned_priors_are_those_rule_fine_eval_reads(tmp_path):
     fine_eval job on that proposal, as Snakemake resolves its input."""
     from conftest import REPO
 
-    from flatlandia import debug, vocabulary
+    from flatlandia import vocabulary
+    from flatlandia.plumbing import debug
 
     tiny = [REPO / "config" / "test" / "tiny.yaml"]
     for proposal in (vocabulary.WHOLE, vocabulary.GTBB, "coarse-simtrip"):

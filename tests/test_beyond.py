@@ -21,10 +21,9 @@ import pytest
 from conftest import published_scene
 
 from flatlandia import cli, config, geo, localize, solver
-from flatlandia.beyond import evaluate, protocol
-from flatlandia.beyond import table as beyond_table
 from flatlandia.city import index, search
 from flatlandia.classes import CLASSES
+from flatlandia.sequences import evaluation, protocol, sequence_table
 from flatlandia.solver.sequence import anchor_of, compose, relative_pose
 
 # ---------------------------------------------------------------- hand-made scenes
@@ -118,7 +117,7 @@ def test_one_frame_cannot_tell_two_places_and_two_frames_can():
     for place in (IDENTITY, SEQ_B):
         ref_xy, ref_cls, anchor, companion = twin_places(place, SEQ_B)
         f0, f1 = frames_of(place)
-        one = solver.localize(*f0, ref_xy, ref_cls, metric=False, alternatives=3)
+        one = solver.locate(*f0, ref_xy, ref_cls, metric=False, alternatives=3)
         assert one.best is not None and one.alternatives
         best, runner = one.best, one.alternatives[0]
         at_a = pose_error(best.x, best.y, best.theta, ANCHOR)
@@ -131,7 +130,7 @@ def test_one_frame_cannot_tell_two_places_and_two_frames_can():
 
         rel = np.array([np.zeros(3), relative_pose(anchor, companion)])
         sigma = np.array([[0.0, 0.0], [0.05, math.radians(0.5)]])
-        seq = solver.localize_sequence([f0, f1], rel, ref_xy, ref_cls, None, None, None, sigma, None, 2)
+        seq = solver.locate_sequence([f0, f1], rel, ref_xy, ref_cls, None, None, None, sigma, None, 2)
         assert seq.best is not None
         e_m, e_deg = pose_error(seq.best.x, seq.best.y, seq.best.theta, anchor)
         assert e_m < 1.0 and e_deg < 2.0, (place is IDENTITY, e_m, e_deg)
@@ -158,7 +157,7 @@ def test_two_identical_places_are_ambiguous_until_a_fix_or_a_second_frame(with_m
     threshold = config.section_defaults("solver")["answer_probability"]
     ref_xy, ref_cls, anchor, companion = twin_places(IDENTITY, SEQ_B)
     f0, f1 = frames_of(IDENTITY)
-    one = solver.localize(*f0, ref_xy, ref_cls, metric=False, priors=priors, alternatives=3)
+    one = solver.locate(*f0, ref_xy, ref_cls, metric=False, priors=priors, alternatives=3)
     best, runner = one.best, one.alternatives[0]
     places = sorted(
         min(pose_error(s.x, s.y, s.theta, p)[0] for s in (best, runner)) for p in (ANCHOR, SEQ_B.pose(ANCHOR))
@@ -169,13 +168,13 @@ def test_two_identical_places_are_ambiguous_until_a_fix_or_a_second_frame(with_m
     assert status["status"] == "ambiguous" and status["probability"] == pytest.approx(best.probability)
 
     fix = solver.Fix(anchor[0] + 15.0, anchor[1] - 10.0, 25.0)
-    fixed = solver.localize(*f0, ref_xy, ref_cls, metric=False, priors=priors, alternatives=3, fix=fix)
+    fixed = solver.locate(*f0, ref_xy, ref_cls, metric=False, priors=priors, alternatives=3, fix=fix)
     assert max(pose_error(fixed.best.x, fixed.best.y, fixed.best.theta, anchor)) < 1.0
     assert fixed.best.probability > 0.95 and localize.answer_status(fixed.best, threshold)["status"] == "ok"
 
     rel = np.array([np.zeros(3), relative_pose(anchor, companion)])
     sigma = np.array([[0.0, 0.0], [0.05, math.radians(0.5)]])
-    seq = solver.localize_sequence([f0, f1], rel, ref_xy, ref_cls, None, priors, None, sigma, None, 2)
+    seq = solver.locate_sequence([f0, f1], rel, ref_xy, ref_cls, None, priors, None, sigma, None, 2)
     assert max(pose_error(seq.best.x, seq.best.y, seq.best.theta, anchor)) < 1.0
     assert seq.best.probability > 0.95 and localize.answer_status(seq.best, threshold)["status"] == "ok"
 
@@ -187,7 +186,7 @@ def test_a_sequence_tolerates_odometry_noise():
     f0, f1 = frames_of(SEQ_B)
     rel = np.array([np.zeros(3), relative_pose(anchor, companion) + [0.08, -0.06, math.radians(1.0)]])
     sigma = np.array([[0.0, 0.0], [0.15, math.radians(1.5)]])
-    seq = solver.localize_sequence([f0, f1], rel, ref_xy, ref_cls, None, None, None, sigma)
+    seq = solver.locate_sequence([f0, f1], rel, ref_xy, ref_cls, None, None, None, sigma)
     e_m, e_deg = pose_error(seq.best.x, seq.best.y, seq.best.theta, anchor)
     assert e_m < 1.0 and e_deg < 2.0
 
@@ -202,14 +201,14 @@ def gps_map():
 
 def test_a_gps_fix_picks_the_right_one_of_two_identical_places():
     ref_xy, ref_cls, q = gps_map()
-    none = solver.localize(*q, ref_xy, ref_cls, metric=False, alternatives=2)
+    none = solver.locate(*q, ref_xy, ref_cls, metric=False, alternatives=2)
     poses = [none.best, *none.alternatives]
     found = sorted(min(pose_error(s.x, s.y, s.theta, t)[0] for s in poses[:2]) for t in (ANCHOR, GPS_B.pose(ANCHOR)))
     assert found[1] < 0.01  # the two best answers are the two places
     assert none.alternatives[0].behind < 1e-6  # tied
     for truth in (ANCHOR, GPS_B.pose(ANCHOR)):
         fix = solver.Fix(truth[0] + 15.0, truth[1] - 10.0, 25.0)
-        with_fix = solver.localize(*q, ref_xy, ref_cls, metric=False, alternatives=2, fix=fix)
+        with_fix = solver.locate(*q, ref_xy, ref_cls, metric=False, alternatives=2, fix=fix)
         e_m, e_deg = pose_error(with_fix.best.x, with_fix.best.y, with_fix.best.theta, truth)
         assert e_m < 1.0 and e_deg < 2.0
         # the other copy lies beyond the fix's gate (4 sigma): no alternative there
@@ -238,7 +237,7 @@ def test_a_gps_fix_picks_the_place_in_the_city_search():
     cfg, settings = search.SearchConfig.from_dict({}), solver.SolverConfig.from_dict({})
     for truth in (ANCHOR, GPS_B.pose(ANCHOR)):
         fix = solver.Fix(truth[0] + 15.0, truth[1] - 10.0, 25.0)
-        found = search.localize(ix, *q, cfg, settings, None, False, 2, fix=fix)
+        found = search.search_city(ix, *q, cfg, settings, None, False, 2, fix=fix)
         assert found.solution is not None
         e_m, e_deg = pose_error(found.solution.x, found.solution.y, found.solution.theta, truth)
         assert e_m < 1.0 and e_deg < 2.0
@@ -543,7 +542,7 @@ def test_the_installed_command_has_no_traceback(sequence_files):
 
 # ---------------------------------------------------------------- the table
 def summary_row(map_name: str, frames: int, gps: float | None, camera: str, **over) -> dict:
-    row = dict.fromkeys(beyond_table.COLUMNS, 50.0)
+    row = dict.fromkeys(sequence_table.COLUMNS, 50.0)
     row.update(
         map=map_name,
         objects=118 if map_name == "scene" else 2354,
@@ -574,8 +573,8 @@ def test_the_table_orders_its_rows():
         ("simulated-100000", 1, None, "on"),
     ]
     shuffled = [want[k] for k in np.random.default_rng(3).permutation(len(want))]
-    df = beyond_table.table([summary_row(*w) for w in shuffled])
-    assert list(df.columns) == beyond_table.COLUMNS
+    df = sequence_table.table([summary_row(*w) for w in shuffled])
+    assert list(df.columns) == sequence_table.COLUMNS
     got = [
         (r.map, r.frames, None if np.isnan(r.gps_sigma_m) else r.gps_sigma_m, r.camera_prior) for r in df.itertuples()
     ]
@@ -587,8 +586,8 @@ def test_the_markdown_escapes_and_quotes_orienternet_as_another_task():
         summary_row("scene", 5, None, "on", mean_frames=3.2, median_m=float("inf")),
         summary_row("scene", 1, 25.0, "off <b>|*x*"),
     ]
-    df = beyond_table.table(rows)
-    text = beyond_table.markdown(df, beyond_table.note("test", config.section_defaults("beyond")))
+    df = sequence_table.table(rows)
+    text = sequence_table.markdown(df, sequence_table.note("test", config.section_defaults("beyond")))
     lines = text.splitlines()
     table = [ln for ln in lines if ln.startswith("| ") and "OrienterNet" not in ln]
     n_cols = table[0].count(" | ") + 1
@@ -607,7 +606,7 @@ def test_the_risk_coverage_and_reliability_figures_draw_each_map_and_frame_count
     """Synthetic anchors of two maps at 1 and 5 frames (and rows the figures leave out: a fix, the
     camera prior off): one line per (map, frames) on each risk panel and on the reliability diagram,
     the threshold's dot where anchors are answered, labels from the data escaped for mathtext."""
-    from flatlandia.beyond import figures as beyond_figures
+    from flatlandia.sequences import sequence_figures
 
     rng = np.random.default_rng(0)
     rows = []
@@ -629,19 +628,19 @@ def test_the_risk_coverage_and_reliability_figures_draw_each_map_and_frame_count
                 )
             )
     errors = pd.concat(rows, ignore_index=True)
-    assert len(beyond_figures.curves(errors)) == 4
-    fig = beyond_figures.risk_coverage_figure(errors, 0.7)
+    assert len(sequence_figures.curves(errors)) == 4
+    fig = sequence_figures.risk_coverage_figure(errors, 0.7)
     for ax in fig.axes:
         solid = [ln for ln in ax.lines if ln.get_marker() in ("None", None, "")]
         assert len(solid) == 4 and len([ln for ln in ax.lines if ln.get_marker() == "o"]) == 4
     labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     assert "city-\\$20, 5 frames" in labels and "scene, 1 frame" in labels
-    scene_only = beyond_figures.risk_coverage_figure(errors[errors["map"] == "scene"], 0.7)
+    scene_only = sequence_figures.risk_coverage_figure(errors[errors["map"] == "scene"], 0.7)
     assert len(scene_only.axes) == 1 and len(scene_only.axes[0].get_legend().get_texts()) == 2  # no other scene
-    rel = beyond_figures.reliability_figure(errors)
+    rel = sequence_figures.reliability_figure(errors)
     assert len(rel.axes[0].lines) == 5  # the diagonal and four curves
     assert all("ECE" in t.get_text() for t in rel.axes[0].get_legend().get_texts())
-    beyond_figures.figures.pyplot().close("all")
+    sequence_figures.figures.pyplot().close("all")
 
 
 # ---------------------------------------------------------------- the published data (slow)
@@ -652,11 +651,11 @@ def test_scene_rows_on_a_published_scene(flat_root):
     companions lie within the sequence radius, and the summaries make the table."""
     ref, q = published_scene(flat_root, "7")
     beyond = config.section_defaults("beyond")
-    settings = [evaluate.Setting(1), evaluate.Setting(2), evaluate.Setting(2, 25.0)]
+    settings = [evaluation.Setting(1), evaluation.Setting(2), evaluation.Setting(2, 25.0)]
     n_test = int((q["split"] == "test").sum())
     every = max(1, n_test // 5)
-    errors = evaluate.scene_errors([(ref, q)], settings, {}, beyond, None, seed=0, every=every)
-    anchors = evaluate.anchors(q, "test", beyond, 0)[::every]
+    errors = evaluation.scene_errors([(ref, q)], settings, {}, beyond, None, seed=0, every=every)
+    anchors = evaluation.anchors(q, "test", beyond, 0)[::every]
     assert len(errors) == 3 * len(anchors) and len(anchors) >= 4
     ref_xy, ref_cls = ref[["x_m", "y_m"]].to_numpy(float), ref["class_id"].to_numpy()
     priors = solver.scene_priors(ref, q, {}, None)
@@ -664,7 +663,7 @@ def test_scene_rows_on_a_published_scene(flat_root):
         rows = errors[errors["token"] == a.token]
         rows = rows.assign(gps=rows["gps_sigma_m"].fillna(0.0)).set_index(["frames", "gps"])
         assert np.hypot(*(a.truth[1:, :2] - a.truth[0, :2]).T).max(initial=0.0) <= beyond["sequence_radius_m"]
-        one = solver.localize(*a.frames[0], ref_xy, ref_cls, metric=False, priors=priors).best
+        one = solver.locate(*a.frames[0], ref_xy, ref_cls, metric=False, priors=priors).best
         r1 = rows.loc[(1, 0.0)]
         assert (r1["x"], r1["y"]) == (one.x, one.y)
         assert rows.loc[(2, 0.0), "frames_used"] == min(2, len(a.frames))
@@ -672,5 +671,5 @@ def test_scene_rows_on_a_published_scene(flat_root):
         r = rows.loc[(2, 25.0)]
         assert math.hypot(r["x"] - fix.x, r["y"] - fix.y) <= fix.gate_m + 1e-6
     assert errors["bound_error_m"].median() < 2.0  # the true matches place the anchors
-    df = beyond_table.table(evaluate.summaries(errors, {"scene": len(ref)}))
+    df = sequence_table.table(evaluation.summaries(errors, {"scene": len(ref)}))
     assert len(df) == 3 and list(df["frames"]) == [1, 2, 2] and df["queries"].eq(len(anchors)).all()

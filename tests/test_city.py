@@ -82,7 +82,7 @@ def test_index_finds_the_only_region_that_explains_a_query():
     assert ix.cam[top[0], 0] < 500  # the corner's view, though B's saw the same classes
     assert score[0] > score[1] + 0.2  # by its geometry: the bags of classes are equal
     settings = solver.SolverConfig.from_dict({"covis_weight": 0.0})
-    found = search.localize(ix, q, q_cls, cfg, settings, solver.LearnedPriors(scale=(np.log(17.0), 0.5)))
+    found = search.search_city(ix, q, q_cls, cfg, settings, solver.LearnedPriors(scale=(np.log(17.0), 0.5)))
     assert np.hypot(*found.centres[0]) < 50
     assert set(ix.obj_id[found.rows]) == set(range(6))  # region B was never searched
     assert found.solution is not None

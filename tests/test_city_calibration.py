@@ -17,10 +17,11 @@ import pytest
 from test_city import CORNER, mirrored_city
 from test_localize import query_file, run_cli, tiny_scene  # noqa: F401
 
-from flatlandia import io, solver
+from flatlandia import solver
 from flatlandia.city import index, search, tiling
-from flatlandia.errors import InputError
-from flatlandia.solver import calibration, learned
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
+from flatlandia.solver import calibration, learned_priors
 from flatlandia.solver.calibration import Calibration, Logistic, MapSize, MapTerm
 
 #: the synthetic benchmark's scene map size and true terms (one frame, sequences)
@@ -77,11 +78,11 @@ def test_a_map_twice_the_size_gets_a_lower_probability():
 def test_the_record_round_trips_and_a_bad_one_is_refused(tmp_path):
     ms = MapSize(98.0, MapTerm(0.05, 0.2), MapTerm(0.25, 0.15), 1500)
     path = tmp_path / "calibration.json"
-    io.write_json({"map_size": ms.to_dict(), "split": "val"}, path)
-    assert learned.read_map_size(path) == ms
-    lp = learned.LearnedPriors((2.0, 0.5)).with_map_size(ms)
+    files.write_json({"map_size": ms.to_dict(), "split": "val"}, path)
+    assert learned_priors.read_map_size(path) == ms
+    lp = learned_priors.LearnedPriors((2.0, 0.5)).with_map_size(ms)
     lp.write(tmp_path / "whole.json")
-    assert learned.LearnedPriors.read(tmp_path / "whole.json").calibration.map_size == ms
+    assert learned_priors.LearnedPriors.read(tmp_path / "whole.json").calibration.map_size == ms
     for key, value, says in [
         ("frame", {"shift": -0.5, "per_log_odds": 0.1}, "map_size frame shift must be a finite number in [0, 2]"),
         ("sequence", {"shift": 0.1, "per_log_odds": float("nan")}, "map_size sequence per_log_odds must be a finite"),
@@ -91,10 +92,10 @@ def test_the_record_round_trips_and_a_bad_one_is_refused(tmp_path):
     ]:
         path.write_text(json.dumps({"map_size": {**ms.to_dict(), key: value}}))
         with pytest.raises(InputError, match=says.replace("[", r"\[")):
-            learned.read_map_size(path)
+            learned_priors.read_map_size(path)
     path.write_text(json.dumps({"frame": 0.1}))
     with pytest.raises(InputError, match="map_size object"):
-        learned.read_map_size(path)
+        learned_priors.read_map_size(path)
 
 
 def _priors(map_size: MapSize | None) -> solver.LearnedPriors:
@@ -110,14 +111,14 @@ def test_the_city_search_lowers_its_index_answers_not_a_fix():
     q, q_cls = q_gt / np.median(np.hypot(*q_gt.T)), np.array([c for c, _, _ in CORNER])
     cfg, settings = search.SearchConfig.from_dict({"regions": 2}), solver.SolverConfig.from_dict({"covis_weight": 0.0})
     ms = MapSize(2.0, MapTerm(2.0, 0.0), MapTerm(2.0, 0.0), 100)  # the 12-object city is 6 times this "scene map"
-    plain = search.localize(ix, q, q_cls, cfg, settings, _priors(None), alternatives=2)
-    lowered = search.localize(ix, q, q_cls, cfg, settings, _priors(ms), alternatives=2)
+    plain = search.search_city(ix, q, q_cls, cfg, settings, _priors(None), alternatives=2)
+    lowered = search.search_city(ix, q, q_cls, cfg, settings, _priors(ms), alternatives=2)
     shift = 2.0 * math.log(ix.n_objects / 2.0)
     for a, b in zip([plain.solution, *plain.alternatives], [lowered.solution, *lowered.alternatives]):
         assert (a.x, a.y, a.theta) == (b.x, b.y, b.theta)  # the same answer, ranked alike
         assert calibration.logit(b.probability) == pytest.approx(calibration.logit(a.probability) - shift, abs=1e-6)
     fix = solver.Fix(0.5, 0.3, 20.0)
-    at_fix = [search.localize(ix, q, q_cls, cfg, settings, _priors(m), fix=fix).solution for m in (None, ms)]
+    at_fix = [search.search_city(ix, q, q_cls, cfg, settings, _priors(m), fix=fix).solution for m in (None, ms)]
     assert at_fix[0].probability == at_fix[1].probability  # a fix's region is not the city
 
 
@@ -127,7 +128,7 @@ def test_localize_reads_the_record_beside_the_city_folders(tiny_scene, tmp_path,
     city = results / "city" / "1"
     cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
     (city / "index").mkdir(parents=True)
-    io.write_parquet(cref.assign(city=0), city / "map.parquet")
+    files.write_parquet(cref.assign(city=0), city / "map.parquet")
     index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
     _priors(None).write(results / "solver" / "priors" / "whole.json")
     query = query_file(tmp_path / "q.json", cq[cq["split"] == "test"].iloc[0], "depth")
@@ -136,7 +137,7 @@ def test_localize_reads_the_record_beside_the_city_folders(tiny_scene, tmp_path,
     plain = json.loads(text)
     assert status == 0 and plain["found"] and plain["priors"]["map_size_from"] is None
     record = results / "city" / "calibration.json"
-    io.write_json({"map_size": MapSize(2.0, MapTerm(2.0, 0.0), MapTerm(2.0, 0.0), 100).to_dict()}, record)
+    files.write_json({"map_size": MapSize(2.0, MapTerm(2.0, 0.0), MapTerm(2.0, 0.0), 100).to_dict()}, record)
     status, text = run_cli(capsys, *args)
     out = json.loads(text)
     assert status == 0 and out["priors"]["map_size_from"] == str(record)

@@ -6,9 +6,10 @@ import pytest
 import torch
 from conftest import published_scene
 
-from flatlandia import checkpoints, geo, paper, tables
+from flatlandia import checkpoints, geo, paper
 from flatlandia.coarse import evaluation, graphs, retrieval, target, training
 from flatlandia.data import localmaps
+from flatlandia.report import tables
 
 torch.set_num_threads(1)
 

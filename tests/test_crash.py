@@ -36,7 +36,7 @@ TABLE = "results/tables/recovery.parquet"
 #: with what they need: its ingest, map, recovery and queries
 TINY = [TABLE, CHECKPOINT]
 TINY_CONFIG = ["--configfile", str(REPO / "config/test/tiny.yaml"), "--config", "fine={train: {epochs: 600}}"]
-#: the temporaries of the atomic writers (flatlandia.io)
+#: the temporaries of the atomic writers (flatlandia.plumbing.files)
 PARTIAL = re.compile(r"^\..*\.partial-")
 
 
@@ -161,7 +161,7 @@ def _masked(text_: str) -> list[str]:
 
 def assert_same_output(clean: Path, got: Path) -> None:
     if got.suffix == ".parquet":
-        from flatlandia import io
+        from flatlandia.plumbing import files
 
         a, b = pd.read_parquet(clean), pd.read_parquet(got)
         a, b = (
@@ -169,7 +169,9 @@ def assert_same_output(clean: Path, got: Path) -> None:
             b.drop(columns=[c for c in b.columns if timing(c)]),
         )
         pd.testing.assert_frame_equal(a, b, check_exact=True, obj=str(got))
-        assert _without_timing(io.read_parquet_metadata(clean)) == _without_timing(io.read_parquet_metadata(got)), got
+        assert _without_timing(files.read_parquet_metadata(clean)) == _without_timing(
+            files.read_parquet_metadata(got)
+        ), got
     elif got.suffix == ".pt":
         import torch
 
@@ -336,15 +338,15 @@ def test_a_writer_cut_short_by_a_full_disk_leaves_nothing(tmp_path, monkeypatch)
     ENOSPC naming the output, and neither leaves a file under its name nor a temporary."""
     import errno
 
-    from flatlandia import io
+    from flatlandia.plumbing import files
 
-    monkeypatch.setattr(io, "disk_full", lambda path: True)
+    monkeypatch.setattr(files, "disk_full", lambda path: True)
     out = tmp_path / "model"
-    with pytest.raises(OSError) as err, io.atomic_dir(out) as tmp:
+    with pytest.raises(OSError) as err, files.atomic_dir(out) as tmp:
         (tmp / "points3D.bin").write_bytes(b"cut short")  # "succeeds"
     assert err.value.errno == errno.ENOSPC and err.value.filename == str(out)
     target = tmp_path / "checkpoint.pt"
-    with pytest.raises(OSError) as err, io.atomic_path(target) as tmp:
+    with pytest.raises(OSError) as err, files.atomic_path(target) as tmp:
         tmp.write_bytes(b"half")
         raise RuntimeError("basic_ios::clear: iostream error")
     assert err.value.errno == errno.ENOSPC and err.value.filename == str(target)
@@ -353,20 +355,20 @@ def test_a_writer_cut_short_by_a_full_disk_leaves_nothing(tmp_path, monkeypatch)
 
 
 def test_an_error_on_a_disk_with_room_is_left_alone(tmp_path):
-    from flatlandia import io
+    from flatlandia.plumbing import files
 
-    with pytest.raises(RuntimeError, match="a bug"), io.atomic_path(tmp_path / "x.pt"):
+    with pytest.raises(RuntimeError, match="a bug"), files.atomic_path(tmp_path / "x.pt"):
         raise RuntimeError("a bug")
     assert list(tmp_path.iterdir()) == []
 
 
 def test_a_rule_out_of_room_ends_with_one_error_line(tmp_path, capsys):
-    """runlog.run: an ENOSPC (named by a writer or not) ends the script with one ERROR line and
+    """rule_log.run: an ENOSPC (named by a writer or not) ends the script with one ERROR line and
     exit status 1, the writer's own error in the log, no traceback anywhere."""
     import errno
     from types import SimpleNamespace
 
-    from flatlandia import runlog
+    from flatlandia.plumbing import rule_log
 
     log = tmp_path / "rule.log"
     smk_ = SimpleNamespace(log=[str(log)], output=["results/x/out.parquet"], rule="x", wildcards={}, params={})
@@ -381,7 +383,7 @@ def test_a_rule_out_of_room_ends_with_one_error_line(tmp_path, capsys):
             raise raised
 
         with pytest.raises(SystemExit) as ended:
-            runlog.run(main, smk_)
+            rule_log.run(main, smk_)
         assert ended.value.code == 1
         err = capsys.readouterr().err
         lines = [ln for ln in err.splitlines() if ln.startswith("ERROR:")]
@@ -398,13 +400,13 @@ def _dead_pid() -> int:
 
 
 def _lock_with_note(locks: Path, name: str, **change) -> Path:
-    from flatlandia import runlock
+    from flatlandia.plumbing import stale_locks
 
     locks.mkdir(parents=True, exist_ok=True)
     lock = locks / name
     lock.write_text("results/x\n")
-    runlock.claim(lock, local=True)
-    note = runlock.owner_note(lock)
+    stale_locks.claim(lock, local=True)
+    note = stale_locks.owner_note(lock)
     note.write_text(json.dumps(json.loads(note.read_text()) | change))
     return lock
 
@@ -413,9 +415,9 @@ def test_a_stale_lock_is_removed_only_when_its_run_is_provably_gone(tmp_path):
     """The owner note decides: a dead run of this user, host, boot and pid namespace with the local
     executor loses its lock; a live run, another machine's, another user's, a cluster run's, one
     without a note or with a note of another lock file keeps it, and says whose it is."""
-    from flatlandia import runlock
+    from flatlandia.plumbing import stale_locks
 
-    if runlock._identity()["boot"] is None or runlock._proc_stat(os.getpid()) is None:
+    if stale_locks._identity()["boot"] is None or stale_locks._proc_stat(os.getpid()) is None:
         pytest.skip("no /proc here: every lock is kept (Snakemake's --unlock by hand)")
     locks = tmp_path / ".snakemake" / "locks"
     dead = _dead_pid()
@@ -430,10 +432,10 @@ def test_a_stale_lock_is_removed_only_when_its_run_is_provably_gone(tmp_path):
     for name, (change, _) in kept.items():
         _lock_with_note(locks, name, **change)
     (locks / "6.output.lock").write_text("results/y\n")  # no note: an earlier version's, or killed as it locked
-    assert runlock.judge(stale) == (True, runlock.judge(stale)[1])
+    assert stale_locks.judge(stale) == (True, stale_locks.judge(stale)[1])
     said: list[str] = []
-    removed, why = runlock.clear_stale(locks, say=said.append)
-    assert removed == [stale] and not stale.exists() and not runlock.owner_note(stale).exists()
+    removed, why = stale_locks.clear_stale(locks, say=said.append)
+    assert removed == [stale] and not stale.exists() and not stale_locks.owner_note(stale).exists()
     assert len(said) == 1 and said[0].startswith(
         f"flatlandia: removed the lock of a run killed here (Snakemake pid {dead} "
     )
@@ -441,20 +443,20 @@ def test_a_stale_lock_is_removed_only_when_its_run_is_provably_gone(tmp_path):
     for (_, expected), got in zip(kept.values(), why, strict=False):
         assert got.startswith(expected), (expected, got)
     assert why[-1].startswith("a run of unknown owner (its lock has no owner note")
-    assert "--unlock" in runlock.refusal_line(why)
-    assert "--unlock" not in runlock.refusal_line(why[:1]) and "wait for it" in runlock.refusal_line(why[:1])
+    assert "--unlock" in stale_locks.refusal_line(why)
+    assert "--unlock" not in stale_locks.refusal_line(why[:1]) and "wait for it" in stale_locks.refusal_line(why[:1])
     # a power cut: the lock of a run of an earlier boot of this machine (its pid now anyone's)
     restarted = _lock_with_note(locks, "7.input.lock", boot="an-earlier-boot")
-    if runlock._identity()["machine"]:
-        assert runlock.judge(restarted)[1].startswith("a run from before this machine restarted")
-        assert runlock.clear_stale(locks)[0] == [restarted]
+    if stale_locks._identity()["machine"]:
+        assert stale_locks.judge(restarted)[1].startswith("a run from before this machine restarted")
+        assert stale_locks.clear_stale(locks)[0] == [restarted]
     else:  # no machine id: an earlier boot of this machine looks like another machine
-        assert not runlock.judge(restarted)[0]
+        assert not stale_locks.judge(restarted)[0]
 
 
 def test_a_lock_whose_run_left_a_job_running_is_kept(tmp_path):
     """Snakemake killed alone: the job scripts it started may still be writing; its lock stays."""
-    from flatlandia import runlock
+    from flatlandia.plumbing import stale_locks
 
     scripts = tmp_path / ".snakemake" / "scripts"
     scripts.mkdir(parents=True)
@@ -463,9 +465,9 @@ def test_a_lock_whose_run_left_a_job_running_is_kept(tmp_path):
     job = subprocess.Popen([sys.executable, str(script)])
     try:
         lock = _lock_with_note(tmp_path / ".snakemake" / "locks", "0.input.lock", pid=_dead_pid(), pgid=None)
-        stale, why = runlock.judge(lock)
+        stale, why = stale_locks.judge(lock)
         assert not stale and f"job scripts of this folder still run (pid [{job.pid}])" in why
     finally:
         job.kill()
         job.wait()
-    assert runlock.judge(lock)[0]
+    assert stale_locks.judge(lock)[0]

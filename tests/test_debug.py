@@ -1,4 +1,4 @@
-"""flatlandia.debug: a rule's script run outside Snakemake gets the job Snakemake would run."""
+"""flatlandia.plumbing.debug: a rule's script run outside Snakemake gets the job Snakemake would run."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import pandas as pd
 import pytest
 from snakemake_runner import smk
 
-from flatlandia import cli, debug, io
+from flatlandia import cli
+from flatlandia.plumbing import debug, files
 
 
 @pytest.mark.slow  # the published data (flat_root)
@@ -60,7 +61,7 @@ def test_script_run_outside_snakemake_writes_what_the_workflow_writes(repo, flat
     pd.testing.assert_frame_equal(
         pd.read_parquet(ours / "reference_map.parquet"), pd.read_parquet(made / "reference_map.parquet")
     )
-    assert io.read_parquet_metadata(ours / "reference_map.parquet") == io.read_parquet_metadata(
+    assert files.read_parquet_metadata(ours / "reference_map.parquet") == files.read_parquet_metadata(
         made / "reference_map.parquet"
     )
     assert json.loads((ours / "reference_map.geojson").read_text()) == json.loads(

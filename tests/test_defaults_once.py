@@ -38,13 +38,13 @@ ALLOWED = {
     ("*", "seed"): "a random step's seed parameter: any value is as good as another, so its 0 chooses "
     "nothing; the rules pass the config's seed (the master seed, or seed + coarse.seed_offset)",
     ("*", "split"): "a query split's name: 'test' is the benchmark's held-out split, which scoring and "
-    "the evaluations read unless told otherwise; not the settings city.split / beyond.split, which "
+    "the evaluations read unless told otherwise; not the settings city.split / sequences.split, which "
     "choose the split those two stages localize",
     ("geo.py", "MIN_OBJECTS"): "the floor of objects a pose is found and checked with (a fact of the "
     "geometry, not a choice): images.min_objects may not go below it (the schema's minimum, "
     "test_the_floor_of_objects_is_the_schema_minimum) and defaults to it",
-    ("beyond/evaluate.py", "camera_prior"): "a row of the beyond table with the camera prior on or off "
-    "(beyond.scene_camera_prior lists the rows), not the solver's setting solver.camera_prior",
+    ("sequences/evaluation.py", "camera_prior"): "a row of the beyond table with the camera prior on or off "
+    "(sequences.scene_camera_prior lists the rows), not the solver's setting solver.camera_prior",
 }
 
 #: text defaults this long are distinctive: the same text anywhere is a restatement (a URL, a path)
@@ -270,29 +270,30 @@ def test_the_floor_of_objects_is_the_schema_minimum():
     the published local maps and the fine stage's solvability use that one floor."""
     import inspect
 
-    from flatlandia import geo, io, localize
+    from flatlandia import geo, localize
+    from flatlandia.data import published
     from flatlandia.fine import evaluation
 
     node = config.schema()["properties"]["images"]["properties"]["min_objects"]
     assert node["minimum"] == geo.MIN_OBJECTS <= node["default"]
     assert localize.MIN_OBJECTS == geo.MIN_OBJECTS
-    assert inspect.signature(io.read_local_maps).parameters["min_objects"].default == geo.MIN_OBJECTS
+    assert inspect.signature(published.read_local_maps).parameters["min_objects"].default == geo.MIN_OBJECTS
     assert inspect.signature(evaluation.solvable).parameters["min_objects"].default == geo.MIN_OBJECTS
 
 
 def test_a_users_sequence_gets_the_simulated_sequences_noise_floor():
     """A companion frame that did not move gets the odometry floor of the simulated sequences
-    (flatlandia.beyond.MIN_SIGMA_M), not a second copy of it."""
+    (flatlandia.sequences.MIN_SIGMA_M), not a second copy of it."""
     import numpy as np
 
-    from flatlandia import beyond, localize
-    from flatlandia.beyond import protocol
+    from flatlandia import localize, sequences
+    from flatlandia.sequences import protocol
 
     xy, cls = np.array([[5.0, 1.0], [7.0, -2.0], [9.0, 0.5]]), np.array([1, 2, 3])
     frame = localize.query_json(xy, cls)
     seq = localize.parse_sequence({"frames": [frame, {**frame, "pose": {"x": 0.0, "y": 0.0, "theta_deg": 0.0}}]})
-    assert seq.sigma[1, 0] == beyond.MIN_SIGMA_M == protocol.MIN_SIGMA_M
-    assert protocol.MIN_SIGMA_DEG == beyond.MIN_SIGMA_DEG
+    assert seq.sigma[1, 0] == sequences.MIN_SIGMA_M == protocol.MIN_SIGMA_M
+    assert protocol.MIN_SIGMA_DEG == sequences.MIN_SIGMA_DEG
 
 
 def test_the_cli_says_the_librarys_number_of_alternatives(capsys):

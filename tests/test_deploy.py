@@ -20,7 +20,8 @@ from checkout_copy import TAG, copy_checkout, tagged_repository
 from conftest import REPO, TINY_ROOT, TINY_SCENE
 from snakemake_runner import SNAKEMAKE, job_stats
 
-from flatlandia import __version__, io
+from flatlandia import __version__
+from flatlandia.plumbing import files
 
 #: the published repository as snakedeploy names it (served here from a local tagged copy)
 GITHUB_REPO = "example/flatlandia-workflow"
@@ -235,7 +236,7 @@ def test_a_module_from_a_tag_runs_maps_as_the_repository_does(github_project, de
     project, env = github_project
     dead = subprocess.Popen(["true"])
     dead.wait()
-    stale = project / "results" / f".x.parquet.partial-{io._host_tag()}-{dead.pid}-abcdefgh"
+    stale = project / "results" / f".x.parquet.partial-{files._host_tag()}-{dead.pid}-abcdefgh"
     stale.parent.mkdir(parents=True)
     stale.write_bytes(b"left by a killed run")
     res = run(project, "--cores", "2", "maps", env=env)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flatlandia.errors import InputError
 from flatlandia.images import depth
 from flatlandia.images.image_queries import View
+from flatlandia.plumbing.errors import InputError
 
 
 def _view():

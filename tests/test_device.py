@@ -20,9 +20,9 @@ from conftest import smk_dry_run
 from flatlandia import config, device, geo
 from flatlandia.coarse import graphs, retrieval
 from flatlandia.coarse import training as coarse_training
-from flatlandia.errors import InputError
-from flatlandia.fine import learned
+from flatlandia.fine import models
 from flatlandia.fine import training as fine_training
+from flatlandia.plumbing.errors import InputError
 
 HAS_CUDA = torch.cuda.is_available()
 META = torch.device("meta")
@@ -138,7 +138,7 @@ def _toy_samples(n, cfg, seed=0):
         m = int(rng.integers(3, 6))
         local = geo.world_to_local(ref[:m], cam, th)
         q = local / np.median(np.linalg.norm(local, axis=1)) if cfg.map_type == "depth" else local
-        out.append(learned.make_sample(q, cls[:m], ref, cls, cfg, cam, th))
+        out.append(models.make_sample(q, cls[:m], ref, cls, cfg, cam, th))
     return out
 
 
@@ -152,13 +152,13 @@ def _tensors(obj) -> list[torch.Tensor]:
     return []
 
 
-@pytest.mark.parametrize("name", learned.MODELS)
+@pytest.mark.parametrize("name", models.MODELS)
 def test_a_fine_training_step_keeps_every_parameter_and_batch_on_the_resolved_device(name, monkeypatch):
     """Every forward of the training (steps and validation) gets its batch and runs its weights on
     the device ``auto`` resolves to; the loss sees its tensors there; the result's model is there
     and its saved weights on the CPU."""
     dev = device.resolve("auto")
-    cfg = learned.FineTrainConfig(
+    cfg = models.FineTrainConfig(
         model=name, map_type="depth", hidden=16, heads=2, rounds=1, epochs=2, batch_size=4, eval_every=1
     )
     seen: list[tuple[str, torch.device]] = []
@@ -174,8 +174,8 @@ def test_a_fine_training_step_keeps_every_parameter_and_batch_on_the_resolved_de
         return original_loss(pred, target, w)
 
     monkeypatch.setattr(fine_training, "pose_loss", loss)
-    monkeypatch.setattr(learned.MLPModel, "__call__", _hooked(learned.MLPModel.__call__, record))
-    monkeypatch.setattr(learned.GATModel, "__call__", _hooked(learned.GATModel.__call__, record))
+    monkeypatch.setattr(models.MLPModel, "__call__", _hooked(models.MLPModel.__call__, record))
+    monkeypatch.setattr(models.GATModel, "__call__", _hooked(models.GATModel.__call__, record))
     res = fine_training.train(_toy_samples(10, cfg), _toy_samples(5, cfg, seed=1), cfg, device="auto")
     kinds = {k for k, _ in seen}
     assert kinds == {"batch", "parameter", "loss"}
@@ -194,16 +194,16 @@ def _hooked(call, record):
 
 
 def test_graph_batches_selected_from_the_collated_split_equal_torch_geometric_batches():
-    cfg = learned.FineTrainConfig(model="GAT", map_type="gt")
+    cfg = models.FineTrainConfig(model="GAT", map_type="gt")
     samples = _toy_samples(9, cfg, seed=3)
-    samples[4] = learned.make_sample(
+    samples[4] = models.make_sample(
         np.zeros((1, 2)), [7], np.ones((4, 2)), [1, 2, 3, 4], cfg, (0, 0), 0.0
     )  # no inter edge
-    split = learned.GraphSplit(samples)
+    split = models.GraphSplit(samples)
     for pick in ([0], [8, 2, 5], [4], [4, 1, 4], list(range(9))[::-1]):
-        got, want = split[np.array(pick)], learned.Batch.from_data_list([samples[i] for i in pick])
+        got, want = split[np.array(pick)], models.Batch.from_data_list([samples[i] for i in pick])
         assert got.num_graphs == want.num_graphs
-        for key in (*learned.NODE_KEYS, *learned.EDGE_KEYS, *learned.GRAPH_KEYS, "batch"):
+        for key in (*models.NODE_KEYS, *models.EDGE_KEYS, *models.GRAPH_KEYS, "batch"):
             a, b = getattr(got, key), getattr(want, key)
             assert a.dtype == b.dtype and torch.equal(a, b), (pick, key)
 
@@ -212,9 +212,9 @@ def test_the_fine_data_path_runs_on_a_device_without_touching_the_host():
     """On ``meta`` (no data, every CPU tensor mixed in is an error): selections of the padded maps
     and of the collated graphs, and the augmentation, stay on the device."""
     for name in ("MLP", "GAT"):
-        cfg = learned.FineTrainConfig(model=name, map_type="depth", aug_depth_scale=0.2)
+        cfg = models.FineTrainConfig(model=name, map_type="depth", aug_depth_scale=0.2)
         samples = _toy_samples(6, cfg)
-        split = (learned.dense_maps if name == "MLP" else learned.GraphSplit)(samples).to(META)
+        split = (models.dense_maps if name == "MLP" else models.GraphSplit)(samples).to(META)
         batch = fine_training.augment(split[np.array([5, 0, 3])], cfg, torch.Generator().manual_seed(0))
         tensors = _tensors(batch)
         assert len(tensors) >= 7 and {t.device for t in tensors} == {META}
@@ -375,8 +375,8 @@ def _tiny_results(folder):
     from conftest import TINY_SCENE
     from tiny_results import tiny_scene
 
-    from flatlandia import io
     from flatlandia.coarse import target
+    from flatlandia.plumbing import files
 
     tiny = tiny_scene()
     ref, q = tiny.ref, tiny.queries
@@ -386,7 +386,7 @@ def _tiny_results(folder):
         ("coarse/target", target.scene_similarity(ref, q)),
     ):
         (folder / TINY_SCENE / name).parent.mkdir(parents=True, exist_ok=True)
-        io.write_parquet(table, folder / TINY_SCENE / f"{name}.parquet")
+        files.write_parquet(table, folder / TINY_SCENE / f"{name}.parquet")
 
 
 @pytest.mark.slow  # trains on the CPU in three processes: about 45 s

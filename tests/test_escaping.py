@@ -1,5 +1,5 @@
 """Text from the scene sheet and result files reaches LaTeX, Markdown and HTML escaped for each
-format (flatlandia.escape), through the real writers; tables without specials are unchanged."""
+format (flatlandia.plumbing.escape), through the real writers; tables without specials are unchanged."""
 
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import escape, io, summary, tables
-from flatlandia.city import table as city_table
+from flatlandia.city import city_table
 from flatlandia.coarse import evaluation as coarse_evaluation
 from flatlandia.data import stats
-from flatlandia.fine import evaluation, scene_localization
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import evaluation, fine_table, scene_localization
+from flatlandia.plumbing import escape, files, summary
+from flatlandia.report import tables
 from flatlandia.viewer import page
-from flatlandia.viewer.scene import SceneView
+from flatlandia.viewer.scene_view import SceneView
 
 #: a scene sheet's `city` (free text a user or a download controls)
 HOSTILE = r"\input{secret.tex}<img src=x onerror=alert(1)>|pipe"
@@ -226,7 +226,7 @@ def test_coarse_city_and_scene_markdown_escape_their_values():
 def test_summary_escapes_what_it_reads(tmp_path):
     res = tmp_path / "results"
     scene = "<b>x|y"
-    io.write_parquet(
+    files.write_parquet(
         pd.DataFrame({"object_id": []}), res / scene / "objects/objects.parquet", {"empty_because": HOSTILE}
     )
     text = summary.write_summary(res, [scene])

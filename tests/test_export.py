@@ -1,4 +1,4 @@
-"""The benchmark exported as plain files (flatlandia.export, target `export`): the CSVs read back
+"""The benchmark exported as plain files (flatlandia.data.export, target `export`): the CSVs read back
 equal the Parquet values, the ground truth places each GT local map on its matched reference
 objects, theta_deg and heading_deg agree, the proposals are the workflow's. On the tiny scene
 (fast lane), a dry run of the target on it, and one real `snakemake export` on two scenes (slow)."""
@@ -14,10 +14,11 @@ from conftest import REPO, TINY_SCENE, smk_dry_run
 from snakemake_runner import job_stats, smk
 from tiny_results import tiny_scene
 
-from flatlandia import export, geo, io, proposals
+from flatlandia import geo, proposals
 from flatlandia.classes import CLASSES
-from flatlandia.data import reference_map
-from flatlandia.errors import InputError
+from flatlandia.data import export, reference_map
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 
 TEST_CONFIGS = REPO / "config" / "test"
 TEXT = {"scene": str, "token": str}
@@ -37,10 +38,10 @@ def tiny_parquet(tmp_path_factory) -> dict:
     tiny = tiny_scene()
     d = tmp_path_factory.mktemp("tiny_parquet")
     reference_map.write_geoparquet(tiny.ref, tiny.meta, d / "reference_map.parquet")
-    io.write_parquet(tiny.queries, d / "queries.parquet", {"scene": TINY_SCENE})
+    files.write_parquet(tiny.queries, d / "queries.parquet", {"scene": TINY_SCENE})
     return {
         "ref": pd.read_parquet(d / "reference_map.parquet"),
-        "meta": io.read_parquet_metadata(d / "reference_map.parquet"),
+        "meta": files.read_parquet_metadata(d / "reference_map.parquet"),
         "queries": pd.read_parquet(d / "queries.parquet"),
     }
 
@@ -81,10 +82,10 @@ def written(tiny_parquet, coarse, tmp_path_factory) -> dict:
     out = export.scene_export(TINY_SCENE, tiny_parquet["ref"], tiny_parquet["meta"], tiny_parquet["queries"], coarse)
     d = tmp_path_factory.mktemp("export")
     for name, fname in SCENE_FILES.items():
-        io.write_text(export.csv_text(out[name]), d / fname)
-    io.write_json(out["frame"], d / "frame.json")
-    io.write_text(json.dumps(out["reference_geojson"]) + "\n", d / "reference_map.geojson")
-    io.write_text(json.dumps(out["query_cameras"], indent=1) + "\n", d / "query_cameras.geojson")
+        files.write_text(export.csv_text(out[name]), d / fname)
+    files.write_json(out["frame"], d / "frame.json")
+    files.write_text(json.dumps(out["reference_geojson"]) + "\n", d / "reference_map.geojson")
+    files.write_text(json.dumps(out["query_cameras"], indent=1) + "\n", d / "query_cameras.geojson")
     back = {name: pd.read_csv(d / fname, dtype=TEXT, keep_default_na=False) for name, fname in SCENE_FILES.items()}
     return {"out": out, "back": back, "dir": d}
 
@@ -274,7 +275,7 @@ def test_index_files(tiny_parquet, tmp_path):
     scene = {"scene": TINY_SCENE, "city": "Flat|land <b>*x*</b>", **tiny_parquet}
     out = export.index_export([scene], ["coarse-solver"])
     for name in ("classes", "scenes", "template"):
-        io.write_text(export.csv_text(out[name]), tmp_path / f"{name}.csv")
+        files.write_text(export.csv_text(out[name]), tmp_path / f"{name}.csv")
     classes = pd.read_csv(tmp_path / "classes.csv")
     assert classes["class"].tolist() == CLASSES and classes["class_id"].tolist() == list(range(len(CLASSES)))
     scenes = pd.read_csv(tmp_path / "scenes.csv", dtype=TEXT).iloc[0]
@@ -313,7 +314,7 @@ def test_floats_round_trip_in_positional_notation(tmp_path, values):
     df = pd.DataFrame({"v": values + [np.nan], "i": range(len(values) + 1)})
     text = export.csv_text(df)
     assert "e" not in text.split("\n", 1)[1]  # positional: no exponent
-    io.write_text(text, tmp_path / "f.csv")
+    files.write_text(text, tmp_path / "f.csv")
     back = pd.read_csv(tmp_path / "f.csv")
     assert back["v"].iloc[:-1].tolist() == values and np.isnan(back["v"].iloc[-1])
     assert text.splitlines()[-1] == f",{len(values)}"  # NaN: an empty cell
@@ -341,9 +342,9 @@ def test_dry_run_exports_without_training(repo, tmp_path):
 def test_export_two_scenes(repo, flat_root, tmp_path):
     """`snakemake export` on scenes 9 and 12 in a fresh folder: no model trained, every file there,
     the coarse sources reported absent, the CSVs equal to the Parquet files."""
-    files = [str(TEST_CONFIGS / "two_scenes.yaml")]
+    configs = [str(TEST_CONFIGS / "two_scenes.yaml")]
     res = smk(
-        repo, tmp_path, "--cores", "2", "export", "--configfile", *files, "--config", f"flatlandia_root={flat_root}"
+        repo, tmp_path, "--cores", "2", "export", "--configfile", *configs, "--config", f"flatlandia_root={flat_root}"
     )
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert not (tmp_path / "results/coarse").exists()
@@ -373,5 +374,5 @@ def test_export_two_scenes(repo, flat_root, tmp_path):
         assert template.loc[template["scene"] == s, "token"].tolist() == q.loc[q["split"] == "test", "token"].tolist()
         assert (
             json.loads((ex / f"{s}/frame.json").read_text())["crs"]
-            == io.read_parquet_metadata(tmp_path / f"results/{s}/maps/reference_map.parquet")["crs"]
+            == files.read_parquet_metadata(tmp_path / f"results/{s}/maps/reference_map.parquet")["crs"]
         )

@@ -24,8 +24,8 @@ import pytest
 from snakemake_runner import smk
 from zip_archives import make_zip
 
-from flatlandia import io
 from flatlandia.data import fetch
+from flatlandia.plumbing import files
 
 SCENES = pd.DataFrame({"scene": ["12"], "city": ["Paris"], "name": ["ParisRosaPark"]})
 
@@ -183,8 +183,8 @@ KILLED_MID_WRITE = textwrap.dedent(
     """
     import os, sys
     from pathlib import Path
-    from flatlandia import io
     from flatlandia.data import fetch
+    from flatlandia.plumbing import files
 
     root, url = Path(sys.argv[1]), sys.argv[2]
 
@@ -193,7 +193,7 @@ KILLED_MID_WRITE = textwrap.dedent(
         os.kill(os.getpid(), 9)
 
     fetch.download = killed
-    with io.atomic_path(root / "results/s/maps/map.parquet") as f, io.atomic_dir(root / "results/s/sfm/model") as d:
+    with files.atomic_path(root / "results/s/maps/map.parquet") as f, files.atomic_dir(root / "results/s/sfm/model") as d:
         f.write_bytes(b"half")
         (d / "cameras.bin").write_bytes(b"half")
         fetch.fetch_images(url, "imgs", root / "resources/images/s", workdir=root)
@@ -223,27 +223,27 @@ def test_temporaries_of_a_killed_process_are_removed_and_nothing_else(tmp_path, 
     assert {Path(p).suffix for p in stale if p.startswith("results/s/maps")} == {".parquet"}  # the target's suffix
 
     # look-alikes that must stay: a live process's temporaries, unmarked or foreign ones, links, old-style names
-    tag = io._host_tag()
+    tag = files._host_tag()
     keep = root / "results" / "keep"
     keep.mkdir()
     with_canary(keep / f".model.partial-{tag}-{pid}-abcdefgh")  # named like ours, no marker: not ours
     foreign = keep / f".model.partial-00000000-{pid}-abcdefgh"  # another host's: its process cannot be checked
     with_canary(foreign)
-    (foreign / io.PARTIAL_MARKER).write_text(json.dumps({"pid": pid, "host": "elsewhere"}))
+    (foreign / files.PARTIAL_MARKER).write_text(json.dumps({"pid": pid, "host": "elsewhere"}))
     lying = keep / f".model.partial-{tag}-{pid}-ijklmnop"  # a marker naming another process than the name
     with_canary(lying)
-    (lying / io.PARTIAL_MARKER).write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname()}))
+    (lying / files.PARTIAL_MARKER).write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname()}))
     (keep / f".map.partial-{tag}-{pid}-abcdefgh.parquet").symlink_to(keep / lying.name / "canary.txt")
     with_canary(keep / "model.tmp")
     with_canary(keep / ".images.x1y2z3")
-    live_file = io.atomic_path(keep / "live.parquet")
-    live_dir = io.atomic_dir(root / "resources" / "live")
+    live_file = files.atomic_path(keep / "live.parquet")
+    live_dir = files.atomic_dir(root / "resources" / "live")
     with live_file as f, live_dir as d:
         f.write_bytes(b"being written")
         (d / "x").write_text("being written")
         before = tree(tmp_path)
         said = []
-        removed = io.clean_stale_partials(
+        removed = files.clean_stale_partials(
             [root / "results", root / "resources", root / "absent"],
             beside=[root / "resources/images/s"],
             log=said.append,
@@ -251,7 +251,7 @@ def test_temporaries_of_a_killed_process_are_removed_and_nothing_else(tmp_path, 
         assert {p.relative_to(root).as_posix() for p in removed} == stale
         assert tree(tmp_path) == {p for p in before if not any(p.startswith(f"run/{s}") for s in stale)}
         assert len(said) == len(stale) and all("leftover of an interrupted run" in line for line in said)
-        assert io.clean_stale_partials([root / "results", root / "resources"]) == []  # a second pass: nothing
+        assert files.clean_stale_partials([root / "results", root / "resources"]) == []  # a second pass: nothing
     assert (keep / "live.parquet").read_bytes() == b"being written"
     look_alikes = {
         f".model.partial-{tag}-{pid}-abcdefgh",
@@ -266,14 +266,14 @@ def test_temporaries_of_a_killed_process_are_removed_and_nothing_else(tmp_path, 
 def test_temporaries_are_named_recognisably_and_keep_the_suffix(tmp_path):
     long_name = "é" * 100 + ".png"  # 204 bytes: the temporary's name must still fit in 255
     for name in ("fig.png", "model.npz", long_name):
-        with io.atomic_path(tmp_path / name) as tmp:
+        with files.atomic_path(tmp_path / name) as tmp:
             assert tmp.parent == tmp_path and tmp.suffix == Path(name).suffix and len(tmp.name.encode()) < 255
-            assert io._PARTIAL_NAME.match(tmp.name)["pid"] == str(os.getpid())
+            assert files._PARTIAL_NAME.match(tmp.name)["pid"] == str(os.getpid())
             tmp.write_bytes(b"x")
-    with io.atomic_dir(tmp_path / "masks") as d:
+    with files.atomic_dir(tmp_path / "masks") as d:
         work = d.parent
-        assert work.parent == tmp_path and io._PARTIAL_NAME.match(work.name)
-        assert json.loads((work / io.PARTIAL_MARKER).read_text())["pid"] == os.getpid()
+        assert work.parent == tmp_path and files._PARTIAL_NAME.match(work.name)
+        assert json.loads((work / files.PARTIAL_MARKER).read_text())["pid"] == os.getpid()
         (d / "m.png").write_bytes(b"x")
     assert tree(tmp_path) == {"fig.png", "model.npz", long_name, "masks", "masks/m.png"}
 
@@ -287,7 +287,7 @@ def test_a_linked_results_folder_is_searched_but_no_link_below_it(tmp_path, arch
     (run / "results").symlink_to(elsewhere / "results", target_is_directory=True)
     (run / "resources").mkdir()
     (run / "resources" / "link").symlink_to(elsewhere / "resources", target_is_directory=True)
-    removed = io.clean_stale_partials([run / "results", run / "resources"])
+    removed = files.clean_stale_partials([run / "results", run / "resources"])
     assert {p.relative_to(run).as_posix() for p in removed} == {p for p in partials(left) if p.startswith("results")}
     assert partials(tree(elsewhere)) == {p for p in partials(left) if p.startswith("resources")}
 

@@ -6,9 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatlandia import paper, tables
-from flatlandia.fine import evaluation, scene_localization
-from flatlandia.fine import table as fine_table
+from flatlandia import paper
+from flatlandia.fine import evaluation, fine_table, scene_localization
+from flatlandia.report import tables
 
 
 def _errors(error_m, error_deg):

@@ -14,10 +14,11 @@ import pytest
 from conftest import TINY_SCENE
 from tiny_results import tiny_scene
 
-from flatlandia import config, figures
+from flatlandia import config
 from flatlandia.data import reference_map
 from flatlandia.fine import evaluation
-from flatlandia.viewer import query_figures, scene
+from flatlandia.report import figures
+from flatlandia.viewer import query_figures, scene_view
 
 #: pixels two boxes may share (antialiasing, a glyph's bearing): less than a stroke
 TOLERANCE_PX = 1.0
@@ -142,13 +143,13 @@ def test_fine_figures(tiny, saved, tmp_path):
 
 def test_query_figures_and_the_worst_queries(tiny, saved, tmp_path):
     ref, _, q, errors = tiny
-    view = scene.scene_view(TINY_SCENE, ref, q, errors)
+    view = scene_view.scene_view(TINY_SCENE, ref, q, errors)
     written = query_figures.write_query_figures(view, tmp_path / "figures")
     assert len(written) >= 6
     figures.save(query_figures.worst_figure(view), tmp_path / "worst_queries.png")
     # galleries of one and of two queries (a scene with few test queries): narrower than the legend
     for k in (1, 2):
-        few = scene.scene_view(TINY_SCENE, ref, q.assign(split=["test"] * k + ["train"] * (len(q) - k)), errors)
+        few = scene_view.scene_view(TINY_SCENE, ref, q.assign(split=["test"] * k + ["train"] * (len(q) - k)), errors)
         figures.save(query_figures.worst_figure(few), tmp_path / f"worst_{k}.png")
     _check(saved)
 
@@ -224,7 +225,7 @@ def test_the_check_finds_text_over_text(saved, tmp_path):
 def test_the_answers_risk_coverage_and_reliability_figures(saved, tmp_path):
     """Rule beyond_table's figures of the answers' probability, with the three maps at 1 and 5 frames
     (the legend's six entries over the lines' start)."""
-    from flatlandia.beyond import figures as beyond_figures
+    from flatlandia.sequences import sequence_figures
 
     rng = np.random.default_rng(1)
     rows = []
@@ -246,6 +247,6 @@ def test_the_answers_risk_coverage_and_reliability_figures(saved, tmp_path):
                 )
             )
     errors = pd.concat(rows, ignore_index=True)
-    beyond_figures.plot_risk_coverage(errors, 0.7, tmp_path / "risk_coverage.png")
-    beyond_figures.plot_reliability(errors, tmp_path / "reliability.png")
+    sequence_figures.plot_risk_coverage(errors, 0.7, tmp_path / "risk_coverage.png")
+    sequence_figures.plot_reliability(errors, tmp_path / "reliability.png")
     _check(saved)

@@ -11,8 +11,9 @@ import yaml
 from matplotlib.colors import to_hex
 from PIL import Image
 
-from flatlandia import figures, paper
-from flatlandia.figures import MAP_TYPE_LABELS, METHOD_COLOURS, METHOD_LABELS, PROPOSAL_LABELS, Run
+from flatlandia import paper
+from flatlandia.report import figures
+from flatlandia.report.figures import MAP_TYPE_LABELS, METHOD_COLOURS, METHOD_LABELS, PROPOSAL_LABELS, Run
 
 
 def default_runs(repo) -> list[str]:

@@ -9,8 +9,7 @@ import torch
 from snakemake_runner import smk
 
 from flatlandia import checkpoints, geo, proposals, solver
-from flatlandia.fine import evaluation, learned, training
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import evaluation, fine_table, models, training
 from flatlandia.solver import problem, scoring
 
 torch.set_num_threads(1)
@@ -229,16 +228,16 @@ def _toy_samples(n, cfg, seed=0):
         cam, th = rng.uniform(-20, 20, 2), rng.uniform(-np.pi, np.pi)
         local = geo.world_to_local(ref[:5], cam, th)
         q = local / np.median(np.linalg.norm(local, axis=1)) if cfg.map_type == "depth" else local
-        out.append(learned.make_sample(q, cls[:5], ref, cls, cfg, cam, th))
+        out.append(models.make_sample(q, cls[:5], ref, cls, cfg, cam, th))
     return out
 
 
-@pytest.mark.parametrize("name", learned.MODELS)
+@pytest.mark.parametrize("name", models.MODELS)
 def test_models_forward_backward_shapes(name):
-    cfg = learned.FineTrainConfig(model=name, hidden=16, heads=2, rounds=1)
+    cfg = models.FineTrainConfig(model=name, hidden=16, heads=2, rounds=1)
     samples = _toy_samples(5, cfg)
-    model = learned.build_model(cfg)
-    batch = learned.Batch.from_data_list(samples)
+    model = models.build_model(cfg)
+    batch = models.Batch.from_data_list(samples)
     out = model(batch)
     assert out.shape == (5, 3)
     loss = training.pose_loss(out, batch.y, cfg.angle_weight)
@@ -246,36 +245,36 @@ def test_models_forward_backward_shapes(name):
     assert all(p.grad is not None for p in model.parameters() if p.requires_grad)
 
 
-@pytest.mark.parametrize("name", learned.MODELS)
+@pytest.mark.parametrize("name", models.MODELS)
 def test_batching_equals_one_by_one(name):
-    cfg = learned.FineTrainConfig(model=name, hidden=16, heads=2, rounds=1)
+    cfg = models.FineTrainConfig(model=name, hidden=16, heads=2, rounds=1)
     samples = _toy_samples(4, cfg)
     torch.manual_seed(0)
-    model = learned.build_model(cfg).eval()
+    model = models.build_model(cfg).eval()
     with torch.no_grad():
-        together = model(learned.Batch.from_data_list(samples))
-        alone = torch.cat([model(learned.Batch.from_data_list([s])) for s in samples])
+        together = model(models.Batch.from_data_list(samples))
+        alone = torch.cat([model(models.Batch.from_data_list([s])) for s in samples])
     assert torch.allclose(together, alone, atol=1e-5)
 
 
 @pytest.mark.parametrize("name", ["MLP", "MLP+ATT"])
 def test_dense_row_selection_equals_graph_batch(name):
     """The MLPs train on padded rows selected from the whole split: same outputs as collated graphs."""
-    cfg = learned.FineTrainConfig(model=name, hidden=16, heads=2)
+    cfg = models.FineTrainConfig(model=name, hidden=16, heads=2)
     samples = _toy_samples(6, cfg)
-    samples[2] = learned.make_sample(np.zeros((3, 2)), [1, 2, 3], np.ones((30, 2)), np.arange(30) % 5, cfg, (0, 0), 0.1)
+    samples[2] = models.make_sample(np.zeros((3, 2)), [1, 2, 3], np.ones((30, 2)), np.arange(30) % 5, cfg, (0, 0), 0.1)
     torch.manual_seed(0)
-    model = learned.build_model(cfg).eval()
-    dense = learned.dense_maps(samples)
+    model = models.build_model(cfg).eval()
+    dense = models.dense_maps(samples)
     pick = [4, 2, 0]
     sel = dense[pick]
     assert sel.r_xy.shape[1] == 30 and sel.q_mask.sum() == 5 + 3 + 5  # trimmed to the longest selected map
     with torch.no_grad():
-        assert torch.allclose(model(sel), model(learned.Batch.from_data_list([samples[i] for i in pick])), atol=1e-5)
+        assert torch.allclose(model(sel), model(models.Batch.from_data_list([samples[i] for i in pick])), atol=1e-5)
     gen_a, gen_b = torch.Generator().manual_seed(3), torch.Generator().manual_seed(3)
     cfg.map_type = "depth"
     aug_d = training.augment(dense, cfg, gen_a)
-    aug_g = training.augment(learned.Batch.from_data_list(samples), cfg, gen_b)
+    aug_g = training.augment(models.Batch.from_data_list(samples), cfg, gen_b)
     assert torch.allclose(aug_d.y, aug_g.y)
     assert torch.allclose(aug_d.r_xy[dense.r_mask], aug_g.local[~aug_g.is_q], atol=1e-6)
     assert torch.allclose(aug_d.q_xy[dense.q_mask], aug_g.local[aug_g.is_q], atol=1e-6)
@@ -290,9 +289,9 @@ def test_loss_and_angle_wrap():
 
 
 def test_augmentation_is_a_rigid_motion_of_region_and_target():
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", aug_depth_scale=0.0)
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", aug_depth_scale=0.0)
     samples = _toy_samples(3, cfg)
-    batch = learned.Batch.from_data_list(samples)
+    batch = models.Batch.from_data_list(samples)
     aug = training.augment(batch, cfg, torch.Generator().manual_seed(0))
     q = batch.is_q
     assert torch.allclose(aug.local[q], batch.local[q])  # query stays in its camera frame
@@ -305,9 +304,7 @@ def test_augmentation_is_a_rigid_motion_of_region_and_target():
 
 
 def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
-    cfg = learned.FineTrainConfig(
-        model="MLP", map_type="gt", hidden=32, epochs=8, batch_size=16, lr=3e-3, augment=False
-    )
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=32, epochs=8, batch_size=16, lr=3e-3, augment=False)
     train = _toy_samples(64, cfg, seed=1)
     val = _toy_samples(16, cfg, seed=2)
     res = training.train(train, val, cfg)
@@ -318,25 +315,25 @@ def test_short_training_reduces_loss_and_is_deterministic(tmp_path):
     assert [h["train_loss"] for h in res2["history"]] == losses  # seeded, deterministic on CPU
     path = tmp_path / "ck.pt"
     checkpoints.save_checkpoint(res, path)
-    model, cfg2 = checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+    model, cfg2 = checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
     assert cfg2 == cfg
-    assert np.allclose(learned.predict(model, val), learned.predict(res["model"], val), atol=1e-6)
+    assert np.allclose(models.predict(model, val), models.predict(res["model"], val), atol=1e-6)
 
 
 def test_warm_start_continues_from_the_given_weights(tmp_path):
     """Training on simulated coarse proposals starts from the GT-BB model (fine.coarse_training.warm_start):
     with a vanishing step it keeps that model's predictions; without the weights it does not."""
-    cfg = learned.FineTrainConfig(
+    cfg = models.FineTrainConfig(
         model="MLP", map_type="gt", hidden=32, epochs=30, batch_size=16, lr=3e-3, augment=False
     )
     train, val = _toy_samples(64, cfg, seed=1), _toy_samples(16, cfg, seed=2)
     first = training.train(train, val, cfg)
-    short = learned.FineTrainConfig(**{**cfg.to_dict(), "epochs": 1, "lr": 1e-12})
+    short = models.FineTrainConfig(**{**cfg.to_dict(), "epochs": 1, "lr": 1e-12})
     cold = training.train(train, val, short)
     warm = training.train(train, val, short, init_state=first["state_dict"])
-    assert np.allclose(learned.predict(warm["model"], val), learned.predict(first["model"], val), atol=1e-4)
+    assert np.allclose(models.predict(warm["model"], val), models.predict(first["model"], val), atol=1e-4)
     assert warm["history"][0]["val_median_m"] == pytest.approx(first["best_val_median_m"], rel=1e-3)
-    assert not np.allclose(learned.predict(cold["model"], val), learned.predict(first["model"], val), atol=1e-2)
+    assert not np.allclose(models.predict(cold["model"], val), models.predict(first["model"], val), atol=1e-2)
 
 
 @pytest.mark.slow  # the published data (flat_root)
@@ -354,11 +351,11 @@ def test_coarse_training_starts_from_the_gtbb_model_unless_told_otherwise(repo, 
 @pytest.mark.slow  # the published data (flat_root)
 def test_learned_model_on_real_scene_samples(scene):
     ref, q = scene
-    cfg = learned.FineTrainConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
+    cfg = models.FineTrainConfig(model="GAT", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
     tr = q[q["split"] == "train"]
-    samples, kept = learned.samples_from_queries(ref, tr, proposals.gtbb_proposals(ref, tr), cfg)
+    samples, kept = models.samples_from_queries(ref, tr, proposals.gtbb_proposals(ref, tr), cfg)
     assert len(samples) == len(kept) == len(tr) > 3
-    model = learned.build_model(cfg)
+    model = models.build_model(cfg)
     e = evaluation.evaluate_model(model, cfg, ref, tr.iloc[:4], proposals.gtbb_proposals(ref, tr.iloc[:4]))
     assert len(e) == 4 and np.isfinite(e["error_m"]).all()
 
@@ -449,9 +446,9 @@ def test_a_new_scene_is_localized_by_the_benchmark_methods_without_its_own_prior
 
     ref, q = scene
     q = q.iloc[:12]
-    cfg = learned.FineTrainConfig(model="MLP", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
-    models = {("mlp", "depth"): (learned.build_model(cfg), cfg)}
-    rows = scene_localization.scene_rows(ref, q, models, ["gt", "depth"], {"camera_prior": True, "scale_prior": True})
+    cfg = models.FineTrainConfig(model="MLP", map_type="depth", hidden=16, heads=2, rounds=1, epochs=1)
+    given = {("mlp", "depth"): (models.build_model(cfg), cfg)}
+    rows = scene_localization.scene_rows(ref, q, given, ["gt", "depth"], {"camera_prior": True, "scale_prior": True})
     assert len(rows) == 2 * (2 + 1)  # proposals x (solver per map type + the depth model)
     assert (rows["queries"] == 12).all() and (rows["scene"] == "9").all()
     assert set(rows["method_slug"]) == {"solver", "mlp"} and set(

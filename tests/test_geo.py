@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 from pyproj import Geod
 
-from flatlandia import geo, io
+from flatlandia import geo
+from flatlandia.data import published
 
 
 def test_metric_frame_round_trip_and_known_distance():
@@ -22,7 +23,7 @@ def test_metric_frame_round_trip_and_known_distance():
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_known_distance_between_two_real_objects(flat_root):
-    lonlat, _ = io.read_reference_map(flat_root / "individual_reference_maps/map_12.json")
+    lonlat, _ = published.read_reference_map(flat_root / "individual_reference_maps/map_12.json")
     frame = geo.frame_for(lonlat)
     xy = frame.to_xy(lonlat)
     geod = Geod(ellps="WGS84")
@@ -58,7 +59,7 @@ def test_local_world_inverse_and_rigid_fit():
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_sfm_chain_handles_reflections(flat_root):
-    t = io.read_transformations(flat_root / "maps/12/transformations.json")
+    t = published.read_transformations(flat_root / "maps/12/transformations.json")
     rpp = np.asarray(t["to_principal_plane"])
     assert np.linalg.det(rpp) == pytest.approx(-1, abs=1e-6)  # scene 12's plane rotation is a reflection
     pts = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 3.0]])

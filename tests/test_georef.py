@@ -8,9 +8,9 @@ import pytest
 
 from flatlandia import geo
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
 from flatlandia.images import gps_alignment
 from flatlandia.objects import clustering, labels
+from flatlandia.plumbing.errors import InputError
 
 FRAME = geo.MetricFrame(lon0=13.195, lat0=55.698)
 
@@ -81,8 +81,8 @@ def test_alignment_of_a_straight_walk_with_noisy_gps_and_outliers(walk):
     assert out["inliers"] >= 26 and not out["inlier_mask"][4] and not out["inlier_mask"][17]
     assert out["metres_per_sfm_unit"] == pytest.approx(1 / walk["s0"], rel=0.05)
     # mapped camera centres land on the true positions (GPS noise 5 m averages out)
-    mapped = gps_alignment.map_points(out, walk["centres"])
-    true_xy = gps_alignment.frame_of(out).to_xy(FRAME.to_lonlat(walk["world"][:, :2]))
+    mapped = geo.alignment_points(out, walk["centres"])
+    true_xy = geo.alignment_frame(out).to_xy(FRAME.to_lonlat(walk["world"][:, :2]))
     err = np.linalg.norm(mapped - true_xy, axis=1)
     assert np.median(err) < 3.0
     assert 2.0 < out["inlier_median_residual_m"] < 9.0  # the GPS noise itself

@@ -17,11 +17,12 @@ import pytest
 import torch
 from snakemake_runner import smk
 
-from flatlandia import checkpoints, config, names, ply, runlog
+from flatlandia import checkpoints, config
 from flatlandia.data import ingest
-from flatlandia.errors import InputError
-from flatlandia.fine import learned
+from flatlandia.fine import models
 from flatlandia.objects import cloud
+from flatlandia.plumbing import names, ply, rule_log
+from flatlandia.plumbing.errors import InputError
 
 HOSTILE_NAMES = ["../../x", "/x", "a/b", "..", ".", "", " ", "x\\..\\y", "x\ny", "x" * 300]
 
@@ -50,9 +51,9 @@ def test_a_published_token_that_is_a_path_is_refused_when_read(tmp_path, token):
     local = [[1.0, 0.0], [2.0, 1.0], [3.0, -1.0]]
     path.write_text(json.dumps({"0": {"123": {"GT": local, "depth": local}, token: {"GT": local, "depth": local}}}))
     with pytest.raises(InputError, match=r"local_maps.json: scene 0 query token .* is refused"):
-        from flatlandia import io
+        from flatlandia.data import published
 
-        io.read_local_maps(path, "0")
+        published.read_local_maps(path, "0")
 
 
 @pytest.mark.slow  # the published data (all_local_maps)
@@ -215,7 +216,7 @@ def test_every_published_ply_passes_the_header_check(flat_root):
 
 
 def _checkpoint(tmp_path: Path, state_dict: dict, **cfg_over) -> Path:
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
     cfg_dict = {**cfg.to_dict(), **cfg_over}
     path = tmp_path / "ck.pt"
     torch.save({"format": checkpoints.FORMAT, "state_dict": state_dict, "meta": json.dumps({"config": cfg_dict})}, path)
@@ -224,8 +225,8 @@ def _checkpoint(tmp_path: Path, state_dict: dict, **cfg_over) -> Path:
 
 @pytest.mark.parametrize("case", ["shape", "missing", "extra", "not_tensors", "bad_config"])
 def test_a_checkpoint_whose_weights_do_not_fit_is_one_error(tmp_path, capsys, case):
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
-    state = learned.build_model(cfg).state_dict()
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    state = models.build_model(cfg).state_dict()
     key = next(iter(state))
     over = {}
     if case == "shape":
@@ -241,10 +242,10 @@ def test_a_checkpoint_whose_weights_do_not_fit_is_one_error(tmp_path, capsys, ca
     path = _checkpoint(tmp_path, state, **over)
 
     def main(smk, log):  # as a rule script loads it
-        checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+        checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
 
     with pytest.raises(SystemExit):
-        runlog.run(main, SimpleNamespace(log=[]))
+        rule_log.run(main, SimpleNamespace(log=[]))
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if line.startswith("ERROR:")]
     assert len(errors) == 1 and errors[0].startswith(f"ERROR: {path}: "), err

@@ -7,6 +7,7 @@ import pytest
 from flatlandia import geo
 from flatlandia.data import queries
 from flatlandia.images import image_queries
+from flatlandia.images.views import View, project
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
@@ -38,9 +39,9 @@ def street():
     views = []
     for name, (cx, cy, yaw) in {"a.jpg": (0, 0, 0.0), "b.jpg": (2, 1, 0.1)}.items():
         R, t = _look(np.array([cx, cy, 1.5]), yaw)
-        v = image_queries.View(name, K, R, t, 640, 480, np.array([], int), np.zeros((0, 2)))
+        v = View(name, K, R, t, 640, 480, np.array([], int), np.zeros((0, 2)))
         ids = np.array(list(pts))
-        uv, z = image_queries.project(v, np.array([pts[i] for i in ids]))
+        uv, z = project(v, np.array([pts[i] for i in ids]))
         ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < 640) & (uv[:, 1] >= 0) & (uv[:, 1] < 480)
         v.obs_point_ids, v.obs_xy = ids[ok], uv[ok]
         views.append(v)

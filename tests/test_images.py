@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from flatlandia.errors import InputError
 from flatlandia.images import image_audit, segment
+from flatlandia.plumbing.errors import InputError
 
 
 @pytest.mark.slow  # the Lund photos

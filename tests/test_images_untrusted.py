@@ -29,9 +29,10 @@ from conftest import berlin_images, lund_images
 from PIL import Image, ImageFile
 from snakemake_runner import smk
 
-from flatlandia import config, geo, io
-from flatlandia.errors import InputError
+from flatlandia import config, geo
 from flatlandia.images import gps_alignment, image_audit, segment
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 
 REPO = Path(__file__).resolve().parents[1]
 IMAGES = config.section_defaults("images")
@@ -124,7 +125,7 @@ def test_tiny_images_are_dropped_and_segment_refuses_them(tmp_path, capsys):
     with pytest.raises(InputError, match=r"pixel\.jpg: image of 1 x 1 px is too small to segment"):
         segment.OfflineBackend().labels(photos / "pixel.jpg")
     table = tmp_path / "images.parquet"
-    io.write_parquet(pd.DataFrame({"name": ["01.jpg", "pixel.jpg"], "kept": [True, True]}), table)
+    files.write_parquet(pd.DataFrame({"name": ["01.jpg", "pixel.jpg"], "kept": [True, True]}), table)
     out = tmp_path / "segment"
     smk_ = SimpleNamespace(
         input=SimpleNamespace(table=str(table), images=str(photos)),
@@ -343,8 +344,8 @@ def test_gps_alignment_without_headings_has_no_compass_comparison(tmp_path, capl
     assert out["compass_cameras"] == 0
     assert out["compass_median_diff_deg"] is None and out["compass_within_30deg"] is None
     assert "no compass headings were given" in caplog.text
-    io.write_json(out, tmp_path / "gps_alignment.json")  # JSON-compliant: nulls, no NaN
-    assert io.read_json(tmp_path / "gps_alignment.json")["compass_median_diff_deg"] is None
+    files.write_json(out, tmp_path / "gps_alignment.json")  # JSON-compliant: nulls, no NaN
+    assert files.read_json(tmp_path / "gps_alignment.json")["compass_median_diff_deg"] is None
     # headings for some cameras only: compared over those
     cams.loc[:4, "heading"] = 90.0 - np.degrees([np.arctan2(*views[n].R[2, 1::-1]) for n in cams["name"][:5]])
     _, some = gps_alignment.align_camera_table(cams, views, dict(align, use_heading=True), 0, "cameras.parquet", log)
@@ -373,7 +374,7 @@ def test_lund_placed_by_a_metadata_csv_without_headings_builds_its_map(repo, fla
     assert res.returncode == 0, res.stderr[-3000:]
     for built in ("maps/reference_map.parquet", "maps/reference_map.geojson", "queries/queries.parquet"):
         assert (tmp_path / "results/mine" / built).exists(), built
-    al = io.read_json(tmp_path / target)
+    al = files.read_json(tmp_path / target)
     assert al["compass_cameras"] == 0 and al["compass_median_diff_deg"] is None
     assert al["inliers"] >= 9 and al["inlier_median_residual_m"] < 10
     assert "no compass headings were given" in (tmp_path / "logs/gps_alignment/mine.log").read_text()

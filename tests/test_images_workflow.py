@@ -14,11 +14,13 @@ import pycolmap
 import pytest
 from snakemake_runner import smk
 
-from flatlandia import io, scaled_rigid
+from flatlandia import geo, scaled_rigid
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
 from flatlandia.images import classify_points, gps_alignment, image_queries
+from flatlandia.images.views import project, views_from_colmap
 from flatlandia.objects import clustering, labels
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 
 #: every test here runs Snakemake jobs or reads the published data (the slow lane)
 pytestmark = pytest.mark.slow
@@ -102,16 +104,15 @@ def test_points_take_the_majority_class_of_their_observations(lund_run):
 
 @pytest.mark.slow
 def test_views_from_the_lund_model(lund_run):
-    from flatlandia.images import image_queries
 
     model = pycolmap.Reconstruction(str(lund_run / "results/lund/sfm/model"))
-    views = image_queries.views_from_colmap(model)
+    views = views_from_colmap(model)
     assert len(views) == model.num_reg_images()
     for v in views[:5]:
         img = model.find_image_with_name(v.name)
         assert np.allclose(v.centre, img.projection_center(), atol=1e-6)
         assert np.allclose(v.viewing_direction, img.viewing_direction(), atol=1e-6)
-        uv, z = image_queries.project(v, np.array([model.points3D[i].xyz for i in v.obs_point_ids[:20]]))
+        uv, z = project(v, np.array([model.points3D[i].xyz for i in v.obs_point_ids[:20]]))
         assert (z > 0).all() and np.median(np.linalg.norm(uv - v.obs_xy[:20], axis=1)) < 5  # pixels
 
 
@@ -129,7 +130,7 @@ def test_lund_gps_alignment(lund_run):
 @pytest.mark.slow
 def test_lund_offline_backend_gives_a_documented_empty_map(lund_run):
     wd = lund_run
-    meta = io.read_parquet_metadata(wd / "results/lund/objects/objects.parquet")
+    meta = files.read_parquet_metadata(wd / "results/lund/objects/objects.parquet")
     assert "no SfM point carries an object class" in meta["empty_because"]
     assert len(pd.read_parquet(wd / "results/lund/objects/objects.parquet")) == 0
     assert len(pd.read_parquet(wd / "results/lund/maps/reference_map.parquet")) == 0
@@ -137,7 +138,7 @@ def test_lund_offline_backend_gives_a_documented_empty_map(lund_run):
     assert len(q) == 0 and {"token", "x_m", "theta_deg", "gt_local_xy_m", "split"} <= set(q.columns)
     assert "object points, 0 objects" in (wd / "logs/objects/lund.log").read_text()
     loc = wd / "results/lund/localization/localization.parquet"
-    assert len(pd.read_parquet(loc)) == 0 and "no query" in io.read_parquet_metadata(loc)["empty_because"]
+    assert len(pd.read_parquet(loc)) == 0 and "no query" in files.read_parquet_metadata(loc)["empty_because"]
     assert "no localization rows" in (wd / "results/summary.md").read_text()
 
 
@@ -146,7 +147,7 @@ def _painted_label_maps(model, radius_sfm, n_objects=5, radius_px=12, min_sep_px
     image, chosen far apart in it) painted with object classes around every observation of
     their points in every image (``one_class``: all groups the same class). Returns the label
     maps, the number of groups and instance maps (group k painted k + 1, 0 elsewhere)."""
-    views = image_queries.views_from_colmap(model)
+    views = views_from_colmap(model)
     best = max(views, key=lambda v: len(v.obs_point_ids))
     all_ids = np.array(list(model.points3D.keys()))
     all_xyz = np.array([model.points3D[int(i)].xyz for i in all_ids])
@@ -196,8 +197,8 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
         CLASSES.index("object--street-light"),
         CLASSES.index("object--traffic-sign"),
     }
-    cams = np.array([v.centre for v in image_queries.views_from_colmap(model)])
-    cam_xy = gps_alignment.map_points(alignment, cams)
+    cams = np.array([v.centre for v in views_from_colmap(model)])
+    cam_xy = geo.alignment_points(alignment, cams)
     d = np.linalg.norm(objs[["x_m", "y_m"]].to_numpy()[:, None] - cam_xy[None], axis=2).min(1)
     assert (d < 60).all()  # objects sit along the walk, in metres on the aligned map
     objs["corners"] = [clustering.box_corners(r).tolist() for r in objs.itertuples(index=False)]
@@ -205,7 +206,7 @@ def test_lund_with_label_images_gives_objects_and_queries(lund_run):
     point_xyz = {int(pid): np.asarray(p.xyz) for pid, p in model.points3D.items()}
     q = image_queries.scene_queries(
         "lund",
-        image_queries.views_from_colmap(model),
+        views_from_colmap(model),
         objs,
         point_object,
         point_xyz,
@@ -232,21 +233,21 @@ def test_local_frame_is_the_gps_map_up_to_a_rotation_and_scale(lund_run):
     wd = lund_run
     model = pycolmap.Reconstruction(str(wd / "results/lund/sfm/model"))
     gps = json.loads((wd / "results/lund/sfm/gps_alignment.json").read_text())
-    views = image_queries.views_from_colmap(model)
+    views = views_from_colmap(model)
     local = gps_alignment.local_frame(np.array([v.centre for v in views]), np.array([v.R for v in views]))
-    assert gps_alignment.is_local(local) and gps_alignment.frame_of(local) is None
+    assert geo.alignment_is_local(local) and geo.alignment_frame(local) is None
     X = np.array([p.xyz for p in model.points3D.values()])
-    a, b = gps_alignment.map_points(local, X), gps_alignment.map_points(gps, X)
+    a, b = geo.alignment_points(local, X), geo.alignment_points(gps, X)
     fit = scaled_rigid.least_squares(a, b, allow_reflection=True)
     assert not fit.reflection
     assert fit.scale == pytest.approx(gps["metres_per_sfm_unit"], rel=1e-6)
     assert np.abs(fit.apply(a) - b).max() < 1e-6 * np.ptp(b)
-    assert np.allclose(gps_alignment.map_points(local, np.array([v.centre for v in views])).mean(0), 0, atol=1e-9)
+    assert np.allclose(geo.alignment_points(local, np.array([v.centre for v in views])).mean(0), 0, atol=1e-9)
     maps, _, _ = _painted_label_maps(model, radius_sfm=1.5 / gps["metres_per_sfm_unit"])
     pts = classify_points.point_votes(model, maps)
     objs, _ = labels.images_scene_objects("lund", pts, local, clustering.ClusterParams(eps_m=1.0), CLASSES)
     assert len(objs) >= 3 and objs[["lon", "lat"]].isna().all().all()
-    assert np.allclose(objs[["x_m", "y_m"]].to_numpy(), gps_alignment.map_points(local, objs[["cx", "cy", "cz"]]))
+    assert np.allclose(objs[["x_m", "y_m"]].to_numpy(), geo.alignment_points(local, objs[["cx", "cy", "cz"]]))
 
 
 def test_photos_without_gps_in_local_frame_mode_give_a_local_map(repo, flat_root, lund, tmp_path):
@@ -276,12 +277,12 @@ def test_photos_without_gps_in_local_frame_mode_give_a_local_map(repo, flat_root
     assert model.num_reg_images() >= 3
     al = json.loads((tmp_path / "results/mine/sfm/gps_alignment.json").read_text())
     assert al["mode"] == "none" and al["crs"] is None and al["unit"] == "SfM unit"
-    meta = io.read_parquet_metadata(tmp_path / "results/mine/maps/reference_map.parquet")
+    meta = files.read_parquet_metadata(tmp_path / "results/mine/maps/reference_map.parquet")
     assert meta["frame"] == "local" and meta["crs"] is None and "SfM unit" in meta["axes"]
     assert gpd.read_parquet(tmp_path / "results/mine/maps/reference_map.parquet").crs is None
     geo = json.loads((tmp_path / "results/mine/maps/reference_map.geojson").read_text())
     assert geo["flatlandia"]["frame"] == "local"
-    q = io.read_parquet_metadata(tmp_path / "results/mine/queries/queries.parquet")
+    q = files.read_parquet_metadata(tmp_path / "results/mine/queries/queries.parquet")
     assert q["frame"] == "local" and q["crs"] is None
     summary = (tmp_path / "results/summary.md").read_text()
     assert "local frame (SfM unit, no lon/lat)" in summary

@@ -16,9 +16,9 @@ from scipy import ndimage
 from snakemake_runner import smk
 
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
 from flatlandia.images import depth, segment
 from flatlandia.images.image_queries import View
+from flatlandia.plumbing.errors import InputError
 
 IMAGES = ["01.jpg", "15.jpg", "29.jpg"]  # geotagged, ~170 m apart: enough for the images audit
 #: the 65 classes of the public Mask2Former Vistas checkpoints, by their readable names

@@ -23,8 +23,8 @@ import pytest
 
 from flatlandia import classes, config, geo
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
-from flatlandia.solver import calibration, learned, likelihood
+from flatlandia.plumbing.errors import InputError
+from flatlandia.solver import calibration, learned_priors, likelihood
 from flatlandia.solver.likelihood import BEARING_EDGES_DEG, RANGE_EDGES_M, LikelihoodModel
 from flatlandia.solver.priors import Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
@@ -199,7 +199,7 @@ def synthetic_answers(rng, n: int) -> pd.DataFrame:
 def test_the_calibration_is_calibrated_on_another_draw():
     rng = np.random.default_rng(3)
     val, test = synthetic_answers(rng, 3000), synthetic_answers(rng, 3000)
-    cal = learned.with_calibration(learned.LearnedPriors(), val).calibration
+    cal = learned_priors.with_calibration(learned_priors.LearnedPriors(), val).calibration
     assert cal.frame is not None and cal.sequence is None  # no sequence answers: none fitted
     p = cal.probability(test["pool_share"], test["objects"], 1)
     raw = calibration.expected_calibration_error(test["pool_share"], test["right"])
@@ -231,21 +231,23 @@ def test_pool_shares_merge_poses_of_one_place():
 
 def test_the_learned_priors_carry_the_model_and_the_calibration(tmp_path, fitted):
     rng = np.random.default_rng(0)
-    lp = learned.with_calibration(learned.LearnedPriors((2.0, 0.5), None, fitted), synthetic_answers(rng, 500))
+    lp = learned_priors.with_calibration(
+        learned_priors.LearnedPriors((2.0, 0.5), None, fitted), synthetic_answers(rng, 500)
+    )
     path = tmp_path / "whole.json"
     lp.write(path)
-    back = learned.LearnedPriors.read(path)
+    back = learned_priors.LearnedPriors.read(path)
     assert back.likelihood == fitted and back.calibration == lp.calibration
     doc = json.loads(path.read_text())
     doc["likelihood"]["bearing_sigma_deg"][0] = -1.0
     path.write_text(json.dumps(doc))
     with pytest.raises(InputError, match="sigmas must be positive"):
-        learned.LearnedPriors.read(path)
+        learned_priors.LearnedPriors.read(path)
     doc["likelihood"]["bearing_sigma_deg"][0] = 1.0
     doc["calibration"]["frame"]["weights"] = [1.0]
     path.write_text(json.dumps(doc))
     with pytest.raises(InputError, match="calibration needs 4 finite weights"):
-        learned.LearnedPriors.read(path)
+        learned_priors.LearnedPriors.read(path)
 
 
 @pytest.mark.parametrize("value", [float("nan"), -0.1, 1.5])

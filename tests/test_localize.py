@@ -18,11 +18,12 @@ import pytest
 import tiny_results
 from conftest import TINY_SCENE, published_scene
 
-from flatlandia import cli, config, io, localize, solver
+from flatlandia import cli, config, localize, solver
 from flatlandia.city import index, tiling
 from flatlandia.classes import CLASSES
 from flatlandia.data import localmaps, reference_map
-from flatlandia.errors import InputError
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 
 
 def write_scene(results: Path, ref: pd.DataFrame, q: pd.DataFrame, meta: dict) -> Path:
@@ -32,7 +33,7 @@ def write_scene(results: Path, ref: pd.DataFrame, q: pd.DataFrame, meta: dict) -
     maps.mkdir(parents=True, exist_ok=True)
     reference_map.write_geoparquet(ref, meta, maps / "reference_map.parquet")
     reference_map.write_geojson(ref, meta, maps / "reference_map.geojson")
-    io.write_parquet(q, results / scene / "queries" / "queries.parquet")
+    files.write_parquet(q, results / scene / "queries" / "queries.parquet")
     return maps / "reference_map.parquet"
 
 
@@ -184,13 +185,13 @@ def test_near_restricts_the_search(tiny_scene, tiny_map, tmp_path):
 
 
 def test_alternatives_come_from_the_same_pool(tiny_scene):
-    """solver.localize: its best is solve's, its alternatives distinct poses ranked behind it."""
+    """solver.locate: its best is solve's, its alternatives distinct poses ranked behind it."""
     ref, _, q = tiny_scene
     xy, cls = ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy()
     n_alts = 0
     for r in q.itertuples(index=False):
         local = localmaps.local_map(r, "depth")
-        found = solver.localize(local, np.asarray(r.classes), xy, cls, metric=False, alternatives=5)
+        found = solver.locate(local, np.asarray(r.classes), xy, cls, metric=False, alternatives=5)
         best = solver.solve(local, np.asarray(r.classes), xy, cls, metric=False)
         assert found.best == best and found.best.behind == 0.0
         poses = [found.best, *found.alternatives]
@@ -202,7 +203,7 @@ def test_alternatives_come_from_the_same_pool(tiny_scene):
                 turn = abs((a.theta - b.theta + np.pi) % (2 * np.pi) - np.pi)
                 assert math.hypot(a.x - b.x, a.y - b.y) >= solver.pipeline.DISTINCT_M or turn >= np.radians(5.0)
         n_alts += len(found.alternatives)
-        assert solver.localize(local, np.asarray(r.classes), xy, cls).alternatives == []
+        assert solver.locate(local, np.asarray(r.classes), xy, cls).alternatives == []
     assert n_alts > 0
 
 
@@ -213,7 +214,7 @@ def test_a_city_index_places_queries_and_their_lon_lat(tiny_scene, tmp_path):
     city = tmp_path / "results" / "city" / "1"
     cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
     (city / "index").mkdir(parents=True)
-    io.write_parquet(cref.assign(city=0), city / "map.parquet")
+    files.write_parquet(cref.assign(city=0), city / "map.parquet")
     index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
     m = localize.load_map(city / "index")
     assert m.kind == "city" and m.lonlat is not None
@@ -405,7 +406,7 @@ def test_gt_target_on_a_city_index(flat_root, tmp_path):
     cref, cq = tiling.tile([r for r, _ in scenes], [q for _, q in scenes], 1000.0)
     city = tmp_path / "results" / "city" / "2"
     (city / "index").mkdir(parents=True)
-    io.write_parquet(cref.assign(city=0), city / "map.parquet")
+    files.write_parquet(cref.assign(city=0), city / "map.parquet")
     index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
     m = localize.load_map(city / "index" / "0.npz")
     assert gt_share_within(m, cq[cq["split"] == "test"], tmp_path) >= 0.95

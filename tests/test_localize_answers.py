@@ -14,8 +14,9 @@ import pytest
 from conftest import TINY_SCENE
 from tiny_results import tiny_scene
 
-from flatlandia import cli, geo, io, localize, score
+from flatlandia import cli, geo, localize, score
 from flatlandia.data import localmaps, reference_map
+from flatlandia.plumbing import files
 
 #: metres per degree of latitude (for a fix moved north)
 M_PER_DEG_LAT = 111_200.0
@@ -29,7 +30,7 @@ def tiny(tmp_path_factory):
     tiny = tiny_scene()
     q = tiny.queries
     path = tiny.write(results)
-    io.write_parquet(pd.DataFrame({"scene": [TINY_SCENE], "city": ["Flatland"]}), results / score.BENCHMARK_RECORD)
+    files.write_parquet(pd.DataFrame({"scene": [TINY_SCENE], "city": ["Flatland"]}), results / score.BENCHMARK_RECORD)
     return path, q
 
 
@@ -122,6 +123,6 @@ def test_answers_name_their_scene_and_city(tiny, tmp_path):
     assert all((a["scene"], a["city"]) == (TINY_SCENE, "Flatland") for a in answer["alternatives"])
     foreign = tmp_path / "mine.geojson"
     ref = pd.read_parquet(path)
-    reference_map.write_geojson(ref, io.read_parquet_metadata(path), foreign)
+    reference_map.write_geojson(ref, files.read_parquet_metadata(path), foreign)
     other = localize.localize(localize.load_map(foreign), localize.read_queries(_query(tmp_path, r))[0][0])
     assert other["found"] and (other["scene"], other["city"]) == (None, None)

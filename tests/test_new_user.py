@@ -82,7 +82,7 @@ def _one_record(run: Path) -> Path:
     artifact = run / "results/0/maps/reference_map.parquet"
     artifact.parent.mkdir(parents=True)
     artifact.write_bytes(b"map")
-    from flatlandia import provenance
+    from flatlandia.plumbing import provenance
 
     digest, size = provenance.path_digest(artifact)
     rec = {

@@ -7,10 +7,11 @@ import pandas as pd
 import pytest
 from conftest import data_root
 
-from flatlandia import geo, io
+from flatlandia import geo
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
+from flatlandia.data import published
 from flatlandia.objects import audit, cloud, clustering, labels, principal_plane
+from flatlandia.plumbing.errors import InputError
 
 ROOT = data_root()
 CLASS_CLOUD_SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]
@@ -229,8 +230,8 @@ def test_macro_table_matches_measurement():
     """The MACRO_CLASSES table agrees with the colours measured on scene 12 and 13."""
     for scene in ("12", "13"):
         pts, labels = cloud.read_classified_cloud(ROOT / f"maps/{scene}/class_segmented_point_cloud.ply")
-        t = io.read_transformations(ROOT / f"maps/{scene}/transformations.json")
-        ll, cl = io.read_reference_map(ROOT / f"individual_reference_maps/map_{scene}.json")
+        t = published.read_transformations(ROOT / f"maps/{scene}/transformations.json")
+        ll, cl = published.read_reference_map(ROOT / f"individual_reference_maps/map_{scene}.json")
         counts = cloud.colour_class_counts(geo.sfm_to_lonlat(pts, t), labels, ll, cl, geo.frame_for(ll))
         agree = sum(r.count for r in counts.itertuples() if cloud.MACRO_OF_CLASS[r.class_id] == r.macro_class)
         assert agree / counts["count"].sum() >= 0.9
@@ -340,6 +341,6 @@ GROUND_NORMALS = {
 @pytest.mark.slow  # the published data
 def test_ground_plane_unchanged(scene):
     pts, lab = cloud.read_classified_cloud(ROOT / f"maps/{scene}/class_segmented_point_cloud.ply")
-    t = io.read_transformations(ROOT / f"maps/{scene}/transformations.json")
+    t = published.read_transformations(ROOT / f"maps/{scene}/transformations.json")
     pl, _ = principal_plane.fit_ground_plane(pts, lab, cloud.metres_per_unit(t), source=scene)
     assert principal_plane.normal_angle_deg(pl.normal, GROUND_NORMALS[scene]) < 0.05

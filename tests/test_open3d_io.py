@@ -9,9 +9,9 @@ import pytest
 from conftest import data_root
 
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
 from flatlandia.images import classify_points
 from flatlandia.objects import cloud, clustering
+from flatlandia.plumbing.errors import InputError
 
 ROOT = data_root()
 CLASS_CLOUD_SCENES = ["1", "2", "4", "5", "8", "9", "11", "12", "13", "14", "17", "18"]

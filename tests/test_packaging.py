@@ -26,8 +26,9 @@ from packaging.requirements import Requirement
 from packaging.utils import canonicalize_name
 from packaging.version import Version
 
-from flatlandia import __version__, cli, provenance, release
+from flatlandia import __version__, cli, release
 from flatlandia.classes import CLASSES
+from flatlandia.plumbing import provenance
 
 PYPROJECT = tomllib.loads((REPO / "pyproject.toml").read_text())
 VERSION = PYPROJECT["project"]["version"]

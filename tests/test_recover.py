@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from flatlandia import geo, io
+from flatlandia import geo
 from flatlandia.classes import CLASSES
-from flatlandia.data import recover, registration
+from flatlandia.data import published, recover, registration
 
 MPD = (73_000.0, 111_200.0)  # metres per degree (lon, lat) near 49 N
 
@@ -66,8 +66,10 @@ def test_all_published_queries_recovered_and_consistent(flat_root, all_local_map
     n, worst_res, worst_map = 0, 0.0, 0.0
     unresolved = 0
     for scene in sorted(all_local_maps, key=int):
-        lonlat, classes = io.read_reference_map(flat_root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
-        local = io.read_local_maps(flat_root / "local_maps.json", scene)
+        lonlat, classes = published.read_reference_map(
+            flat_root / f"individual_reference_maps/map_{scene}.json", len(CLASSES)
+        )
+        local = published.read_local_maps(flat_root / "local_maps.json", scene)
         rec = recover.recover_scene(scene, lonlat, classes, local)
         assert rec["recovered"].all(), scene
         n += len(rec)
@@ -97,10 +99,10 @@ def test_recovered_scene12_cameras_match_sfm_poses(flat_root, tmp_path):
         name = next(n for n in z.namelist() if n.endswith("images.bin"))
         (tmp_path / "images.bin").write_bytes(z.read(name))
     model = pycolmap.Reconstruction(str(tmp_path))
-    t = io.read_transformations(flat_root / "maps/12/transformations.json")
+    t = published.read_transformations(flat_root / "maps/12/transformations.json")
     centres = {img.name.rsplit(".", 1)[0]: img.projection_center() for img in model.images.values()}
-    lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_12.json")
-    rec = recover.recover_scene("12", lonlat, classes, io.read_local_maps(flat_root / "local_maps.json", "12"))
+    lonlat, classes = published.read_reference_map(flat_root / "individual_reference_maps/map_12.json")
+    rec = recover.recover_scene("12", lonlat, classes, published.read_local_maps(flat_root / "local_maps.json", "12"))
     frame = geo.frame_for(lonlat)
     checked = 0
     for r in rec.itertuples():

@@ -8,9 +8,10 @@ import pandas as pd
 import pytest
 from conftest import data_root
 
-from flatlandia import geo, io
-from flatlandia.errors import InputError
+from flatlandia import geo
+from flatlandia.data import published
 from flatlandia.objects import audit, bounds, cloud, clustering
+from flatlandia.plumbing.errors import InputError
 
 ROOT = data_root()
 
@@ -85,8 +86,8 @@ def test_read_colmap_tracks_real_and_bad(tmp_path):
 def _scene(scene):
     maps = ROOT / "maps" / scene
     pts, labels = cloud.read_classified_cloud(maps / "class_segmented_point_cloud.ply")
-    t = io.read_transformations(maps / "transformations.json")
-    ref_ll, ref_cl = io.read_reference_map(ROOT / "individual_reference_maps" / f"map_{scene}.json")
+    t = published.read_transformations(maps / "transformations.json")
+    ref_ll, ref_cl = published.read_reference_map(ROOT / "individual_reference_maps" / f"map_{scene}.json")
     frame = geo.frame_for(ref_ll)
     return (
         pts,

@@ -1,4 +1,4 @@
-"""flatlandia.scheduler: Snakemake's scheduler keeps one wake-up pending, not one per finished job."""
+"""flatlandia.plumbing.scheduler: Snakemake's scheduler keeps one wake-up pending, not one per finished job."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import types
 
 from snakemake.scheduling.job_scheduler import JobScheduler
 
-from flatlandia import scheduler
+from flatlandia.plumbing import scheduler
 
 
 def _fake_scheduler():

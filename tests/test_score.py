@@ -19,11 +19,12 @@ import yaml
 from conftest import REPO, TINY_SCENE, smk_dry_run
 from snakemake_runner import smk
 
-from flatlandia import cli, config, figures, geo, io, score, tables
-from flatlandia.errors import InputError
-from flatlandia.fine import evaluation
-from flatlandia.fine import table as fine_table
-from flatlandia.viewer import page, query_figures, scene
+from flatlandia import cli, config, geo, score
+from flatlandia.fine import evaluation, fine_table
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
+from flatlandia.report import figures, tables
+from flatlandia.viewer import page, query_figures, scene_view
 
 #: an errors row's columns that are the solver's own fit, not its pose (an external method has none)
 #: the solver's fit of a pose, which poses given from outside do not carry: its inliers and its
@@ -406,7 +407,7 @@ def test_cli_writes_the_runs_and_scores_md(tiny_results, tiny_scenes, tmp_path, 
         assert list(e.columns) == list(
             pd.read_parquet(tiny_results / "fine" / "solver_depth_whole" / "errors.parquet").columns
         )
-        assert io.read_parquet_metadata(out / run / "errors.parquet")["run"] == run
+        assert files.read_parquet_metadata(out / run / "errors.parquet")["run"] == run
         s = json.loads((out / run / "summary.json").read_text())
         assert s["run"] == run and s["external"] and set(evaluation.RECALL_COLUMNS) <= set(s)
     md = (out / "scores.md").read_text()
@@ -493,7 +494,7 @@ def test_figures_style_external_methods_after_the_builtins(tiny_results, tiny_sc
 def test_viewer_and_query_figures_show_an_external_run_without_matches(tiny_results, tiny_scenes, tmp_path):
     errors = _errors_of_runs(tiny_results, tiny_scenes, tmp_path)
     b = tiny_scenes[TINY_SCENE]
-    view = scene.scene_view(TINY_SCENE, b.ref, b.queries, errors)
+    view = scene_view.scene_view(TINY_SCENE, b.ref, b.queries, errors)
     assert view.featured == ("solver_depth_gtbb", "mine_depth_whole")
     q = next(q for q in view.queries if q.estimate("mine_depth_whole"))
     est = q.estimate("mine_depth_whole")
@@ -510,7 +511,7 @@ def test_viewer_and_query_figures_show_an_external_run_without_matches(tiny_resu
     texts = [t.get_text() for ax in fig.axes for leg in [ax.get_legend()] if leg for t in leg.get_texts()]
     assert any(t.startswith("mine, depth local map, whole reference map: ") for t in texts), texts
     figures.pyplot().close(fig)
-    only_mine = scene.scene_view(TINY_SCENE, b.ref, b.queries, {"mine_depth_whole": errors["mine_depth_whole"]})
+    only_mine = scene_view.scene_view(TINY_SCENE, b.ref, b.queries, {"mine_depth_whole": errors["mine_depth_whole"]})
     assert only_mine.featured == ("mine_depth_whole",)
     figures.pyplot().close(query_figures.worst_figure(only_mine))
 

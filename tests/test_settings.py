@@ -21,7 +21,7 @@ EXPECTED = {
     ("flatlandia.city.search", "SearchConfig"): ("city.search", False),
     ("flatlandia.objects.clustering", "ClusterParams"): ("objects.cluster", True),
     ("flatlandia.objects.principal_plane", "PlaneConfig"): ("objects.principal_plane", True),
-    ("flatlandia.fine.learned", "FineTrainConfig"): ("fine.train", False),
+    ("flatlandia.fine.models", "FineTrainConfig"): ("fine.train", False),
     ("flatlandia.data.fetch", "Limits"): ("fetch", True),
     ("flatlandia.images.sfm", "SfmOptions"): ("sfm", False),
     ("flatlandia.solver.sequence", "SequenceConfig"): ("beyond.sequence", False),

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from flatlandia.errors import InputError
 from flatlandia.images import sfm
+from flatlandia.plumbing.errors import InputError
 
 OPTS = sfm.SfmOptions(num_threads=1, max_image_size=800)
 

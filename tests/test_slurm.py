@@ -24,7 +24,7 @@ import yaml
 from conftest import REPO, smk_dry_run
 from snakemake_runner import SNAKEMAKE, smk
 
-from flatlandia import tables
+from flatlandia.report import tables
 
 SLURM_SCRIPTS = REPO / "tests" / "slurm"
 PROFILE = REPO / "workflow" / "profiles" / "slurm"
@@ -255,7 +255,7 @@ def _tensors(obj, prefix=""):
 
 def differences(a: Path, b: Path) -> list[str]:
     """How results/ of run ``a`` and run ``b`` differ: the same files; every Parquet file the same
-    table, exactly, but for its timing columns (flatlandia.tables.timing_columns says which); every
+    table, exactly, but for its timing columns (flatlandia.report.tables.timing_columns says which); every
     trained model's tensors equal (single-threaded, seeded)."""
     import torch
 

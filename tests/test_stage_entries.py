@@ -10,18 +10,17 @@ import pandas as pd
 import pytest
 from conftest import published_scene
 
-from flatlandia import checkpoints, config, geo, io
+from flatlandia import checkpoints, config, geo
 from flatlandia.city import simulate
 from flatlandia.classes import CLASSES
 from flatlandia.coarse import evaluation as coarse_evaluation
 from flatlandia.coarse import retrieval
 from flatlandia.coarse import training as coarse_training
-from flatlandia.data import queries, reference_map
-from flatlandia.errors import InputError
-from flatlandia.fine import learned, training
+from flatlandia.data import published, queries, reference_map
+from flatlandia.fine import models, training
 from flatlandia.images import gps_alignment
-from flatlandia.objects import cloud, clustering, labels, principal_plane
-from flatlandia.objects import scene as scene_objects
+from flatlandia.objects import cloud, clustering, labels, principal_plane, scene_objects
+from flatlandia.plumbing.errors import InputError
 
 CLUSTER = config.section_defaults("objects.cluster")
 SPLIT = {"train": 0.8, "val": 0.1, "test": 0.1}
@@ -33,15 +32,17 @@ SPLIT = {"train": 0.8, "val": 0.1, "test": 0.1}
 @pytest.fixture(scope="module")
 def scene12_cloud(flat_root):
     pts, point_labels = cloud.read_classified_cloud(flat_root / "maps/12/class_segmented_point_cloud.ply")
-    t = io.read_transformations(flat_root / "maps/12/transformations.json")
+    t = published.read_transformations(flat_root / "maps/12/transformations.json")
     return pts, point_labels, t
 
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_published_objects_are_the_clusters_through_the_published_chain(flat_root, scene12_cloud):
     pts, point_labels, t = scene12_cloud
-    lonlat = io.read_reference_map(flat_root / "individual_reference_maps/map_12.json")[0]
-    others = [io.read_reference_map(flat_root / f"individual_reference_maps/map_{s}.json")[1] for s in ("0", "9")]
+    lonlat = published.read_reference_map(flat_root / "individual_reference_maps/map_12.json")[0]
+    others = [
+        published.read_reference_map(flat_root / f"individual_reference_maps/map_{s}.json")[1] for s in ("0", "9")
+    ]
     out = scene_objects.published_objects("12", pts, point_labels, t, lonlat, others, CLUSTER, source="cloud 12")
     # by hand: clusters, the label prior of the other maps, positions through the chain
     objs, member = clustering.cluster_objects(
@@ -125,10 +126,10 @@ def test_principal_plane_report_of_scene12(scene12_cloud):
 def test_published_reference_map_and_queries_are_the_workflow_chain(flat_root):
     from flatlandia.data import recover
 
-    lonlat, classes = io.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
+    lonlat, classes = published.read_reference_map(flat_root / "individual_reference_maps/map_9.json", len(CLASSES))
     frame = geo.frame_for(lonlat)
     ref_by_hand = reference_map.reference_table("9", lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(flat_root / "local_maps.json", "9")
+    local = published.read_local_maps(flat_root / "local_maps.json", "9")
     rec = recover.recover_scene("9", lonlat, classes, local)
     q_by_hand = queries.build_queries(
         "9", rec, ref_by_hand, local, frame, queries.split_queries(list(rec["token"]), 0, salt="9")
@@ -188,7 +189,7 @@ def test_scene_alignment_local_and_gps():
     by_hand = gps_alignment.local_frame(
         np.array([centres[n] for n in sorted(centres)]), np.array([images[0].cam_from_world().matrix()[:, :3]] * 6)
     )
-    assert gps_alignment.is_local(local) and np.allclose(local["A"], by_hand["A"]) and "no GPS" in local["method"]
+    assert geo.alignment_is_local(local) and np.allclose(local["A"], by_hand["A"]) and "no GPS" in local["method"]
     out = gps_alignment.scene_alignment("s", rec, table, align, 0, source="cameras")
     assert out["cameras"] == sorted(centres) and out["method"].endswith("RANSAC similarity to GPS")
     assert out["metres_per_sfm_unit"] == pytest.approx(2.0, rel=1e-3)
@@ -208,7 +209,7 @@ FINE = dict(model="MLP", map_type="gt", hidden=16, epochs=2, batch_size=32, augm
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_training_samples_per_regime(scene9_pair):
-    cfg = learned.FineTrainConfig(**FINE)
+    cfg = models.FineTrainConfig(**FINE)
     q = scene9_pair[0][1]
     n_train, n_val = int((q["split"] == "train").sum()), int((q["split"] == "val").sum())
     ct = {"copies": 2, "keep_gtbb": True, "crop_m": 0.0}
@@ -224,7 +225,7 @@ def test_training_samples_per_regime(scene9_pair):
 
 @pytest.mark.slow  # the published data (flat_root)
 def test_fine_train_model_is_training_on_those_samples(scene9_pair, tmp_path):
-    cfg = learned.FineTrainConfig(**FINE)
+    cfg = models.FineTrainConfig(**FINE)
     ct = {"copies": 1, "keep_gtbb": True, "crop_m": 0.0}
     res, history, meta = training.train_model(scene9_pair, cfg, "gtbb", ct)
     by_hand = training.train(*training.training_samples(scene9_pair, cfg, "gtbb", ct), cfg)

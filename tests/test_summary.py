@@ -4,21 +4,21 @@ from __future__ import annotations
 
 import pandas as pd
 
-from flatlandia import io, summary
+from flatlandia.plumbing import files, summary
 
 
 def test_summary_names_empty_scenes_and_why(tmp_path):
     res = tmp_path / "results"
-    io.write_parquet(pd.DataFrame({"obj_idx": range(44)}), res / "12/maps/reference_map.parquet")
-    io.write_parquet(pd.DataFrame({"split": ["train"] * 8 + ["test"] * 2}), res / "12/queries/queries.parquet")
-    io.write_parquet(pd.DataFrame({"kept": [True] * 5 + [False]}), res / "mine/images/images.parquet")
-    io.write_parquet(
+    files.write_parquet(pd.DataFrame({"obj_idx": range(44)}), res / "12/maps/reference_map.parquet")
+    files.write_parquet(pd.DataFrame({"split": ["train"] * 8 + ["test"] * 2}), res / "12/queries/queries.parquet")
+    files.write_parquet(pd.DataFrame({"kept": [True] * 5 + [False]}), res / "mine/images/images.parquet")
+    files.write_parquet(
         pd.DataFrame({"object_id": []}), res / "mine/objects/objects.parquet", {"empty_because": "no classes"}
     )
-    io.write_parquet(pd.DataFrame({"obj_idx": []}), res / "mine/maps/reference_map.parquet")
-    io.write_parquet(pd.DataFrame({"split": []}), res / "mine/queries/queries.parquet")
-    io.write_parquet(pd.DataFrame({"queries": []}), res / "mine/localization/localization.parquet")
-    io.write_parquet(
+    files.write_parquet(pd.DataFrame({"obj_idx": []}), res / "mine/maps/reference_map.parquet")
+    files.write_parquet(pd.DataFrame({"split": []}), res / "mine/queries/queries.parquet")
+    files.write_parquet(pd.DataFrame({"queries": []}), res / "mine/localization/localization.parquet")
+    files.write_parquet(
         pd.DataFrame({"obj_idx": [0, 1, 2]}),
         res / "nogps/maps/reference_map.parquet",
         {"frame": "local", "unit": "SfM unit"},
@@ -52,14 +52,14 @@ def test_summary_keeps_every_scene_with_results_across_runs(tmp_path):
     not scenes of the sheet (tables, another sheet's scene) never are."""
     res = tmp_path / "results"
     sheet = ["12", "13", "mine", "new"]
-    io.write_parquet(pd.DataFrame({"obj_idx": range(44)}), res / "12/maps/reference_map.parquet")
+    files.write_parquet(pd.DataFrame({"obj_idx": range(44)}), res / "12/maps/reference_map.parquet")
     first = summary.write_summary(res, ["12"], known=sheet)
     assert list(_rows_of(first)) == ["12"] and _rows_of(first)["12"][0] == "yes"
     assert "no other scene has results in this folder" in first
 
-    io.write_parquet(pd.DataFrame({"kept": [True] * 5 + [False]}), res / "mine/images/images.parquet")
-    io.write_parquet(pd.DataFrame({"x": [1]}), res / "tables/recovery.parquet")
-    io.write_parquet(pd.DataFrame({"kept": [True]}), res / "elsewhere/images/images.parquet")
+    files.write_parquet(pd.DataFrame({"kept": [True] * 5 + [False]}), res / "mine/images/images.parquet")
+    files.write_parquet(pd.DataFrame({"x": [1]}), res / "tables/recovery.parquet")
+    files.write_parquet(pd.DataFrame({"kept": [True]}), res / "elsewhere/images/images.parquet")
     second = summary.write_summary(res, ["mine", "new"], known=sheet)
     assert (res / "summary.md").read_text() == second
     rows = _rows_of(second)

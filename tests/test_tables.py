@@ -1,7 +1,7 @@
 import pandas as pd
 import pytest
 
-from flatlandia import tables
+from flatlandia.report import tables
 
 
 def _recovery_row(**kw):

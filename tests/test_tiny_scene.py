@@ -17,11 +17,12 @@ from conftest import REPO, TINY_ROOT, TINY_SCENE, smk_dry_run
 from snakemake_runner import job_stats, smk
 from tiny_results import tiny_scene
 
-from flatlandia import config, geo, io, proposals, solver
+from flatlandia import config, geo, proposals, solver
 from flatlandia.classes import CLASSES
 from flatlandia.coarse import solver_proposals
-from flatlandia.data import ingest, localmaps, queries, recover, scene_inputs
-from flatlandia.errors import InputError
+from flatlandia.data import ingest, localmaps, published, queries, recover, scene_inputs
+from flatlandia.plumbing import files
+from flatlandia.plumbing.errors import InputError
 
 TEST_CONFIGS = REPO / "config" / "test"
 
@@ -90,8 +91,8 @@ def test_readers_take_the_published_format(tiny, truth):
     lonlat, classes, local = tiny["lonlat"], tiny["classes"], tiny["local"]
     assert lonlat.shape == (maker.N_OBJECTS, 2) and classes.shape == (maker.N_OBJECTS,)
     assert len(set(classes)) >= 5 and classes.max() < len(CLASSES)
-    assert io.read_classes(TINY_ROOT / "classes.tsv") == list(CLASSES)
-    sheet = io.read_tsv(TINY_ROOT / "scenes.tsv", ["scene", "city", "name"])
+    assert published.read_classes(TINY_ROOT / "classes.tsv") == list(CLASSES)
+    sheet = published.read_tsv(TINY_ROOT / "scenes.tsv", ["scene", "city", "name"])
     assert sheet.astype(str).values.tolist() == [[TINY_SCENE, maker.CITY, maker.NAME]]
     assert len(local) == maker.N_QUERIES
     for maps in local.values():
@@ -101,19 +102,19 @@ def test_readers_take_the_published_format(tiny, truth):
         assert 0.001 < np.median(ratio) < 0.01  # the published depth maps' arbitrary scale
     tokens = (TINY_ROOT / f"maps/{TINY_SCENE}/tokens.txt").read_text().split()
     assert set(local) < set(tokens) and len(tokens) == maker.N_QUERIES + len(truth["extra_tokens"])
-    t = io.read_transformations(TINY_ROOT / f"maps/{TINY_SCENE}/transformations.json")
+    t = published.read_transformations(TINY_ROOT / f"maps/{TINY_SCENE}/transformations.json")
     assert np.linalg.det(np.asarray(t["to_principal_plane"])) == pytest.approx(-1.0)  # a reflection, as most are
     with pytest.raises(InputError, match=r"unknown scene id '9'; scenes present: \['0'\]"):
-        io.read_local_maps(TINY_ROOT / "local_maps.json", "9")
+        published.read_local_maps(TINY_ROOT / "local_maps.json", "9")
     with pytest.raises(InputError, match="fewer than 9"):
-        io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE, min_objects=9)
+        published.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE, min_objects=9)
 
 
 def test_the_published_chain_puts_the_sfm_points_on_the_map(truth):
     """geo.sfm_to_lonlat (row form, X @ Rpp) against DATA.md's column form the generator used: with
     a reflection for Rpp, the transpose matters."""
-    t = io.read_transformations(TINY_ROOT / f"maps/{TINY_SCENE}/transformations.json")
-    lonlat, _ = io.read_reference_map(TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json")
+    t = published.read_transformations(TINY_ROOT / f"maps/{TINY_SCENE}/transformations.json")
+    lonlat, _ = published.read_reference_map(TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json")
     np.testing.assert_allclose(geo.sfm_to_lonlat(truth["sfm"], t), lonlat, rtol=0, atol=1e-12)
     wrong = dict(t, to_principal_plane=np.asarray(t["to_principal_plane"]).T.tolist())  # Rpp for Rpp^T
     assert np.abs(geo.sfm_to_lonlat(truth["sfm"], wrong) - lonlat).max() > 1e-4  # tens of metres off
@@ -171,12 +172,12 @@ def test_the_shared_recipe_is_the_chain_of_the_stage_functions(tiny, tmp_path):
     and users share) gives what the stage functions give by hand, and writes the rules' files."""
     from flatlandia.data import reference_map
 
-    lonlat, classes = io.read_reference_map(
+    lonlat, classes = published.read_reference_map(
         TINY_ROOT / f"individual_reference_maps/map_{TINY_SCENE}.json", len(CLASSES)
     )
     frame = geo.frame_for(lonlat)
     ref = reference_map.reference_table(TINY_SCENE, lonlat, classes, CLASSES, frame)
-    local = io.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
+    local = published.read_local_maps(TINY_ROOT / "local_maps.json", TINY_SCENE)
     rec = recover.recover_scene(TINY_SCENE, lonlat, classes, local, tol_m=config.section_defaults("recover")["tol_m"])
     split = queries.split_queries(list(rec["token"]), config.section_defaults()["seed"], salt=TINY_SCENE)
     q = queries.build_queries(TINY_SCENE, rec, ref, local, frame, split)
@@ -189,7 +190,7 @@ def test_the_shared_recipe_is_the_chain_of_the_stage_functions(tiny, tmp_path):
     assert path == results / TINY_SCENE / "maps" / "reference_map.parquet" and path.with_suffix(".geojson").exists()
     pd.testing.assert_frame_equal(pd.read_parquet(path).drop(columns="geometry"), ref)  # GeoParquet adds the points
     pd.testing.assert_frame_equal(pd.read_parquet(results / TINY_SCENE / "queries" / "queries.parquet"), q)
-    assert io.read_parquet_metadata(path)["lon0"] == frame.lon0
+    assert files.read_parquet_metadata(path)["lon0"] == frame.lon0
     other = scene_inputs.published_scene(TINY_ROOT, TINY_SCENE, {"seed": 7})  # the config's settings are used
     assert dict(zip(other.queries["token"], other.queries["split"])) == queries.split_queries(
         list(rec["token"]), 7, salt=TINY_SCENE

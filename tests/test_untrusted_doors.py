@@ -27,14 +27,16 @@ from PIL.TiffImagePlugin import IFDRational
 from tiny_results import tiny_scene
 from zip_archives import make_zip
 
-from flatlandia import checkpoints, cli, config, escape, export, figures, io, runlog
+from flatlandia import checkpoints, cli, config
 from flatlandia.classes import CLASSES
-from flatlandia.data import fetch, reference_map
-from flatlandia.errors import InputError
-from flatlandia.fine import learned
+from flatlandia.data import export, fetch, published, reference_map
+from flatlandia.fine import models
 from flatlandia.images import image_audit
 from flatlandia.objects import audit
-from flatlandia.viewer import query_figures, scene
+from flatlandia.plumbing import escape, files, rule_log
+from flatlandia.plumbing.errors import InputError
+from flatlandia.report import figures
+from flatlandia.viewer import query_figures, scene_view
 
 
 def tree(root: Path) -> set[str]:
@@ -155,7 +157,7 @@ def test_no_cell_of_the_export_runs_in_a_spreadsheet(tiny, tmp_path):
     texts |= {name: export.csv_text(index[name]) for name in ("scenes", "template", "classes")}
     runs = ("=", "+", "@", "\t", "\r")
     for name, text in texts.items():
-        io.write_text(text, tmp_path / f"{name}.csv")
+        files.write_text(text, tmp_path / f"{name}.csv")
         back = pd.read_csv(tmp_path / f"{name}.csv", dtype=str, keep_default_na=False)
         cells = [c for col in back.columns for c in back[col]] + list(back.columns)
         plain = [c for c in cells if escape._PLAIN_DASHED.fullmatch(c) or escape._PROJ.fullmatch(c)]  # words, crs
@@ -205,7 +207,7 @@ def test_the_audit_skips_broken_records_and_hashes_only_the_runs_own_files(tmp_p
     outside = tmp_path / "big.bin"
     with open(outside, "wb") as f:
         f.truncate(40 * 10**9)  # sparse: 40 GB that nothing may read
-    digest = io.sha256(run / "results" / "a.txt")
+    digest = files.sha256(run / "results" / "a.txt")
     recs = {
         "good/all.json": _record("good", {"results/a.txt": digest}),
         "root/all.json": _record("root", {"/": "0"}),
@@ -248,16 +250,16 @@ def test_nan_in_the_published_transforms_is_refused(tmp_path, value):
     path = tmp_path / "transformations.json"
     path.write_text(json.dumps(t))  # written as NaN / -Infinity, as Python's json does
     with pytest.raises(InputError, match="to_mapillary.rotation holds NaN or inf"):
-        io.read_transformations(path)
+        published.read_transformations(path)
     t = json.loads((TINY_ROOT / "maps" / TINY_SCENE / "transformations.json").read_text())
     t["to_principal_plane"][0] = [5.0, 0.0, 0.0]
     path.write_text(json.dumps(t))
     with pytest.raises(InputError, match="to_principal_plane is not a rotation or a reflection"):
-        io.read_transformations(path)
+        published.read_transformations(path)
 
 
 def _checkpoint(tmp_path: Path, state: dict, meta: str | None = None, **cfg_over) -> Path:
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
     path = tmp_path / "ck.pt"
     text = meta if meta is not None else json.dumps({"config": {**cfg.to_dict(), **cfg_over}})
     torch.save({"format": checkpoints.FORMAT, "state_dict": state, "meta": text}, path)
@@ -266,10 +268,10 @@ def _checkpoint(tmp_path: Path, state: dict, meta: str | None = None, **cfg_over
 
 def _load_error(path: Path, capsys) -> str:
     def main(smk, log):  # as a rule script loads it
-        checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+        checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
 
     with pytest.raises(SystemExit):
-        runlog.run(main, SimpleNamespace(log=[]))
+        rule_log.run(main, SimpleNamespace(log=[]))
     err = capsys.readouterr().err
     errors = [line for line in err.splitlines() if line.startswith("ERROR:")]
     assert len(errors) == 1 and errors[0].startswith(f"ERROR: {path}: ") and "Traceback" not in err, err
@@ -277,7 +279,7 @@ def _load_error(path: Path, capsys) -> str:
 
 
 def test_a_checkpoint_with_nan_weights_is_refused(tmp_path, capsys):
-    state = learned.build_model(learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)).state_dict()
+    state = models.build_model(models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)).state_dict()
     key = next(k for k, v in state.items() if v.is_floating_point())
     state[key] = torch.full_like(state[key], float("nan"))
     assert f"the weights {key} hold NaN or inf" in _load_error(_checkpoint(tmp_path, state), capsys)
@@ -285,7 +287,7 @@ def test_a_checkpoint_with_nan_weights_is_refused(tmp_path, capsys):
 
 def test_a_checkpoint_asking_for_terabytes_or_nested_too_deep_is_one_line(tmp_path, capsys):
     """hidden=200000, heads=64 tried to allocate 10 TB; meta nested 100,000 deep was a RecursionError."""
-    state = learned.build_model(learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)).state_dict()
+    state = models.build_model(models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)).state_dict()
     t0 = time.process_time()
     line = _load_error(_checkpoint(tmp_path, state, hidden=200000, heads=64), capsys)
     assert "the weights do not fit the model its config describes" in line and time.process_time() - t0 < 10
@@ -324,7 +326,7 @@ def test_data_text_in_figures_is_drawn_as_text_not_mathtext(tiny, tmp_path):
     hist = pd.DataFrame({"epoch": [0, 1], "train_loss": [1.0, 0.5]})
     figures.plot_training_curves({SECRET: hist}, tmp_path / "curves.png")
     q2 = q.assign(token=[f"{SECRET}{k}" for k in range(len(q))])
-    view = scene.scene_view(SECRET, ref, q2, {}, axes=(SECRET, "y $x$"))
+    view = scene_view.scene_view(SECRET, ref, q2, {}, axes=(SECRET, "y $x$"))
     fig = query_figures.query_figure(view, view.queries[0])
     fig.savefig(tmp_path / "query.png")
     figures.pyplot().close(fig)
@@ -371,7 +373,8 @@ def test_an_impossible_exif_geotag_is_a_drop_reason(tmp_path):
 def test_the_batch_reads_an_exports_csvs_within_bounds(tmp_path):
     """`localize --batch` (issue 36) reads a user's export: regular files within MAX_CSV_BYTES, local
     maps of finite coordinates, at most MAX_QUERY_OBJECTS objects."""
-    from flatlandia import batch, validate
+    from flatlandia.localize import batch
+    from flatlandia.plumbing import validate
 
     scene = tmp_path / "0"
     scene.mkdir()

@@ -24,11 +24,12 @@ import torch
 from snakemake_runner import smk
 from zip_archives import make_zip
 
-from flatlandia import checkpoints, runlog
+from flatlandia import checkpoints
 from flatlandia.data import fetch
-from flatlandia.errors import InputError
-from flatlandia.fine import learned
+from flatlandia.fine import models
 from flatlandia.images import classify_points, depth, image_audit, segment
+from flatlandia.plumbing import rule_log
+from flatlandia.plumbing.errors import InputError
 
 
 def tree(root: Path) -> set[str]:
@@ -193,8 +194,8 @@ class PickledCallable:
 
 
 def _tiny_result():
-    cfg = learned.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
-    model = learned.build_model(cfg)
+    cfg = models.FineTrainConfig(model="MLP", map_type="gt", hidden=8, epochs=1)
+    model = models.build_model(cfg)
     history = [{"epoch": 0, "train_loss": np.float32(1.5), "val_median_m": np.float64(3.0)}]
     result = {"state_dict": model.state_dict(), "config": cfg.to_dict(), "history": history, "best_epoch": np.int64(0)}
     return model, cfg, {**result, "best_val_median_m": float("inf"), "seconds": 0.5}
@@ -204,7 +205,7 @@ def test_the_workflows_own_checkpoint_loads_with_weights_only(tmp_path):
     model, cfg, result = _tiny_result()
     path = tmp_path / "ck.pt"
     checkpoints.save_checkpoint(result, path)
-    loaded, cfg2 = checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+    loaded, cfg2 = checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
     assert cfg2 == cfg
     assert all(torch.equal(loaded.state_dict()[k], v) for k, v in model.state_dict().items())
     info = checkpoints.checkpoint_info(path)
@@ -224,10 +225,10 @@ def test_checkpoint_with_a_pickled_callable_is_refused_and_runs_nothing(tmp_path
     )
 
     def main(smk, log):  # as a rule script loads it
-        checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+        checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
 
     with pytest.raises(SystemExit):
-        runlog.run(main, SimpleNamespace(log=[]))
+        rule_log.run(main, SimpleNamespace(log=[]))
     errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("ERROR:")]
     assert len(errors) == 1 and errors[0].startswith(f"ERROR: {path}: refused:"), errors
     assert "could run code" in errors[0] and "getattr" in errors[0]
@@ -241,7 +242,7 @@ def test_a_checkpoint_of_the_old_format_asks_to_be_rebuilt(tmp_path):
     path = tmp_path / "old.pt"
     torch.save({"state_dict": model.state_dict(), "config": cfg.to_dict()}, path)
     with pytest.raises(InputError, match="not a checkpoint of this workflow's format.*delete it and rerun"):
-        checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+        checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
 
 
 # ----------------------------------------------------------------------------- names from users' files

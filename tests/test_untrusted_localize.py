@@ -1,4 +1,4 @@
-"""Untrusted inputs, third pass, `flatlandia localize`'s doors (flatlandia.validate): a crafted city
+"""Untrusted inputs, third pass, `flatlandia localize`'s doors (flatlandia.plumbing.validate): a crafted city
 index never reaches the compiled kernels (finding 1: it was a segfault), sizes are bounded and
 pipes or devices are never read (5), metadata and priors that lie or hold NaN are refused (6),
 hostile JSON is one ERROR line, not a traceback (8), and GeoJSON booleans, duplicate ids and
@@ -21,11 +21,12 @@ import pyarrow.parquet as pq
 import pytest
 from tiny_results import tiny_scene
 
-from flatlandia import cli, io, localize, solver, validate
+from flatlandia import cli, localize, solver
 from flatlandia.city import index
 from flatlandia.classes import CLASSES
 from flatlandia.data import localmaps, reference_map
-from flatlandia.errors import InputError
+from flatlandia.plumbing import files, validate
+from flatlandia.plumbing.errors import InputError
 
 
 @pytest.fixture(scope="module")
@@ -169,7 +170,7 @@ def test_a_city_map_beside_the_index_with_nan_lon_lat_is_refused(tiny, tmp_path,
     (city / "index").mkdir(parents=True)
     cref = cref.assign(city=0)
     cref.loc[cref.index[0], "lon"] = np.nan
-    io.write_parquet(cref, city / "map.parquet")
+    files.write_parquet(cref, city / "map.parquet")
     index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
     one_error(
         *run(capsys, "--map", city / "index", "--query", tiny["dir"] / "q.json"), "map.parquet", "lon/lat holds NaN"

@@ -18,8 +18,10 @@ import pandas as pd
 import pytest
 from test_score import _cli, _geographic, _metric, _noisy, _truth, _write, tiny_results, tiny_scenes  # noqa: F401
 
-from flatlandia import score, validate
-from flatlandia.errors import InputError
+from flatlandia import score
+from flatlandia.plumbing import validate
+from flatlandia.plumbing.errors import InputError
+from flatlandia.score import poses
 
 SCORE = ("--name", "mine", "--split", "train")
 
@@ -147,12 +149,12 @@ def test_a_long_token_is_quoted_by_its_start(tiny_results, tiny_scenes, tmp_path
 
 
 def test_a_cell_the_export_made_safe_reads_back_as_its_value(tiny_scenes, tmp_path):
-    """The export writes a token '=x' as "'=x" (flatlandia.escape.csv_cell); scoring reads it as '=x'."""
+    """The export writes a token '=x' as "'=x" (flatlandia.plumbing.escape.csv_cell); scoring reads it as '=x'."""
     t = _metric(_truth(tiny_scenes)).astype(str)
     t["token"] = "'" + t["token"]  # a token that is text already: '123 stays '123 (not a formula)
     with pytest.raises(InputError, match="unknown token"):
         score.read_poses(_write(t, tmp_path / "q.csv"), tiny_scenes, "train")
-    assert score._text(["'=HYPERLINK(1)", "'-cmd|x", "-AB21Af_LPev08UY_96ptQ", "'abc"]) == [
+    assert poses._text(["'=HYPERLINK(1)", "'-cmd|x", "-AB21Af_LPev08UY_96ptQ", "'abc"]) == [
         "=HYPERLINK(1)",
         "-cmd|x",
         "-AB21Af_LPev08UY_96ptQ",

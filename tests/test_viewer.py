@@ -15,8 +15,8 @@ from matplotlib.colors import to_hex, to_rgb
 from PIL import Image
 
 from flatlandia import geo
-from flatlandia.figures import METHOD_COLOURS, TRUTH_COLOUR
-from flatlandia.viewer import page, query_figures, scene
+from flatlandia.report.figures import METHOD_COLOURS, TRUTH_COLOUR
+from flatlandia.viewer import page, query_figures, scene_view
 
 #: (token, split, x, y, heading deg)
 CAMERAS = [("q_train", "train", 0.0, 0.0, 30.0), ("q_val", "val", 40.0, -10.0, 120.0)]
@@ -68,7 +68,7 @@ def data():
         # the solver's matches (t1: its first object matched to a wrong reference object); a
         # learned run stores none (an empty list)
         wrong = [[int(ref["obj_idx"].iloc[0])] + r[1:] for r in test["ref_idx"]]
-        e[scene.MATCH_COLUMN] = wrong if matches else [[] for _ in range(len(e))]
+        e[scene_view.MATCH_COLUMN] = wrong if matches else [[] for _ in range(len(e))]
         return e
 
     errors = {
@@ -83,7 +83,7 @@ def data():
 @pytest.fixture(scope="module")
 def view(data):
     ref, queries, errors = data
-    return scene.scene_view("7", ref, queries, errors)
+    return scene_view.scene_view("7", ref, queries, errors)
 
 
 def test_the_local_map_at_the_true_pose_lies_on_its_reference_objects(view):
@@ -103,7 +103,7 @@ def test_only_the_solver_brings_matches(view):
 
 
 def test_the_worst_queries_put_a_query_without_a_pose_first(view):
-    assert [q.token for q in scene.worst_queries(view, 5)] == ["t2", "t1"]
+    assert [q.token for q in scene_view.worst_queries(view, 5)] == ["t2", "t1"]
 
 
 def test_a_query_figure_draws_truth_estimates_matches_and_errors(view):
@@ -168,7 +168,7 @@ def test_the_page_is_self_contained_small_and_deterministic(view):
 def test_a_script_end_tag_in_the_data_cannot_break_the_page(data):
     ref, queries, errors = data
     odd = ref.assign(class_label=ref["class_label"].where(ref.index > 0, "</script><b>x"))
-    html = page.render(scene.scene_view("7", odd, queries, errors))
+    html = page.render(scene_view.scene_view("7", odd, queries, errors))
     assert html.count("</script>") == 2 and "</script><b>" not in html
     assert any(c["label"] == "</script><b>x" for c in _data_of(html)["classes"])
 
@@ -248,9 +248,9 @@ def test_clicking_a_test_query_shows_its_layers_in_chromium(browser, view, tmp_p
 def test_a_scene_without_objects_or_queries_still_gets_a_page(data):
     """An images scene without object classes: an empty map, no runs, still a page."""
     ref, queries, _ = data
-    view = scene.scene_view("mine", ref.iloc[:0], queries.iloc[:0], {}, ("x (SfM unit)", "y (SfM unit)"))
+    view = scene_view.scene_view("mine", ref.iloc[:0], queries.iloc[:0], {}, ("x (SfM unit)", "y (SfM unit)"))
     d = _data_of(page.render(view))
     assert (d["objects"], d["queries"], d["runs"], d["unit"]) == ([], [], [], "SfM unit")
-    assert view.featured == () and scene.worst_queries(view, 6) == []
+    assert view.featured == () and scene_view.worst_queries(view, 6) == []
     fig = query_figures.worst_figure(view)
     assert "no test query" in fig.axes[0].texts[0].get_text()

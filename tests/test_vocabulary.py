@@ -260,7 +260,9 @@ def test_a_new_proposal_type_is_two_edits(tmp_path):
     assert "results/fine/models/mlp_depth_coarse/checkpoint.pt" in planned  # trained on simulated coarse proposals
 
     check = (
-        "from flatlandia import export, figures, score, vocabulary\n"
+        "from flatlandia import score, vocabulary\n"
+        "from flatlandia.report import figures\n"
+        "from flatlandia.data import export\n"
         "assert 'coarse-demo' in export.COARSE_SOURCES and figures.PROPOSAL_LABELS['coarse-demo']\n"
         "assert vocabulary.strategy_label('coarse-demo', '2N_LM') == 'Demo 2N_LM'\n"
         "assert score.default_strategy('coarse-demo') == '2N_LM'\n"
@@ -271,7 +273,7 @@ def test_a_new_proposal_type_is_two_edits(tmp_path):
 
 def test_a_key_with_a_wildcard_is_the_jobs_entry(tmp_path):
     """fine_train reads fine.train_overrides.{model}: the job's model's entry, recorded under that name."""
-    from flatlandia import debug, provenance
+    from flatlandia.plumbing import debug, provenance
 
     job = debug.mock_snakemake(
         "fine_train", workdir=tmp_path, configfiles=[TINY], model="gat", map_type="gt", train="coarse"

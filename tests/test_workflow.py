@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 from snakemake_runner import job_stats, smk
 
-from flatlandia import io
+from flatlandia.plumbing import files
 
 #: every test here runs Snakemake jobs or reads the published data (the slow lane)
 pytestmark = pytest.mark.slow
@@ -28,9 +28,9 @@ def two_scenes(flat_root, *more: str, select: str | None = None) -> list[str]:
     """Arguments of the two-scene runs: config/test/two_scenes.yaml (scenes 9 and 12 are both the
     selection and the benchmark), then the files of config/test named in ``more``; on the command
     line the data folder, and another selection when given."""
-    files = [str(TEST_CONFIGS / name) for name in ("two_scenes.yaml", *more)]
+    configs = [str(TEST_CONFIGS / name) for name in ("two_scenes.yaml", *more)]
     settings = [f"flatlandia_root={flat_root}", *([f"select={select}"] if select else [])]
-    return ["--configfile", *files, "--config", *settings]
+    return ["--configfile", *configs, "--config", *settings]
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +56,7 @@ def test_end_to_end_two_scenes(run_two_scenes, flat_root):
         assert len(q) == n_q and (q["residual_m"] < 0.01).all()
         ref = pd.read_parquet(wd / f"results/{scene}/maps/reference_map.parquet")
         assert len(ref) == n_obj and {"x_m", "y_m", "lon", "lat", "class_id", "class_label"} <= set(ref.columns)
-        meta = io.read_parquet_metadata(wd / f"results/{scene}/maps/reference_map.parquet")
+        meta = files.read_parquet_metadata(wd / f"results/{scene}/maps/reference_map.parquet")
         assert "+proj=tmerc" in meta["crs"]
         gj = json.loads((wd / f"results/{scene}/maps/reference_map.geojson").read_text())
         assert gj["type"] == "FeatureCollection" and len(gj["features"]) == n_obj
@@ -130,9 +130,9 @@ def test_manifest_and_audit_trace_every_artifact(run_two_scenes):
     man = pd.read_parquet(wd / "results/manifest.parquet").set_index("artifact")
     q = "results/12/queries/queries.parquet"
     assert man.loc[q, "rule"] == "queries" and man.loc[q, "scene"] == "12"
-    assert man.loc[q, "sha256"] == io.sha256(wd / q)
+    assert man.loc[q, "sha256"] == files.sha256(wd / q)
     inputs = json.loads(man.loc[q, "inputs"])
-    assert inputs["results/12/queries/recovered.parquet"] == io.sha256(wd / "results/12/queries/recovered.parquet")
+    assert inputs["results/12/queries/recovered.parquet"] == files.sha256(wd / "results/12/queries/recovered.parquet")
     assert man["git_commit"].str.len().min() >= 7 and man["config_id"].nunique() == 1  # one resolved config
     # the settings hash covers what each rule reads: the queries of both scenes share theirs, rules differ
     assert man.loc["results/9/queries/queries.parquet", "config_hash"] == man.loc[q, "config_hash"]

@@ -14,10 +14,10 @@ from pathlib import Path
 import pandas as pd
 from conftest import TINY_ROOT, TINY_SCENE
 
-from flatlandia import config, io, score
+from flatlandia import config, score
 from flatlandia.data import scene_inputs
-from flatlandia.fine import evaluation
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import evaluation, fine_table
+from flatlandia.plumbing import files
 
 
 @functools.cache
@@ -65,14 +65,14 @@ def build(root: Path) -> Path:
     tiny = tiny_scene()
     ref, q = tiny.ref, tiny.queries
     tiny.write(root)
-    io.write_parquet(pd.DataFrame({"scene": [TINY_SCENE]}), root / score.BENCHMARK_RECORD)
+    files.write_parquet(pd.DataFrame({"scene": [TINY_SCENE]}), root / score.BENCHMARK_RECORD)
     summaries = []
     for proposal, label in (("whole", "whole map"), ("gtbb", "GT-BB")):
         e = evaluation.solver_errors([(ref, q)], "depth", proposal, config.section_defaults("solver"), split="train")
         e["strategy"] = label
         folder = root / "fine" / f"solver_depth_{proposal}"
-        io.write_parquet(e, folder / "errors.parquet")
+        files.write_parquet(e, folder / "errors.parquet")
         summaries.append(builtin_summary(e, "solver", "depth", proposal, label, ref))
-        io.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
-    io.write_parquet(fine_table.table_rows(summaries), root / "tables" / "fine_localization.parquet")
+        files.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
+    files.write_parquet(fine_table.table_rows(summaries), root / "tables" / "fine_localization.parquet")
     return root

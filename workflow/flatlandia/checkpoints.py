@@ -20,8 +20,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from flatlandia.errors import InputError
-from flatlandia.io import atomic_path
+from flatlandia.plumbing.errors import InputError
+from flatlandia.plumbing.files import atomic_path
 
 #: The keys of a training result that a checkpoint keeps (when present): ``best_val`` is the
 #: coarse validation criterion, ``best_val_median_m`` the fine one.
@@ -80,9 +80,9 @@ def _unsafe_global(err: Exception) -> str:
 
 def _read(path) -> dict:
     """The checkpoint's dict, loaded with ``weights_only=True``: tensors and plain data only; a file
-    that is not a regular one or is over :data:`flatlandia.validate.MAX_CHECKPOINT_BYTES` is refused
+    that is not a regular one or is over :data:`flatlandia.plumbing.validate.MAX_CHECKPOINT_BYTES` is refused
     before torch reads it."""
-    from flatlandia import validate
+    from flatlandia.plumbing import validate
 
     validate.regular_file(path, validate.MAX_CHECKPOINT_BYTES, "MAX_CHECKPOINT_BYTES")
     try:
@@ -103,7 +103,7 @@ def _read(path) -> dict:
 
 def _meta(path, ck: dict) -> dict:
     """The config and bookkeeping of a checkpoint, parsed from its JSON text."""
-    from flatlandia import validate
+    from flatlandia.plumbing import validate
 
     try:
         meta = validate.parse_json(ck["meta"], path)

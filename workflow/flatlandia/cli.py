@@ -1,6 +1,6 @@
 """Command line: ``flatlandia audit [PATH]`` prints the audit trail of a run (one artifact, one scene or all);
 ``flatlandia config`` checks or rewrites the files generated from the config schema;
-``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.debug);
+``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.plumbing.debug);
 ``flatlandia localize --map MAP --query QUERY.json`` localizes your own query (flatlandia.localize; or
 ``--sequence FRAMES.json`` several frames together; ``--gps LON,LAT --gps-sigma-m M`` a phone's fix);
 ``flatlandia score POSES --name NAME --out DIR`` scores your own poses as the benchmark's methods (flatlandia.score)."""
@@ -14,8 +14,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import __version__, config, io, provenance, release, vocabulary
-from flatlandia.errors import InputError
+from flatlandia import __version__, config, release, vocabulary
+from flatlandia.plumbing import files, provenance
+from flatlandia.plumbing.errors import InputError
 
 
 def _records(args) -> pd.DataFrame:
@@ -151,7 +152,7 @@ def audit(args) -> int:
         if rule:  # a run's own artifact overwritten with its manifest would break the run it audits
             print(f"ERROR: --write {args.write}: an artifact of this run (rule {rule}): give a new file")
             return 1
-        io.write_parquet(df.reset_index(drop=True), args.write)
+        files.write_parquet(df.reset_index(drop=True), args.write)
         print(f"wrote {args.write}: {len(df)} artifacts from {df['rule'].nunique()} rules")
         return 0
     cols = ["artifact", "rule", "sha256", "bytes", "config_hash", "git_commit", "finished_at"]
@@ -189,7 +190,7 @@ def debug_rule(args) -> int:
     """Build one job of the workflow and run its script here (``--show``: only print the job)."""
     from snakemake.cli import parse_config
 
-    from flatlandia import debug
+    from flatlandia.plumbing import debug
 
     wildcards = {}
     for item in args.wildcards:
@@ -222,7 +223,7 @@ def debug_rule(args) -> int:
     except debug.DebugError as e:
         print(f"ERROR: {e}")
         return 2
-    except SystemExit as e:  # runlog.run ends a script with bad input with exit status 1
+    except SystemExit as e:  # rule_log.run ends a script with bad input with exit status 1
         return int(e.code or 0) if not isinstance(e.code, str) else 1
     except Exception:
         if not args.pdb:
@@ -277,7 +278,7 @@ def localize_batch(args) -> int:
     poses file that `flatlandia score` reads."""
     import sys
 
-    from flatlandia import batch
+    from flatlandia.localize import batch
 
     try:
         if args.query or args.sequence or args.near or args.gps or args.compass:
@@ -359,7 +360,7 @@ def localize_query(args) -> int:
     _print_warnings(result)
     text = localize.dumps(result)
     if args.out:
-        io.write_text(text + "\n", args.out)
+        files.write_text(text + "\n", args.out)
     print(text)
     return 0
 
@@ -379,7 +380,7 @@ def score_poses(args) -> int:
     (errors.parquet, summary.json: rule fine_eval's shapes) and DIR/scores.md; a bad file is one
     ERROR line, exit status 1 and nothing written."""
     from flatlandia import score
-    from flatlandia.errors import InputError
+    from flatlandia.plumbing.errors import InputError
 
     try:
         scores = score.score_file(args.poses, args.name, args.results, args.split)

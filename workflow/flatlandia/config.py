@@ -179,7 +179,7 @@ def resolve(cfg: dict | None) -> dict:
     values of the wrong type, numbers that are not finite and settings that contradict each other.
     Raises :class:`ConfigError` listing every problem."""
     cfg = dict(cfg or {})
-    from flatlandia import validate
+    from flatlandia.plumbing import validate
 
     limit = validate.MAX_CONFIG_DEPTH
     deep = [k for k, v in cfg.items() if validate.depth(v, limit) > limit]
@@ -393,3 +393,17 @@ def render_readme() -> str:
 def generated_files(repo: Path) -> dict[Path, str]:
     """The files generated from the schema, with the text they must hold."""
     return {repo / "config" / "config.yaml": render_config_yaml(), repo / "config" / "README.md": render_readme()}
+
+
+def config_section(paths, section: str) -> dict:
+    """One top-level section of layered YAML config files (later files update earlier ones, one
+    level deep, as Snakemake's ``--configfile`` does); missing files are skipped. For benchmarks
+    that read the workflow's config outside Snakemake."""
+    import yaml
+
+    out: dict = {}
+    for p in map(Path, paths):
+        if p.exists():
+            for key, v in ((yaml.safe_load(p.read_text()) or {}).get(section) or {}).items():
+                out[key] = {**out.get(key, {}), **v} if isinstance(v, dict) else v
+    return out

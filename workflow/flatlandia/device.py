@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 #: the values of the config's ``device``
 CHOICES = ("auto", "cpu", "cuda")

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 if TYPE_CHECKING:  # pyproj loads when a frame projects: the learned models' code needs none of it
     from pyproj import Transformer
@@ -185,3 +185,31 @@ def collinearity(p: np.ndarray) -> float:
     q = p[d <= np.quantile(d, 0.9)] if len(p) >= 10 else p
     sv = np.linalg.svd(q - q.mean(0), compute_uv=False)
     return float(sv[1] / sv[0]) if sv[0] > 0 else 0.0
+
+
+# An images scene's alignment record (rule gps_alignment, flatlandia.images.gps_alignment): its
+# SfM points -> map xy (metres of a GPS frame, or a local frame's unit without GPS) -> lon/lat.
+
+
+def alignment_is_local(alignment: dict) -> bool:
+    """A local-frame map (no GPS): x/y in SfM units, no lon/lat."""
+    return alignment.get("mode") == "none"
+
+
+def alignment_points(alignment: dict, X: np.ndarray) -> np.ndarray:
+    """SfM points (N, 3) -> map xy (N, 2): metres of the GPS frame, or the local frame's unit."""
+    return np.asarray(X, float).reshape(-1, 3) @ np.asarray(alignment["A"]).T + np.asarray(alignment["b"])
+
+
+def alignment_frame(alignment: dict) -> MetricFrame | None:
+    """The metric frame of a GPS-aligned map; None for a local-frame map."""
+    if alignment_is_local(alignment):
+        return None
+    return MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
+
+
+def alignment_lonlat(alignment: dict, xy: np.ndarray) -> np.ndarray:
+    """Map xy -> lon/lat (N, 2); NaN in a local frame, which has no geographic position."""
+    frame = alignment_frame(alignment)
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    return frame.to_lonlat(xy) if frame is not None and len(xy) else np.full((len(xy), 2), np.nan)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flatlandia import geo
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 
 @dataclass

@@ -28,7 +28,7 @@ MAP_TYPE_LABELS = {"gt": "GT local map", "depth": "depth local map"}
 #: the geometric solver's methods: with the training split's cameras, and without them (the camera
 #: prior off for that run: what the whole-map figures owe to the cameras)
 SOLVER_METHODS = ("solver", "solver-noprior")
-#: the paper's learned baselines: slug -> model name (the architecture fine.learned builds, and the
+#: the paper's learned baselines: slug -> model name (the architecture fine.models builds, and the
 #: paper's name of it)
 LEARNED_METHODS = {"mlp": "MLP", "mlp_att": "MLP+ATT", "gat": "GAT", "gat_att": "GAT+ATT"}
 #: every built-in method of the fine stage, in the order of the legends; an external method

@@ -1,4 +1,4 @@
-# Beyond one frame: a GPS fix and sequences of frames (flatlandia.beyond), on each scene's whole
+# Beyond one frame: a GPS fix and sequences of frames (flatlandia.sequences), on each scene's whole
 # map (rule beyond_scene, in `all`) and in the cities (rule beyond_city, in `city`), and the tables
 # results/tables/beyond_one_frame.{parquet,md} (the scene rows, in `all`) and
 # results/tables/beyond_one_frame_city.{parquet,md} (the scene and city rows, in `city`): two files,

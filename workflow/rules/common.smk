@@ -11,13 +11,14 @@ from snakemake.utils import validate
 
 from flatlandia import config as config_schema
 from flatlandia import device as device_check
-from flatlandia import paths, runlock, scheduler, vocabulary
+from flatlandia import paths, vocabulary
+from flatlandia.plumbing import stale_locks, scheduler
 from flatlandia.data.fetch import FetchError, check_dest
 
 # A lock of this folder left by a killed run is removed before this run locks, when provably stale
-# (flatlandia.runlock); otherwise Snakemake refuses after one line saying whose lock it is.
-runlock.install(workflow)
-# Snakemake's scheduler wakes once a second, not once a second per finished job (flatlandia.scheduler).
+# (flatlandia.plumbing.stale_locks); otherwise Snakemake refuses after one line saying whose lock it is.
+stale_locks.install(workflow)
+# Snakemake's scheduler wakes once a second, not once a second per finished job (flatlandia.plumbing.scheduler).
 scheduler.install(workflow)
 
 

@@ -1,7 +1,7 @@
 # The benchmark's inputs as plain files (target `export`, not in `all`): per benchmark scene its
 # reference map, frame, queries and their local maps, the proposals, and apart the ground truth;
 # beside them the classes, the scenes, a README and the template of the poses a method fills to
-# be scored (flatlandia.export; docs/usage.md, "Export the benchmark"). No lambdas in rules.
+# be scored (flatlandia.data.export; docs/usage.md, "Export the benchmark"). No lambdas in rules.
 
 
 include: "inputs/export.smk"

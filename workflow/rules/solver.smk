@@ -1,4 +1,4 @@
-# The geometric solver's learned priors (flatlandia.solver.learned): the depth maps' log-scale
+# The geometric solver's learned priors (flatlandia.solver.learned_priors): the depth maps' log-scale
 # prior, the likelihood ratio's model and the verifier, fitted once per benchmark and region from
 # the training split, and the answers' calibration from the validation split; read by fine_eval
 # (method solver), coarse_solver, beyond_scene and the city rules.

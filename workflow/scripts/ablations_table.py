@@ -5,9 +5,10 @@ and fix protocol's scene rows with the camera prior on and off, the beyond table
 import json
 from pathlib import Path
 
-from flatlandia import io, runlog, tables
-from flatlandia.beyond import table as beyond_table
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import fine_table
+from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
+from flatlandia.sequences import sequence_table
 
 
 def _below(markdown: str) -> str:
@@ -19,18 +20,18 @@ def main(smk, log):
     fine = fine_table.table_rows([json.loads(Path(p).read_text()) for p in smk.input.summaries])
     tables.write_table(fine, "fine_localization", smk.output.fine)
     rows = [r for p in smk.input.beyond for r in json.loads(Path(p).read_text())]
-    beyond = beyond_table.table(rows)
+    beyond = sequence_table.table(rows)
     tables.write_table(beyond, "beyond_one_frame", smk.output.beyond)
     note = (
         "Not in `all` (target `ablations`): what the results owe to one part. The solver without the training "
         "split's cameras (no camera gate or cost, no co-visibility, no verifier) beside the solver with them, "
         "on the same test queries."
     )
-    beyond_note = beyond_table.note(smk.params["beyond.split"], dict(smk.params["beyond"]))
+    beyond_note = sequence_table.note(smk.params["beyond.split"], dict(smk.params["beyond"]))
     text = "# Ablations\n\n" + _below(fine_table.render_markdown(fine, note=note))
-    text += "\n" + _below(beyond_table.markdown(beyond, beyond_note))
-    io.write_text(text, smk.output.markdown)
+    text += "\n" + _below(sequence_table.markdown(beyond, beyond_note))
+    files.write_text(text, smk.output.markdown)
     log.info("\n%s", text)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -4,7 +4,8 @@ import json
 
 import pandas as pd
 
-from flatlandia import io, runlog, tables
+from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):
@@ -13,9 +14,9 @@ def main(smk, log):
         rep = json.loads(open(path).read())
         rows.append({"scene": rep["scene"], "queries": rep["n_queries"], **rep["available"]})
     df = pd.DataFrame(rows)
-    io.write_parquet(df, smk.output.parquet)
-    io.write_text("# Published files available per scene\n\n" + tables.to_markdown(df), smk.output.markdown)
+    files.write_parquet(df, smk.output.parquet)
+    files.write_text("# Published files available per scene\n\n" + tables.to_markdown(df), smk.output.markdown)
     log.info("\n%s", tables.to_markdown(df))
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

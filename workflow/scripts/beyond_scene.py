@@ -1,13 +1,14 @@
 """Rule beyond_scene: every test anchor's sequences and GPS fixes on its scene's whole map, with the
-camera prior {prior} (flatlandia.beyond.evaluate.scene_errors); per-anchor errors and the summary
+camera prior {prior} (flatlandia.sequences.evaluation.scene_errors); per-anchor errors and the summary
 rows of the table beyond_one_frame."""
 
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, runlog, solver
-from flatlandia.beyond import evaluate
-from flatlandia.fine import evaluation
+from flatlandia import solver
+from flatlandia.fine.evaluation import json_safe
+from flatlandia.plumbing import files, rule_log
+from flatlandia.sequences import evaluation
 
 
 def main(smk, log):
@@ -15,9 +16,9 @@ def main(smk, log):
     camera = smk.wildcards.prior == "on"
     refs = [pd.read_parquet(p) for p in smk.input.reference_maps]
     scenes = list(zip(refs, [pd.read_parquet(p) for p in smk.input.queries]))
-    settings = evaluate.settings_grid(beyond, camera)
+    settings = evaluation.settings_grid(beyond, camera)
     log.info("settings: %s", settings)
-    errors = evaluate.scene_errors(
+    errors = evaluation.scene_errors(
         scenes,
         settings,
         dict(smk.params["solver"]),
@@ -27,11 +28,11 @@ def main(smk, log):
         beyond["split"],
         log=log,
     )
-    rows = evaluate.summaries(errors, {"scene": int(round(np.mean([len(r) for r in refs])))})
-    io.write_parquet(errors, smk.output.errors, {"split": beyond["split"], "beyond": beyond})
-    io.write_json([evaluation.json_safe(r) for r in rows], smk.output.summary)
+    rows = evaluation.summaries(errors, {"scene": int(round(np.mean([len(r) for r in refs])))})
+    files.write_parquet(errors, smk.output.errors, {"split": beyond["split"], "beyond": beyond})
+    files.write_json([json_safe(r) for r in rows], smk.output.summary)
     for r in rows:
         log.info("%s", r)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -6,9 +6,10 @@ scene-calibrated priors; the record and the answers it was fitted on."""
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, runlog, solver
-from flatlandia.beyond import evaluate
+from flatlandia import solver
 from flatlandia.city.index import ViewIndex
+from flatlandia.plumbing import files, rule_log
+from flatlandia.sequences import evaluation
 from flatlandia.solver import calibration, calibration_fit
 
 
@@ -18,7 +19,7 @@ def main(smk, log):
     refs = {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.reference_maps)}
     learned = solver.LearnedPriors.read(smk.input.priors).with_map_size(None)
     common = dict(
-        settings=[evaluate.Setting(int(k)) for k in beyond["frames"]],
+        settings=[evaluation.Setting(int(k)) for k in beyond["frames"]],
         solver_settings=dict(smk.params["solver"]),
         search_settings=dict(smk.params["city.search"]),
         beyond=beyond,
@@ -37,12 +38,12 @@ def main(smk, log):
                 return ViewIndex.load(f"{smk.input[f'index_{n}']}/{city}.npz")
 
             queries = pd.read_parquet(smk.input[f"queries_{n}"])
-            errors = evaluate.tiled_city_errors(city_map, queries, index_of, map_name=name, **common)
+            errors = evaluation.tiled_city_errors(city_map, queries, index_of, map_name=name, **common)
             objects = float(city_map.groupby("city").size().mean())
         else:
             qs = {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.queries)}
             spacing = float(smk.params["city.spacing_m"])
-            errors = evaluate.simulated_city_errors(
+            errors = evaluation.simulated_city_errors(
                 scenes, refs, qs, int(n), dict(smk.params["city.simulate"]), spacing, **common
             )
             objects = float(errors.attrs.get("objects", n))
@@ -67,8 +68,8 @@ def main(smk, log):
         }
     record = {"map_size": fitted.to_dict(), "split": calibration_fit.CITY_SPLIT, "maps": maps, "validation": before}
     log.info("map-size correction: %s", record)
-    io.write_parquet(answers, smk.output.answers, {"split": calibration_fit.CITY_SPLIT, "maps": maps})
-    io.write_json(record, smk.output.calibration)
+    files.write_parquet(answers, smk.output.answers, {"split": calibration_fit.CITY_SPLIT, "maps": maps})
+    files.write_json(record, smk.output.calibration)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

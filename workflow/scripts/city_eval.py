@@ -1,7 +1,7 @@
 """Rule city_eval: one method on every city of {n} scenes; per-query errors and the summary row.
 
 ``solver``: today's solver on each whole city map; ``index``: the city search with each city's
-saved index (flatlandia.city.evaluate.tiled_errors).
+saved index (flatlandia.city.evaluation.tiled_errors).
 """
 
 import json
@@ -9,11 +9,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog, solver
-from flatlandia.city import evaluate, search
+from flatlandia import solver
+from flatlandia.city import evaluation, search
 from flatlandia.city.index import ViewIndex
-from flatlandia.fine import evaluation
-from flatlandia.solver.learned import read_map_size
+from flatlandia.fine.evaluation import json_safe
+from flatlandia.plumbing import files, rule_log
+from flatlandia.solver.learned_priors import read_map_size
 
 
 def main(smk, log):
@@ -26,7 +27,7 @@ def main(smk, log):
     def index_of(city: str) -> ViewIndex:
         return ViewIndex.load(index_dir / f"{city}.npz")
 
-    errors, out = evaluate.tiled_errors(
+    errors, out = evaluation.tiled_errors(
         pd.read_parquet(smk.input.map),
         pd.read_parquet(smk.input.queries),
         int(smk.wildcards.n),
@@ -40,9 +41,9 @@ def main(smk, log):
         log=log,
     )
     meta = {"method": method, "split": smk.params["city.split"], "search": cfg.to_dict()}
-    io.write_parquet(errors, smk.output.errors, meta)
-    io.write_json(evaluation.json_safe(out), smk.output.summary)
+    files.write_parquet(errors, smk.output.errors, meta)
+    files.write_json(json_safe(out), smk.output.summary)
     log.info("summary: %s", out)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

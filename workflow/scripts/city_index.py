@@ -5,14 +5,14 @@ import time
 
 import pandas as pd
 
-from flatlandia import io, runlog
 from flatlandia.city import index
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
     maps, queries = pd.read_parquet(smk.input.map), pd.read_parquet(smk.input.queries)
     built = []
-    with io.atomic_dir(smk.output.index) as out:
+    with files.atomic_dir(smk.output.index) as out:
         for city, ref in maps.groupby("city", sort=True):
             q = queries[(queries["city"] == city) & (queries["split"] == "train")]
             c0 = time.process_time()
@@ -29,7 +29,7 @@ def main(smk, log):
                 }
             )
             log.info("city %s: %s", city, built[-1])
-        io.write_json(built, out / "build.json")
+        files.write_json(built, out / "build.json")
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -6,8 +6,8 @@ number); see flatlandia.city.tiling.
 
 import pandas as pd
 
-from flatlandia import io, runlog
 from flatlandia.city import tiling
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -20,8 +20,8 @@ def main(smk, log):
         queries.append(q.assign(city=k))
         log.info("city %d: scenes %s, %d objects, %d queries", k, group, len(ref), len(q))
     meta = {"scenes_per_city": int(smk.wildcards.n), "spacing_m": float(smk.params["city.spacing_m"])}
-    io.write_parquet(pd.concat(maps, ignore_index=True), smk.output.map, meta)
-    io.write_parquet(pd.concat(queries, ignore_index=True), smk.output.queries, meta)
+    files.write_parquet(pd.concat(maps, ignore_index=True), smk.output.map, meta)
+    files.write_parquet(pd.concat(queries, ignore_index=True), smk.output.queries, meta)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -1,5 +1,5 @@
 """Rule city_simulate: the city search in synthetic cities of {objects} objects
-(flatlandia.city.evaluate.simulated_errors).
+(flatlandia.city.evaluation.simulated_errors).
 
 Each benchmark scene's queries are localized in a city of that scene and synthetic tiles drawn
 from the other scenes (flatlandia.city.simulate), indexed as rule city_index does; the index is
@@ -9,16 +9,17 @@ whole-map search needs a (views x objects) co-visibility matrix, 7 GB at 100,000
 
 import pandas as pd
 
-from flatlandia import io, runlog, solver
-from flatlandia.city import evaluate, search
-from flatlandia.fine import evaluation
-from flatlandia.solver.learned import read_map_size
+from flatlandia import solver
+from flatlandia.city import evaluation, search
+from flatlandia.fine.evaluation import json_safe
+from flatlandia.plumbing import files, rule_log
+from flatlandia.solver.learned_priors import read_map_size
 
 
 def main(smk, log):
     scenes = list(smk.params.scene_ids)
     n_objects, split, sim = int(smk.wildcards.objects), smk.params["city.split"], smk.params["city.simulate"]
-    errors, out = evaluate.simulated_errors(
+    errors, out = evaluation.simulated_errors(
         scenes,
         {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.reference_maps)},
         {s: pd.read_parquet(p) for s, p in zip(scenes, smk.input.queries)},
@@ -32,9 +33,9 @@ def main(smk, log):
         solver.LearnedPriors.read(smk.input.priors).with_map_size(read_map_size(smk.input.calibration)),
         log=log,
     )
-    io.write_parquet(errors, smk.output.errors, {"objects": n_objects, "split": split, "simulate": dict(sim)})
-    io.write_json(evaluation.json_safe(out), smk.output.summary)
+    files.write_parquet(errors, smk.output.errors, {"objects": n_objects, "split": split, "simulate": dict(sim)})
+    files.write_json(json_safe(out), smk.output.summary)
     log.info("summary: %s", out)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -1,11 +1,12 @@
 """Rule city_table: results/tables/city_scale.{parquet,md}, today's solver beside the city
-search at every city size, tiled and simulated (flatlandia.city.table)."""
+search at every city size, tiled and simulated (flatlandia.city.city_table)."""
 
 import json
 from pathlib import Path
 
-from flatlandia import io, runlog, tables
-from flatlandia.city import table as city_table
+from flatlandia.city import city_table
+from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):
@@ -21,8 +22,8 @@ def main(smk, log):
     )
     tables.write_table(df, "city_scale", smk.output.parquet, note=note)  # schema-checked
     text = city_table.markdown(df, note)
-    io.write_text(text, smk.output.markdown)
+    files.write_text(text, smk.output.markdown)
     log.info("\n%s", text)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pycolmap
 
-from flatlandia import io, runlog
 from flatlandia.images import classify_points
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -17,8 +17,8 @@ def main(smk, log):
     inst = classify_points.point_instances(
         rec, classify_points.load_instance_maps(smk.params["segment.instances_dir"], names)
     )
-    io.write_parquet(pts, smk.output.points)
-    io.write_parquet(inst, smk.output.instances, {"instances_dir": str(smk.params["segment.instances_dir"])})
+    files.write_parquet(pts, smk.output.points)
+    files.write_parquet(inst, smk.output.instances, {"instances_dir": str(smk.params["segment.instances_dir"])})
     classify_points.write_classified_ply(pts, Path(smk.output.ply))
     n_obj = int((pts["class_id"] != 255).sum())
     log.info(
@@ -35,4 +35,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

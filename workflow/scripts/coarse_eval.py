@@ -12,9 +12,11 @@ also a flat markdown ``coarse_localization_rows.md`` and LaTeX) and markdown lai
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io, runlog, tables
+from flatlandia import checkpoints
 from flatlandia import device as device_module
 from flatlandia.coarse import evaluation, retrieval
+from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):
@@ -35,7 +37,7 @@ def main(smk, log):
     out = evaluation.evaluate_models(models, scenes, solver_rows, seed, log, device=device)
     for loss, path in zip(losses, smk.output.proposals):
         label = retrieval.LOSSES[loss]
-        io.write_parquet(
+        files.write_parquet(
             out.proposals[label], path, {"loss": label, "config": models[label][1].to_dict(), "split": "test"}
         )
     # schema-checked Parquet + flat markdown + LaTeX, then the Table-3 layout (ours beside the paper's)
@@ -48,8 +50,8 @@ def main(smk, log):
         title="Coarse map localization (Table 3): precision / recall / success, test split",
         note=out.note,
     )
-    io.write_text(evaluation.render_markdown(out.table, note=out.note), smk.output.markdown)
+    files.write_text(evaluation.render_markdown(out.table, note=out.note), smk.output.markdown)
     log.info("\n%s", out.table.to_string())
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

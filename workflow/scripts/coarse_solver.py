@@ -11,8 +11,9 @@ import time
 
 import pandas as pd
 
-from flatlandia import io, runlog, solver
+from flatlandia import solver
 from flatlandia.coarse import solver_proposals
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -34,9 +35,9 @@ def main(smk, log):
         "%d queries x map types in %.1f s", len(rows) // len(solver_proposals.STRATEGIES), time.perf_counter() - t0
     )
     meta = {"loss": solver_proposals.LABEL, "config": cfg.to_dict(), "solver": settings, "split": "test"}
-    io.write_parquet(rows, smk.output.proposals, meta)
+    files.write_parquet(rows, smk.output.proposals, meta)
     summary = rows.groupby(["map_type", "strategy"])[["precision", "recall", "success", "n_proposed"]].mean()
     log.info("\n%s", summary.to_string())
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

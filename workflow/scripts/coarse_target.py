@@ -8,8 +8,8 @@ import time
 
 import pandas as pd
 
-from flatlandia import io, runlog
 from flatlandia.coarse import target
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -19,7 +19,7 @@ def main(smk, log):
     scene = str(smk.wildcards.scene)
     log.info("scene %s: %d objects, %d queries, %s", scene, len(ref), len(queries), cfg.to_dict())
     t0 = time.perf_counter()
-    table = target.scene_similarity(ref, queries, cfg, progress=runlog.progress(log, f"similarity {scene}"))
+    table = target.scene_similarity(ref, queries, cfg, progress=rule_log.progress(log, f"similarity {scene}"))
     seconds = time.perf_counter() - t0
     meta = {
         "scene": scene,
@@ -29,7 +29,7 @@ def main(smk, log):
         "map_type": "gt",
         "definition": "S = (1 - d_p) (1 - d_s); see flatlandia.coarse.target",
     }
-    io.write_parquet(table, smk.output.similarity, meta)
+    files.write_parquet(table, smk.output.similarity, meta)
     log.info(
         "scene %s: %d rows in %.2f s (%.1f ms per query), mean S %.3f",
         scene,
@@ -40,4 +40,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -8,9 +8,10 @@ Best-on-validation weights are saved with their resolved config (torch.save({'st
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io, runlog
+from flatlandia import checkpoints
 from flatlandia import device as device_module
 from flatlandia.coarse import retrieval, training
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -26,10 +27,10 @@ def main(smk, log):
     ]
     source = smk.input.queries[0] if smk.input.queries else "benchmark_scenes"
     ds = training.training_dataset(scenes, cfg, log=log, source=source)
-    progress = runlog.progress(log, f"coarse {cfg.loss}")
+    progress = rule_log.progress(log, f"coarse {cfg.loss}")
     res, history, meta = training.train_model(ds, cfg, log=log, progress=progress, device=device)
     checkpoints.save_checkpoint(res, smk.output.model)
-    io.write_parquet(history, smk.output.history, meta)
+    files.write_parquet(history, smk.output.history, meta)
     log.info(
         "best epoch %d (validation %.4f); %.1f s, %.2f s per training epoch; %d parameters",
         res["best_epoch"],
@@ -40,4 +41,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -4,8 +4,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog, tables
 from flatlandia.data import stats
+from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):
@@ -26,7 +27,7 @@ def main(smk, log):
     union = {c: stats.union_area_km2(d) for c, d in lonlat_by_city.items()}
     union["all"] = sum(union.values())  # cities do not overlap
     table = stats.city_table(per_scene, union)
-    io.write_parquet(per_scene, smk.output.per_scene)
+    files.write_parquet(per_scene, smk.output.per_scene)
     tables.write_table(
         table,
         "dataset_stats",
@@ -41,4 +42,4 @@ def main(smk, log):
     log.info("\n%s", tables.to_markdown(table))
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

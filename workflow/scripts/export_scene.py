@@ -3,14 +3,15 @@
 The reference map (CSV, GeoJSON) and its frame, the queries and their GT and depth local maps,
 the proposals (the oracle GT-BB box of every query; the coarse stages' tables that exist, test
 split) and, in files of their own, the ground truth (CSV, and the query cameras as GeoJSON points;
-flatlandia.export.scene_export).
+flatlandia.data.export.scene_export).
 """
 
 import json
 
 import pandas as pd
 
-from flatlandia import export, io, runlog
+from flatlandia.data import export
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -20,15 +21,15 @@ def main(smk, log):
     out = export.scene_export(
         scene,
         pd.read_parquet(smk.input.reference_map),
-        io.read_parquet_metadata(smk.input.reference_map),
+        files.read_parquet_metadata(smk.input.reference_map),
         pd.read_parquet(smk.input.queries),
         coarse,
     )
     for name in ("reference_map", "queries", "local_maps", "proposals", "ground_truth"):
-        io.write_text(export.csv_text(out[name]), smk.output[name])
-    io.write_text(json.dumps(out["reference_geojson"], indent=1) + "\n", smk.output.reference_geojson)
-    io.write_text(json.dumps(out["query_cameras"], indent=1) + "\n", smk.output.query_cameras)
-    io.write_json(out["frame"], smk.output.frame)
+        files.write_text(export.csv_text(out[name]), smk.output[name])
+    files.write_text(json.dumps(out["reference_geojson"], indent=1) + "\n", smk.output.reference_geojson)
+    files.write_text(json.dumps(out["query_cameras"], indent=1) + "\n", smk.output.query_cameras)
+    files.write_json(out["frame"], smk.output.frame)
     absent = [s for s in export.COARSE_SOURCES if s not in coarse]
     log.info(
         "scene %s: %d objects, %d queries (%s), %d local-map rows; proposals %s; absent sources: %s",
@@ -42,4 +43,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

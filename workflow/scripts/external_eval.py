@@ -4,7 +4,8 @@ scored from its poses file (config ``external``) with the functions of rule fine
 
 import pandas as pd
 
-from flatlandia import runlog, score, vocabulary
+from flatlandia import score, vocabulary
+from flatlandia.plumbing import rule_log
 
 
 def main(smk, log):
@@ -23,4 +24,4 @@ def main(smk, log):
     log.info("%s", run.describe())
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -2,8 +2,8 @@
 
 import pandas as pd
 
-from flatlandia import runlog
 from flatlandia.data import fetch
+from flatlandia.plumbing import rule_log
 
 
 def main(smk, log):
@@ -35,4 +35,4 @@ def main(smk, log):
     log.info("done: %s", dest)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

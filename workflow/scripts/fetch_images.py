@@ -1,7 +1,7 @@
 """Rule fetch_images: an images scene's folder from its public source, when no local copy exists."""
 
-from flatlandia import runlog
 from flatlandia.data import fetch
+from flatlandia.plumbing import rule_log
 
 
 def main(smk, log):
@@ -22,4 +22,4 @@ def main(smk, log):
         raise SystemExit(f"ERROR: {e}") from None
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

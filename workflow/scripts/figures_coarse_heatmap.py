@@ -3,8 +3,10 @@
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, figures, runlog
+from flatlandia import checkpoints
 from flatlandia.coarse import retrieval
+from flatlandia.plumbing import rule_log
+from flatlandia.report import figures
 
 
 def main(smk, log):
@@ -41,4 +43,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

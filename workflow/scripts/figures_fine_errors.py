@@ -3,7 +3,8 @@
 import numpy as np
 import pandas as pd
 
-from flatlandia import figures, runlog
+from flatlandia.plumbing import rule_log
+from flatlandia.report import figures
 
 
 def main(smk, log):
@@ -23,4 +24,4 @@ def main(smk, log):
     figures.plot_error_vs_objects(errors, smk.output.vs_objects)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

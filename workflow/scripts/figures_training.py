@@ -2,7 +2,8 @@
 
 import pandas as pd
 
-from flatlandia import figures, runlog
+from flatlandia.plumbing import rule_log
+from flatlandia.report import figures
 
 
 def main(smk, log):
@@ -18,4 +19,4 @@ def main(smk, log):
         )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

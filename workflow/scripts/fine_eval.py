@@ -10,8 +10,9 @@ keys it reads are its params (rules/fine.smk); a key the run does not read is {}
 import numpy as np
 import pandas as pd
 
-from flatlandia import io, proposals, runlog, solver, vocabulary
+from flatlandia import proposals, solver, vocabulary
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -34,14 +35,14 @@ def main(smk, log):
             settings["camera_prior"] = False
         learned = solver.LearnedPriors.read(smk.input.solver_priors) if smk.input.get("solver_priors") else None
         log.info("learned priors: %s", learned)
-        progress = lambda what: runlog.progress(log, what)  # noqa: E731
+        progress = lambda what: rule_log.progress(log, what)  # noqa: E731
         errors = evaluation.solver_errors(scenes, mt, proposal, settings, learned, coarse, strategy, progress=progress)
     else:  # torch only here: the solver's runs start faster without it (docs/measurements.md, "Start-up costs")
         import torch
 
         from flatlandia import checkpoints
         from flatlandia import device as device_module
-        from flatlandia.fine import learned as models
+        from flatlandia.fine import models
 
         torch.set_num_threads(int(smk.threads))
         device = device_module.resolve(smk.config["device"])  # a cuda without a GPU stops here, one line
@@ -58,7 +59,7 @@ def main(smk, log):
         "solver": settings if method.startswith("solver") else None,
         "model_config": cfg.to_dict() if cfg else None,
     }
-    io.write_parquet(errors, smk.output.errors, meta)
+    files.write_parquet(errors, smk.output.errors, meta)
     summary = evaluation.summarise(errors)
     summary.update(
         method=str(errors["method"].iloc[0]),
@@ -82,8 +83,8 @@ def main(smk, log):
             train_s=float(info.get("seconds") or 0.0),
             epochs=int(cfg.epochs),
         )
-    io.write_json(evaluation.json_safe(summary), smk.output.summary)
+    files.write_json(evaluation.json_safe(summary), smk.output.summary)
     log.info("%s: %s", run, summary)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

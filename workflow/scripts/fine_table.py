@@ -10,8 +10,9 @@ import json
 
 import pandas as pd
 
-from flatlandia import io, runlog, tables
-from flatlandia.fine import table as fine_table
+from flatlandia.fine import fine_table
+from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):
@@ -34,14 +35,14 @@ def main(smk, log):
         note=note,
     )
     text = fine_table.render_markdown(df, note=note)
-    io.write_text(text, smk.output.markdown)
+    files.write_text(text, smk.output.markdown)
     errors = {
         json.loads(open(s).read())["run"]: pd.read_parquet(e) for s, e in zip(smk.input.summaries, smk.input.errors)
     }
     scenes = fine_table.per_scene_rows(df, errors)
     tables.write_table(scenes, "fine_per_scene", smk.output.per_scene)
-    io.write_text(fine_table.per_scene_markdown(scenes), smk.output.per_scene_markdown)
+    files.write_text(fine_table.per_scene_markdown(scenes), smk.output.per_scene_markdown)
     log.info("\n%s", text)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -11,9 +11,10 @@ more, sharing that training), keeps the best-on-validation weights and saves the
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io, proposals, runlog
+from flatlandia import checkpoints, proposals
 from flatlandia import device as device_module
-from flatlandia.fine import learned, training
+from flatlandia.fine import models, training
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -23,7 +24,7 @@ def main(smk, log):
     p, regime = smk.params, smk.wildcards.train
     coarse_training = dict(p["fine.coarse_training"])
     train = proposals.training_settings(p["fine.train"], p["fine.train_overrides.{model}"], coarse_training, regime)
-    cfg = learned.FineTrainConfig.from_dict({**train, "model": p.model, "map_type": smk.wildcards.map_type})
+    cfg = models.FineTrainConfig.from_dict({**train, "model": p.model, "map_type": smk.wildcards.map_type})
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
     res, history, meta = training.train_model(
         scenes,
@@ -32,12 +33,12 @@ def main(smk, log):
         coarse_training,
         init=smk.input.get("init") or None,
         log=log,
-        progress=runlog.progress(log, f"{cfg.model} {cfg.map_type}"),
+        progress=rule_log.progress(log, f"{cfg.model} {cfg.map_type}"),
         source=smk.input.queries[0] if smk.input.queries else "benchmark_scenes",
         device=device,
     )
     checkpoints.save_checkpoint(res, smk.output.checkpoint)
-    io.write_parquet(history, smk.output.history, meta)
+    files.write_parquet(history, smk.output.history, meta)
     log.info(
         "best epoch %d, validation median %.2f m, %.1f s, %d parameters",
         res["best_epoch"],
@@ -47,4 +48,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -8,8 +8,9 @@ keeps the SfM frame on its ground plane (photos without GPS: SfM units, no lon/l
 import pandas as pd
 import pycolmap
 
-from flatlandia import io, runlog
+from flatlandia import geo
 from flatlandia.images import gps_alignment
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -23,8 +24,8 @@ def main(smk, log):
         source=str(smk.input.cameras),
         log=log,
     )
-    io.write_json(out, smk.output.json)
-    if gps_alignment.is_local(out):
+    files.write_json(out, smk.output.json)
+    if geo.alignment_is_local(out):
         log.info(
             "scene %s: local frame on the SfM ground plane of %d cameras, unit: %s",
             scene,
@@ -47,4 +48,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

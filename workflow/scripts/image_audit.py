@@ -1,7 +1,7 @@
 """Rule image_audit: metadata of every image, kept or dropped and why."""
 
-from flatlandia import io, runlog
 from flatlandia.images import image_audit
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -15,7 +15,7 @@ def main(smk, log):
     image_audit.check_alignment_inputs(
         df, smk.input.images, smk.params["images.align.mode"]
     )  # before SfM, not after it
-    io.write_parquet(df, smk.output.table)
+    files.write_parquet(df, smk.output.table)
     log.info(
         "%d images, %d kept; dropped: %s",
         len(df),
@@ -24,4 +24,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -2,8 +2,8 @@
 
 import sys
 
-from flatlandia import io, runlog
 from flatlandia.data import ingest
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -19,7 +19,7 @@ def main(smk, log):
     for line in ingest.optional_problems(rep):  # on the console too: the run goes on without that file
         log.warning(line)
         print(f"WARNING: {line}", file=sys.stderr)
-    io.write_json(rep, smk.output.report)
+    files.write_json(rep, smk.output.report)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -1,6 +1,6 @@
 """Rule manifest: every artifact with its producing rule, input hashes, config hash and commit."""
 
-from flatlandia import io, provenance, runlog
+from flatlandia.plumbing import files, provenance, rule_log
 
 
 def main(smk, log):
@@ -13,8 +13,8 @@ def main(smk, log):
         log.warning(
             "%d artifacts have no provenance record (produced before records existed?): %s", len(missing), missing[:5]
         )
-    io.write_parquet(df, smk.output.parquet)
+    files.write_parquet(df, smk.output.parquet)
     log.info("%d artifacts from %d rules", len(df), df["rule"].nunique())
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

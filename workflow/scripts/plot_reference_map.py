@@ -2,8 +2,8 @@
 
 import pandas as pd
 
-from flatlandia import io, runlog
 from flatlandia.data import reference_map
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -15,9 +15,9 @@ def main(smk, log):
         q,
         smk.output.png,
         f"scene {scene} ({smk.params.city}): {len(ref)} objects, {len(q)} queries",
-        axes=reference_map.axis_labels(io.read_parquet_metadata(smk.input.reference_map)),
+        axes=reference_map.axis_labels(files.read_parquet_metadata(smk.input.reference_map)),
     )
     log.info("wrote %s", smk.output.png)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

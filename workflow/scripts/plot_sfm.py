@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pycolmap
 
-from flatlandia import runlog
 from flatlandia.images import sfm
+from flatlandia.plumbing import rule_log
 
 
 def main(smk, log):
@@ -19,4 +19,4 @@ def main(smk, log):
     log.info("wrote %s", smk.output.png)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -7,8 +7,9 @@ Published scenes carry no camera GPS, so their SfM -> map transform is the publi
 tests/test_align.py.
 """
 
-from flatlandia import io, runlog
+from flatlandia.data import published
 from flatlandia.objects import cloud, principal_plane
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -17,14 +18,14 @@ def main(smk, log):
         smk.wildcards.scene,
         pts,
         labels,
-        io.read_transformations(smk.input.transformations),
+        published.read_transformations(smk.input.transformations),
         max_points=int(smk.params["objects.principal_plane.max_points"]),
         min_ground_points=int(smk.params["objects.principal_plane.min_ground_points"]),
         ground_scale_m=float(smk.params["objects.principal_plane.ground_scale_m"]),
         fallback_scale_m=float(smk.params["objects.principal_plane.fallback_scale_m"]),
         source=str(smk.input.cloud),
     )
-    io.write_json(out, smk.output.json)
+    files.write_json(out, smk.output.json)
     log.info(
         "scene %s: plane angle to published %.2f deg; Rpp reflection %s, R2 reflection %s",
         out["scene"],
@@ -34,4 +35,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog
-from flatlandia.data import queries
+from flatlandia.data import published, queries
 from flatlandia.images import image_queries
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -31,7 +31,7 @@ def main(smk, log):
         q, meta = image_queries.images_scene_queries(
             scene,
             pycolmap.Reconstruction(smk.input.model),
-            io.read_json(smk.input.alignment),
+            files.read_json(smk.input.alignment),
             ref,
             pd.read_parquet(smk.input.objects),
             pd.read_parquet(smk.input.members),
@@ -40,7 +40,7 @@ def main(smk, log):
             smk.params["split"],
             device=smk.config["device"],
         )
-        io.write_parquet(q, smk.output.queries, meta)
+        files.write_parquet(q, smk.output.queries, meta)
         log.info(
             "scene %s: %d of %d registered images see >= %d objects -> %d queries",
             scene,
@@ -54,13 +54,13 @@ def main(smk, log):
         scene,
         pd.read_parquet(smk.input.recovered),
         ref,
-        io.read_parquet_metadata(smk.input.reference_map),
-        io.read_local_maps(Path(smk.params.root) / "local_maps.json", scene),
+        files.read_parquet_metadata(smk.input.reference_map),
+        published.read_local_maps(Path(smk.params.root) / "local_maps.json", scene),
         smk.params["seed"],
         smk.params["split"],
     )
-    io.write_parquet(q, smk.output.queries, meta)
+    files.write_parquet(q, smk.output.queries, meta)
     log.info("scene %s: %d queries, split %s", scene, len(q), q["split"].value_counts().to_dict())
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -3,16 +3,16 @@
 import time
 from pathlib import Path
 
-from flatlandia import io, runlog
 from flatlandia.classes import CLASSES
-from flatlandia.data import recover
+from flatlandia.data import published, recover
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
     scene = smk.wildcards.scene
     root = Path(smk.params.root)
-    lonlat, classes = io.read_reference_map(root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
-    local = io.read_local_maps(root / "local_maps.json", scene)
+    lonlat, classes = published.read_reference_map(root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
+    local = published.read_local_maps(root / "local_maps.json", scene)
     t0 = time.perf_counter()
     rec = recover.recover_scene(
         scene,
@@ -20,10 +20,12 @@ def main(smk, log):
         classes,
         local,
         tol_m=smk.params["recover.tol_m"],
-        progress=runlog.progress(log, f"recover scene {scene}"),
+        progress=rule_log.progress(log, f"recover scene {scene}"),
     )
     dt = time.perf_counter() - t0
-    io.write_parquet(rec, smk.output.recovered, {"scene": scene, "tol_m": smk.params["recover.tol_m"], "seconds": dt})
+    files.write_parquet(
+        rec, smk.output.recovered, {"scene": scene, "tol_m": smk.params["recover.tol_m"], "seconds": dt}
+    )
     ok = rec["recovered"].sum()
     log.info(
         "scene %s: %d/%d queries recovered in %.3f s; max residual %.2e m; ambiguous %d (%s)",
@@ -37,4 +39,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

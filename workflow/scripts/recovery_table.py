@@ -2,14 +2,15 @@
 
 import pandas as pd
 
-from flatlandia import io, runlog, tables
+from flatlandia.plumbing import files, rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):
     rows = []
     for path in smk.input.recovered:
         rec = pd.read_parquet(path)
-        meta = io.read_parquet_metadata(path)
+        meta = files.read_parquet_metadata(path)
         res = rec["resolution"].value_counts()
         rows.append(
             {
@@ -41,4 +42,4 @@ def main(smk, log):
     log.info("\n%s", tables.to_markdown(df))
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

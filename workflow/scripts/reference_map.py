@@ -9,19 +9,19 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog
 from flatlandia.classes import CLASSES
-from flatlandia.data import reference_map
+from flatlandia.data import published, reference_map
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
     scene = smk.wildcards.scene
     if smk.params.source == "images":
         ref, meta = reference_map.images_reference_map(
-            scene, pd.read_parquet(smk.input.objects), io.read_parquet_metadata(smk.input.objects)
+            scene, pd.read_parquet(smk.input.objects), files.read_parquet_metadata(smk.input.objects)
         )
     else:
-        lonlat, classes = io.read_reference_map(
+        lonlat, classes = published.read_reference_map(
             Path(smk.params.root) / f"individual_reference_maps/map_{scene}.json", n_classes=len(CLASSES)
         )
         ref, meta = reference_map.published_reference_map(scene, lonlat, classes)
@@ -36,4 +36,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

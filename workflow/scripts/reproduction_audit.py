@@ -3,8 +3,10 @@
 
 import pandas as pd
 
-from flatlandia import io, runlog, tables
+from flatlandia.data import published
 from flatlandia.objects import audit, cloud
+from flatlandia.plumbing import rule_log
+from flatlandia.report import tables
 
 
 def main(smk, log):
@@ -17,8 +19,8 @@ def main(smk, log):
             str(scene),
             ours,
             cloud.read_classified_cloud(cloud_path),
-            io.read_transformations(tr),
-            io.read_reference_map(ref_path),
+            published.read_transformations(tr),
+            published.read_reference_map(ref_path),
             radius_m=float(smk.params["objects.audit_radius_m"]),
         )
         rows.append(row)
@@ -44,4 +46,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

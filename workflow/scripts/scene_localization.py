@@ -5,8 +5,9 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from flatlandia import checkpoints, io, runlog
-from flatlandia.fine import learned, scene_localization
+from flatlandia import checkpoints
+from flatlandia.fine import scene_localization
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -19,7 +20,7 @@ def main(smk, log):
         log.warning("scene %s: %s", scene, meta["empty_because"])
     models = {}
     for path in smk.input.checkpoints:
-        model, cfg = checkpoints.load_checkpoint(path, learned.FineTrainConfig, learned.build_model)
+        model, cfg = checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
         slug = Path(path).parent.name.rsplit("_", 2)[0]  # {model}_{map_type}_{train}
         models[(slug, cfg.map_type)] = (model, cfg)
     rows = scene_localization.scene_rows(
@@ -28,10 +29,10 @@ def main(smk, log):
         models,
         list(smk.params["fine.runs.map_types"]),
         dict(smk.params["solver"]),
-        progress=runlog.progress(log, f"scene {scene}"),
+        progress=rule_log.progress(log, f"scene {scene}"),
     )
-    io.write_parquet(rows, smk.output.parquet, meta)
-    io.write_text(scene_localization.render_markdown(rows, scene), smk.output.markdown)
+    files.write_parquet(rows, smk.output.parquet, meta)
+    files.write_text(scene_localization.render_markdown(rows, scene), smk.output.markdown)
     log.info(
         "scene %s: %d queries, %d rows\n%s",
         scene,
@@ -41,4 +42,4 @@ def main(smk, log):
     )
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

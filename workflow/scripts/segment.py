@@ -5,8 +5,8 @@ from pathlib import Path
 import pandas as pd
 from PIL import Image
 
-from flatlandia import io, runlog
 from flatlandia.images import segment
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -21,8 +21,8 @@ def main(smk, log):
         missing = segment.missing_classes(backend.names)
         log.info("Flatlandia classes the checkpoint cannot produce: %s", ", ".join(missing) or "none")
     rows = []
-    with io.atomic_dir(smk.output.masks) as masks, io.atomic_dir(smk.output.classes) as classes:
-        for name in runlog.progress(log, "segment")(names):
+    with files.atomic_dir(smk.output.masks) as masks, files.atomic_dir(smk.output.classes) as classes:
+        for name in rule_log.progress(log, "segment")(names):
             ids, labels = backend.labels(Path(smk.input.images) / name)
             mask, cls, shares = segment.mask_and_classes(
                 ids, labels, p["segment.watermark_box"], p["segment.dilate_px"]
@@ -31,8 +31,8 @@ def main(smk, log):
             Image.fromarray(cls).save(classes / f"{name}.png")
             rows.append({"name": name, "backend": backend.name, **shares})
     df = pd.DataFrame(rows)
-    io.write_parquet(df, smk.output.stats)
+    files.write_parquet(df, smk.output.stats)
     log.info("mean masked share %.3f, object pixels %.4f", df["masked"].mean(), df["objects"].mean())
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

@@ -5,14 +5,14 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import io, runlog
 from flatlandia.images import sfm
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
     """SfM in a scratch folder beside the model, removed whether the reconstruction succeeds or
-    fails (killed, the next run's start removes it: flatlandia.io.clean_stale_partials)."""
-    with io.partial_dir(Path(smk.output.model).parent / "work") as work:
+    fails (killed, the next run's start removes it: flatlandia.plumbing.files.clean_stale_partials)."""
+    with files.partial_dir(Path(smk.output.model).parent / "work") as work:
         rec, stats, cameras = sfm.reconstruct(
             Path(smk.input.images),
             pd.read_parquet(smk.input.table),
@@ -24,11 +24,11 @@ def main(smk, log):
             log=log.info,
             native_log=smk.log[0] if smk.log else None,
         )
-        with io.atomic_dir(Path(smk.output.model)) as tmp:
+        with files.atomic_dir(Path(smk.output.model)) as tmp:
             rec.write_binary(str(tmp))
-    io.write_parquet(stats, smk.output.stats)
-    io.write_parquet(cameras, smk.output.cameras)
+    files.write_parquet(stats, smk.output.stats)
+    files.write_parquet(cameras, smk.output.cameras)
     log.info("\n%s", stats.T.to_string())
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

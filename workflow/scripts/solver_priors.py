@@ -1,17 +1,20 @@
 """Rule solver_priors: the solver's learned priors of depth maps (scale prior, likelihood model,
 verifier) from the benchmark scenes' training split, and the answers' calibration from their
-validation split, for one region (flatlandia.solver.learned, flatlandia.solver.calibration_fit)."""
+validation split, for one region (flatlandia.solver.learned_priors, flatlandia.sequences.validation)."""
 
 import pandas as pd
 
-from flatlandia import runlog
-from flatlandia.solver import calibration_fit, learned, verify
+from flatlandia.plumbing import rule_log
+from flatlandia.sequences import validation
+from flatlandia.solver import learned_priors, verify
 
 
 def main(smk, log):
     scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
     region = smk.wildcards.region
-    fitted = learned.fit(scenes, dict(smk.params["solver"]), region if region in learned.REGIONS else None)
+    fitted = learned_priors.fit(
+        scenes, dict(smk.params["solver"]), region if region in learned_priors.REGIONS else None
+    )
     log.info("depth scale prior (log metres per unit): %s", fitted.scale)
     if fitted.verifier is not None:
         weights = {f: round(float(w), 3) for f, w in zip(verify.FEATURES, fitted.verifier.weights)}
@@ -27,12 +30,12 @@ def main(smk, log):
             lik.max_range_m,
             lik.share_w,
         )
-    if region in learned.REGIONS and fitted.verifier is not None:
-        fitted, answers = calibration_fit.calibrated(
+    if region in learned_priors.REGIONS and fitted.verifier is not None:
+        fitted, answers = validation.calibrated(
             scenes, dict(smk.params["solver"]), fitted, region, dict(smk.params["beyond"]), int(smk.params["seed"])
         )
         log.info("calibration on %d validation answers: %s", len(answers), fitted.calibration.to_dict())
     fitted.write(smk.output.priors)
 
 
-runlog.run(main, snakemake)  # noqa: F821
+rule_log.run(main, snakemake)  # noqa: F821

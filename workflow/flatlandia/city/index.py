@@ -23,8 +23,9 @@ import pandas as pd
 from scipy import sparse
 from scipy.spatial import cKDTree
 
-from flatlandia import classes, io
-from flatlandia.city import kernels
+from flatlandia import classes
+from flatlandia.city import view_kernels
+from flatlandia.plumbing import files
 
 #: arrays of the saved index
 _FIELDS = ("obj_xy", "obj_cls", "obj_id", "cam", "view_ptr", "view_obj", "idf")
@@ -54,7 +55,7 @@ class ViewIndex:
         rel = self.obj_xy[self.view_obj] - self.cam[rows, :2]
         #: per seen object: bearing from its view (relative to the view's heading) and log range
         self.view_bear = np.angle(np.exp(1j * (np.arctan2(rel[:, 1], rel[:, 0]) - self.cam[rows, 2])))
-        self.view_logr = np.log(np.hypot(rel[:, 0], rel[:, 1]) + kernels.RANGE_FLOOR_M)
+        self.view_logr = np.log(np.hypot(rel[:, 0], rel[:, 1]) + view_kernels.RANGE_FLOOR_M)
         self.obj_tree = cKDTree(self.obj_xy)
         self.cam_tree = cKDTree(self.cam[:, :2]) if n_views else None
 
@@ -67,15 +68,15 @@ class ViewIndex:
         return int(sum(getattr(self, f).nbytes for f in _FIELDS))
 
     def save(self, path: str | Path) -> None:
-        with io.atomic_path(path, suffix=".npz") as tmp:
+        with files.atomic_path(path, suffix=".npz") as tmp:
             np.savez(tmp, **{f: getattr(self, f) for f in _FIELDS})
 
     @classmethod
     def load(cls, path: str | Path) -> ViewIndex:
-        """The index saved at ``path``, checked before anything uses it (:func:`flatlandia.validate.city_index`:
+        """The index saved at ``path``, checked before anything uses it (:func:`flatlandia.plumbing.validate.city_index`:
         a crafted pointer would send the compiled kernels out of bounds); InputError naming the file."""
-        from flatlandia import validate
-        from flatlandia.errors import InputError
+        from flatlandia.plumbing import validate
+        from flatlandia.plumbing.errors import InputError
 
         validate.npz_members(path)
         try:

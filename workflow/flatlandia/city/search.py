@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flatlandia import config, solver
-from flatlandia.city import kernels
+from flatlandia.city import view_kernels
 from flatlandia.city.index import ViewIndex
 
 
@@ -52,7 +52,7 @@ def view_scores(
     top = np.argpartition(-bow, cfg.top_views - 1)[: cfg.top_views] if len(bow) > cfg.top_views else np.arange(len(bow))
     top = top[np.isfinite(bow[top])]
     q = np.asarray(q_xy, float)
-    agree = kernels.view_agreement(
+    agree = view_kernels.view_agreement(
         top.astype(np.int64),
         ix.view_ptr,
         ix.obj_cls[ix.view_obj],
@@ -123,8 +123,8 @@ def region_training_priors(ix: ViewIndex, cams: np.ndarray, seen: np.ndarray, le
     """The solver's priors on a search's regions: the training views near them and what they saw
     (:func:`region_priors`), the learned scale prior, and the verifier where there are views."""
     if not len(cams):
-        return solver.TrainingPriors().with_learned(learned)
-    return solver.TrainingPriors(ix.cam[cams], seen).with_learned(learned)
+        return solver.with_learned(solver.TrainingPriors(), learned)
+    return solver.with_learned(solver.TrainingPriors(ix.cam[cams], seen), learned)
 
 
 def in_city(solutions: list, learned, ix: ViewIndex, frames: int = 1) -> list:
@@ -152,7 +152,7 @@ class Located:
     alternatives: list[solver.Solution] = field(default_factory=list)
 
 
-def localize(
+def search_city(
     ix: ViewIndex,
     q_xy,
     q_cls,
@@ -167,7 +167,7 @@ def localize(
 ) -> Located:
     """Pose of a query in the city (a depth map; ``metric``: a GT map in metres): regions from the
     index (or the given ``centres``, (K, 2) metres, e.g. a user's prior position, with ``cfg``'s
-    ``region_radius_m``), then the solver (:func:`flatlandia.solver.localize`, with up to
+    ``region_radius_m``), then the solver (:func:`flatlandia.solver.locate`, with up to
     ``alternatives`` next-best poses) on them with the training views near them as its priors
     (and for depth maps the ``learned`` scale prior and verifier). With a ``fix`` (GPS) and no
     ``centres``, the one region is the fix's (objects within ``Fix.crop_m``) and the fix is the
@@ -184,7 +184,7 @@ def localize(
     rows, cams, seen = region_priors(ix, centres, cfg, settings.prior_radius_m, exclude, radius)
     found = solver.Localization(None)
     if len(rows) >= 2:
-        found = solver.localize(
+        found = solver.locate(
             q_xy,
             q_cls,
             ix.obj_xy[rows],
@@ -218,7 +218,7 @@ def sequence_centres(ix: ViewIndex, frames, cfg: SearchConfig, exclude: np.ndarr
     return region_centres(ix, views[np.argsort(-score, kind="stable")], cfg)
 
 
-def localize_sequence(
+def search_city_sequence(
     ix: ViewIndex,
     frames,
     rel_poses,
@@ -231,14 +231,14 @@ def localize_sequence(
     exclude: np.ndarray | None = None,
     alternatives: int = 0,
 ) -> tuple[solver.SequenceLocalization, Located]:
-    """A sequence of depth frames (anchor first; :func:`flatlandia.solver.localize_sequence`'s
+    """A sequence of depth frames (anchor first; :func:`flatlandia.solver.locate_sequence`'s
     arguments) in the city: the regions of the frames' summed view ranking (:func:`sequence_centres`)
     or, with a ``fix``, the fix's region; then the sequence solver on their objects with the views
     there as priors (``exclude``: views neither ranked nor used, e.g. the companions'). One frame is
-    :func:`localize`. Returns (the sequence's answer, the search's regions)."""
+    :func:`search_city`. Returns (the sequence's answer, the search's regions)."""
     frames = list(frames)
     if len(frames) == 1:
-        found = localize(ix, *frames[0], cfg, settings, learned, False, alternatives, fix=fix, exclude=exclude)
+        found = search_city(ix, *frames[0], cfg, settings, learned, False, alternatives, fix=fix, exclude=exclude)
         b = found.solution
         poses = [solver.sequence.FramePose(b.x, b.y, b.theta, b.scale)] if b is not None else []
         return solver.SequenceLocalization(b, found.alternatives, poses), found
@@ -251,7 +251,7 @@ def localize_sequence(
     located = Located(None, rows, centres)
     if len(rows) < 2:
         return solver.SequenceLocalization(None), located
-    found = solver.localize_sequence(
+    found = solver.locate_sequence(
         frames,
         rel_poses,
         ix.obj_xy[rows],

@@ -17,10 +17,12 @@ import numpy as np
 import pandas as pd
 import torch
 
-from flatlandia import config, escape, paper, proposals, tables, vocabulary
+from flatlandia import config, paper, proposals, vocabulary
 from flatlandia import device as device_module
 from flatlandia.coarse import retrieval
+from flatlandia.plumbing import escape
 from flatlandia.proposals import proposal_metrics  # noqa: F401  (this module's API too)
+from flatlandia.report import tables
 
 STRATEGIES = [*vocabulary.COARSE_STRATEGIES, vocabulary.ORACLE_STRATEGY]
 #: Defaults: the `coarse.train` section of workflow/schemas/config.schema.yaml (R_30's radius, GT-BB's enlargement).
@@ -168,7 +170,7 @@ def _fmt(p, r, s) -> str:
 
 def render_markdown(table: pd.DataFrame, title: str = "Coarse map localization (Table 3)", note: str = "") -> str:
     """Rows loss x strategy; columns GT maps and depth maps, ours beside the paper's (P / R / S). The
-    rows' labels are escaped (:func:`flatlandia.escape.markdown`); ``title`` and ``note`` are the caller's."""
+    rows' labels are escaped (:func:`flatlandia.plumbing.escape.markdown`); ``title`` and ``note`` are the caller's."""
     order_loss = ["-", "Sim", "Trip", "Sim+Trip", "Solver", "random", "S oracle"]
     order_strat = {s: i for i, s in enumerate(STRATEGIES)}
     t = table.copy()

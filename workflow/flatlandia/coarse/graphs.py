@@ -32,7 +32,7 @@ import torch
 from flatlandia import config
 from flatlandia.classes import N_CLASSES
 from flatlandia.data import localmaps
-from flatlandia.pyg import Batch, Data
+from flatlandia.plumbing.pyg import Batch, Data
 
 #: Defaults: the `coarse.train` section of workflow/schemas/config.schema.yaml.
 _TRAIN = config.section_defaults("coarse.train")

@@ -24,7 +24,7 @@ from torch import nn
 from flatlandia import config, vocabulary
 from flatlandia.classes import N_CLASSES
 from flatlandia.coarse import graphs
-from flatlandia.pyg import Batch, GATConv, GATv2Conv, add_self_loops, global_mean_pool
+from flatlandia.plumbing.pyg import Batch, GATConv, GATv2Conv, add_self_loops, global_mean_pool
 
 LOSSES = vocabulary.COARSE_LOSSES
 MAP_TYPES = ["gt", "depth"]

@@ -39,7 +39,7 @@ from torch import nn
 from flatlandia import checkpoints
 from flatlandia import device as device_module
 from flatlandia.coarse import graphs, retrieval
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 # ----------------------------------------------------------------------------- losses
 

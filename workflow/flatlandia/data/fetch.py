@@ -37,8 +37,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatlandia import config, escape, io
+from flatlandia import config
 from flatlandia.classes import CLASSES
+from flatlandia.plumbing import escape, files
 
 #: Defaults: the `fetch` section of workflow/schemas/config.schema.yaml.
 _FETCH = config.section_defaults("fetch")
@@ -57,7 +58,7 @@ SCHEMES = ("https", "file")
 MB = 1_000_000
 CHUNK = 1 << 20
 
-_LOG = logging.getLogger("flatlandia.fetch")  # into the rule's log (flatlandia.runlog)
+_LOG = logging.getLogger("flatlandia.fetch")  # into the rule's log (flatlandia.plumbing.rule_log)
 
 
 class FetchError(RuntimeError):
@@ -377,8 +378,8 @@ def _state_path(workdir: Path) -> Path:
 
 def _read_state(workdir: Path) -> dict:
     """The run's fetch record (empty when there is none, or it is not one: then nothing is replaced)."""
-    from flatlandia import validate
-    from flatlandia.errors import InputError
+    from flatlandia.plumbing import validate
+    from flatlandia.plumbing.errors import InputError
 
     path = _state_path(workdir)
     if not os.path.lexists(path):
@@ -424,7 +425,7 @@ def _record_fetch(dest: Path, workdir: Path, url: str, subfolder: str, got: str)
             "sha256": got,
             "time": datetime.now(UTC).isoformat(timespec="seconds"),
         }
-        io.write_json(state, _state_path(workdir))
+        files.write_json(state, _state_path(workdir))
 
 
 def fetched_before(dest: str | Path, workdir: str | Path | None = None) -> bool:
@@ -512,8 +513,8 @@ def fetch_archive(
     _check_replaceable(dest, hint, setting, workdir)
     try:
         dest.parent.mkdir(parents=True, exist_ok=True)
-        io.clean_stale_partials(beside=[dest], log=_LOG.info)  # a killed fetch's temporary folder
-        with io.partial_dir(dest) as work:
+        files.clean_stale_partials(beside=[dest], log=_LOG.info)  # a killed fetch's temporary folder
+        with files.partial_dir(dest) as work:
             got = download(url, work / "archive.zip", timeout_s, int(limits.max_download_mb * MB))
             check_sha256(url, got, sha256)
             unpacked = unpack_subfolder(work / "archive.zip", subfolder, work / "unpacked", url, limits)
@@ -578,7 +579,9 @@ def fetch_flatlandia(
     """
 
     def sheets(folder: Path) -> None:
-        sheet = scenes[["scene", "city", "name"]].map(escape.csv_cell)  # no spreadsheet formula (flatlandia.escape)
+        sheet = scenes[["scene", "city", "name"]].map(
+            escape.csv_cell
+        )  # no spreadsheet formula (flatlandia.plumbing.escape)
         sheet.to_csv(folder / "scenes.tsv", sep="\t", index=False)
         pd.DataFrame({"class_id": range(len(CLASSES)), "mapillary_label": CLASSES}).to_csv(
             folder / "classes.tsv", sep="\t", index=False

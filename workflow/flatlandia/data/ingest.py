@@ -5,9 +5,10 @@ from __future__ import annotations
 import zipfile
 from pathlib import Path
 
-from flatlandia import io, ply
-from flatlandia.errors import InputError
-from flatlandia.names import plain_name
+from flatlandia.data import published
+from flatlandia.plumbing import files, ply
+from flatlandia.plumbing.errors import InputError
+from flatlandia.plumbing.names import plain_name
 
 #: files of a published scene: (key, path relative to the data root, required?)
 SCENE_FILES = [
@@ -27,16 +28,16 @@ def read_manifest(root: Path) -> dict[str, tuple[int, str]]:
     path = root / "MANIFEST.tsv"
     if not path.exists():
         return {}
-    df = io.read_tsv(path, ["path", "bytes", "sha256"])
+    df = published.read_tsv(path, ["path", "bytes", "sha256"])
     return {r.path: (int(r.bytes), r.sha256) for r in df.itertuples(index=False)}
 
 
 def _parse_check(key: str, path: Path) -> None:
     """Raise InputError if the file cannot be parsed as what it claims to be."""
     if key == "reference_map":
-        io.read_reference_map(path)
+        published.read_reference_map(path)
     elif key == "transformations":
-        io.read_transformations(path)
+        published.read_transformations(path)
     elif key == "tokens":
         toks = [t for t in path.read_text().split() if t]
         if not toks:
@@ -80,7 +81,7 @@ def check_file(root: Path, rel: str, key: str, manifest: dict, verify_hash: bool
         if not rec["size_ok"]:
             rec["problem"] = f"size {rec['bytes']} != manifest {size} (truncated?)"
         elif verify_hash:
-            rec["sha256_ok"] = io.sha256(path) == digest
+            rec["sha256_ok"] = files.sha256(path) == digest
             if not rec["sha256_ok"]:
                 rec["problem"] = "sha256 differs from MANIFEST.tsv"
     try:
@@ -117,7 +118,7 @@ def ingest_scene(root: str | Path, scene: str, verify_hash: bool = True) -> dict
     for rec in records:
         if rec["key"] in required and (not rec["present"] or rec["problem"]):
             raise InputError(root / rec["path"], f"required file for scene {scene}: {rec['problem']}")
-    n_queries = len(io.read_local_maps(root / "local_maps.json", scene))
+    n_queries = len(published.read_local_maps(root / "local_maps.json", scene))
     return {
         "scene": scene,
         "root": str(root),

@@ -7,7 +7,7 @@ import pandas as pd
 
 from flatlandia import config, geo
 from flatlandia.data.localmaps import metric_local_map, normalise_depth_map, oracle_scale, published_to_metric_frame
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 #: the columns of queries.parquet, in order (docs/usage.md, "queries.parquet"; docs/tables.md)
 QUERY_COLUMNS = [

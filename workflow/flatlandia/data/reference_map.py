@@ -8,9 +8,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import escape, figures, geo
+from flatlandia import geo
 from flatlandia.classes import CLASSES
-from flatlandia.io import atomic_path, write_text
+from flatlandia.plumbing import escape
+from flatlandia.plumbing.files import atomic_path, write_text
+from flatlandia.report import figures
 
 
 def reference_table(

@@ -23,9 +23,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, geo, io
+from flatlandia import config, geo
 from flatlandia.classes import CLASSES
-from flatlandia.data import queries, recover, reference_map
+from flatlandia.data import published, queries, recover, reference_map
+from flatlandia.plumbing import files
 
 
 @dataclass
@@ -62,7 +63,7 @@ class SceneInputs:
         reference_map.write_geoparquet(self.ref, self.meta, path)
         if geojson:
             reference_map.write_geojson(self.ref, self.meta, path.with_suffix(".geojson"))
-        io.write_parquet(self.queries, folder / "queries" / "queries.parquet", self.queries_meta)
+        files.write_parquet(self.queries, folder / "queries" / "queries.parquet", self.queries_meta)
         return path
 
 
@@ -72,9 +73,9 @@ def published_scene(root: str | Path, scene: str, cfg: dict | None = None) -> Sc
     (None: the schema's defaults)."""
     cfg = config.resolve(cfg)
     root, scene = Path(root), str(scene)
-    lonlat, classes = io.read_reference_map(root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
+    lonlat, classes = published.read_reference_map(root / f"individual_reference_maps/map_{scene}.json", len(CLASSES))
     ref, meta = reference_map.published_reference_map(scene, lonlat, classes)
-    local = io.read_local_maps(root / "local_maps.json", scene)
+    local = published.read_local_maps(root / "local_maps.json", scene)
     rec = recover.recover_scene(scene, lonlat, classes, local, tol_m=cfg["recover"]["tol_m"])
     q, q_meta = queries.published_scene_queries(scene, rec, ref, meta, local, cfg["seed"], cfg["split"])
     return SceneInputs(scene, lonlat, classes, local, ref, meta, rec, q, q_meta)

@@ -28,7 +28,7 @@ from flatlandia.geo import pose_errors  # noqa: F401 - the errors of this module
 if TYPE_CHECKING:
     from torch import nn
 
-    from flatlandia.fine import learned
+    from flatlandia.fine import models
 
 #: errors above this many metres count as gross
 GROSS_M = 30.0
@@ -209,7 +209,7 @@ def solver_errors(
 def model_errors(
     scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
     model: nn.Module,
-    cfg: learned.FineTrainConfig,
+    cfg: models.FineTrainConfig,
     proposal: str,
     coarse: pd.DataFrame | None = None,
     strategy: str | None = None,
@@ -260,7 +260,7 @@ def evaluate_solver(
         q = localmaps.local_map(r, map_type)
         t0, c0 = time.perf_counter(), time.process_time()
         sol = (
-            solver.localize(
+            solver.locate(
                 q,
                 np.asarray(r.classes),
                 ref_xy[idx],
@@ -315,7 +315,7 @@ def answered(sol, cfg: solver.SolverConfig) -> bool:
 
 def evaluate_model(
     model: nn.Module,
-    cfg: learned.FineTrainConfig,
+    cfg: models.FineTrainConfig,
     ref: pd.DataFrame,
     queries: pd.DataFrame,
     proposals: pd.DataFrame,
@@ -327,10 +327,10 @@ def evaluate_model(
     import torch
 
     from flatlandia import device as device_module
-    from flatlandia.fine import learned
-    from flatlandia.pyg import Batch
+    from flatlandia.fine import models
+    from flatlandia.plumbing.pyg import Batch
 
-    samples, kept = learned.samples_from_queries(ref, queries, proposals, cfg)
+    samples, kept = models.samples_from_queries(ref, queries, proposals, cfg)
     ref_cls = ref["class_id"].to_numpy()
     pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}
     props = dict(zip(proposals["token"].astype(str), proposals["proposal"]))
@@ -344,7 +344,7 @@ def evaluate_model(
         with torch.no_grad():
             p = model(Batch.from_data_list([s]).to(device)).cpu().numpy()
         dt, dc = time.perf_counter() - t0, time.process_time() - c0
-        x, y, th = learned.to_world(p, [s], cfg)[0]
+        x, y, th = models.to_world(p, [s], cfg)[0]
         e_m, e_deg = pose_errors(x, y, th, r.x_m, r.y_m, math.radians(r.theta_deg))
         idx = np.array([pos[int(o)] for o in props.get(str(r.token), []) if int(o) in pos], int)
         rows.append(

@@ -13,8 +13,9 @@ from collections.abc import Callable
 
 import pandas as pd
 
-from flatlandia import escape, proposals, vocabulary
+from flatlandia import proposals, vocabulary
 from flatlandia.fine import evaluation
+from flatlandia.plumbing import escape
 
 #: proposals a new scene is evaluated on: the oracle box and the whole map (coarse proposals
 #: need the coarse model's retrieval over the scene, which the benchmark tables cover)
@@ -68,7 +69,7 @@ def _row(scene, method, slug, map_type, proposal, label, errors: pd.DataFrame) -
 def render_markdown(rows: pd.DataFrame, scene: str) -> str:
     """The scene's rows as a Markdown table (true metres; % under the paper's thresholds, then the
     field's recalls: position and heading apart); the scene id and the cells escaped
-    (:func:`flatlandia.escape.markdown`)."""
+    (:func:`flatlandia.plumbing.escape.markdown`)."""
     head = f"# Scene {escape.markdown(scene)}: localization with the benchmark's methods (no retraining)\n\n"
     if rows.empty:
         return head + "No rows: the scene has no query (see results/summary.md for why).\n"

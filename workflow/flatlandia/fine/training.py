@@ -1,5 +1,5 @@
 """Rule fine_train: training of the learned fine-localization baselines (models in
-:mod:`flatlandia.fine.learned`).
+:mod:`flatlandia.fine.models`).
 
 The loss is ``Δo + w Δθ``: Euclidean position error in normalised units plus the absolute wrapped
 angle (radians). Augmentation: a random rigid roto-translation of the region together with the
@@ -21,9 +21,9 @@ import torch
 
 from flatlandia import checkpoints, proposals
 from flatlandia import device as device_module
-from flatlandia.errors import InputError
-from flatlandia.fine import learned
-from flatlandia.pyg import Data
+from flatlandia.fine import models
+from flatlandia.plumbing.errors import InputError
+from flatlandia.plumbing.pyg import Data
 
 
 def angle_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -38,9 +38,9 @@ def pose_loss(pred: torch.Tensor, target: torch.Tensor, angle_weight: float) -> 
     return (d_o + angle_weight * angle_distance(pred[:, 2], target[:, 2])).mean()
 
 
-def augment(batch, cfg: learned.FineTrainConfig, gen: torch.Generator):
+def augment(batch, cfg: models.FineTrainConfig, gen: torch.Generator):
     """Random rigid roto-translation of every region (and its target pose); query maps unchanged
-    but for an optional random scale of depth maps. Takes a graph batch or ``learned.DenseMaps``
+    but for an optional random scale of depth maps. Takes a graph batch or ``models.DenseMaps``
     (same random draws for the same samples); returns a new one."""
     n_graphs = int(batch.num_graphs)
     phi = (torch.rand(n_graphs, generator=gen) * 2 - 1) * math.radians(cfg.aug_rotate_deg)
@@ -58,10 +58,10 @@ def augment(batch, cfg: learned.FineTrainConfig, gen: torch.Generator):
     y = batch.y.clone()
     y[:, :2] = torch.einsum("bij,bj->bi", rot, y[:, :2]) + tr
     y[:, 2] = torch.atan2(torch.sin(y[:, 2] + phi), torch.cos(y[:, 2] + phi))
-    if isinstance(batch, learned.DenseMaps):
+    if isinstance(batch, models.DenseMaps):
         r_xy = torch.einsum("bij,blj->bli", rot, batch.r_xy) + tr[:, None]
         q_xy = batch.q_xy * scale[:, None, None] if scale is not None else batch.q_xy
-        return learned.DenseMaps(batch.q_cls, q_xy, batch.q_mask, batch.r_cls, r_xy, batch.r_mask, y)
+        return models.DenseMaps(batch.q_cls, q_xy, batch.q_mask, batch.r_cls, r_xy, batch.r_mask, y)
     b = copy.copy(batch)
     g = batch.batch
     loc = batch.local
@@ -75,7 +75,7 @@ def augment(batch, cfg: learned.FineTrainConfig, gen: torch.Generator):
 def train(
     train_samples: list[Data],
     val_samples: list[Data],
-    cfg: learned.FineTrainConfig,
+    cfg: models.FineTrainConfig,
     log=None,
     progress=None,
     init_state: dict | None = None,
@@ -93,7 +93,7 @@ def train(
     """
     checkpoints.set_determinism(cfg.seed)
     dev = device_module.torch_device(device)
-    model = learned.build_model(cfg)
+    model = models.build_model(cfg)
     if init_state is not None:
         model.load_state_dict(init_state)
     model.to(dev)
@@ -108,14 +108,14 @@ def train(
     history, best, best_state, best_epoch = [], float("inf"), None, -1
     t0 = time.perf_counter()
     # padded (MLPs) or collated (GATs) once and moved once; a batch is a selection of rows
-    split = learned.dense_maps if learned.is_dense(model) else learned.GraphSplit
+    split = models.dense_maps if models.is_dense(model) else models.GraphSplit
     data = split(train_samples).to(dev)
     val_data = split(val_samples).to(dev) if val_samples else val_samples
     epochs = range(cfg.epochs)
     for ep in progress(epochs) if progress else epochs:
         model.train()
         tot, n = torch.zeros((), dtype=torch.float64, device=dev), 0  # summed on the device, as float() would
-        for batch in learned.batches(data, cfg.batch_size, rng.permutation(len(train_samples))):
+        for batch in models.batches(data, cfg.batch_size, rng.permutation(len(train_samples))):
             if cfg.augment:
                 batch = augment(batch, cfg, gen)
             opt.zero_grad()
@@ -128,7 +128,7 @@ def train(
             sched.step()
         rec = {"epoch": ep, "train_loss": tot.item() / max(n, 1)}
         if val_samples and (ep % cfg.eval_every == 0 or ep == cfg.epochs - 1):
-            e_m, e_deg = learned.errors_metres(learned.predict(model, val_data), val_samples, cfg)
+            e_m, e_deg = models.errors_metres(models.predict(model, val_data), val_samples, cfg)
             rec.update(val_median_m=float(np.median(e_m)), val_median_deg=float(np.median(e_deg)))
             if rec["val_median_m"] < best:
                 best, best_epoch = rec["val_median_m"], ep
@@ -155,7 +155,7 @@ def train(
 
 def training_samples(
     scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
-    cfg: learned.FineTrainConfig,
+    cfg: models.FineTrainConfig,
     regime: str,
     coarse_training: dict,
     val_keep_gtbb: bool | None = None,
@@ -176,13 +176,13 @@ def training_samples(
             qs = q[q["split"] == split]
             keep_split = keep if split == "train" or val_keep_gtbb is None else bool(val_keep_gtbb)
             for props in proposals.training_proposals(ref, qs, regime, rng, n, keep_split, crop_m):
-                dest += learned.samples_from_queries(ref, qs, props, cfg)[0]
+                dest += models.samples_from_queries(ref, qs, props, cfg)[0]
     return train_s, val_s
 
 
 def train_model(
     scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
-    cfg: learned.FineTrainConfig,
+    cfg: models.FineTrainConfig,
     regime: str,
     coarse_training: dict,
     init: str | None = None,
@@ -219,7 +219,7 @@ def train_model(
         )
     init_state = None
     if init:
-        start, _ = checkpoints.load_checkpoint(init, learned.FineTrainConfig, learned.build_model)
+        start, _ = checkpoints.load_checkpoint(init, models.FineTrainConfig, models.build_model)
         init_state = start.state_dict()
         if log is not None:
             log.info("starting from %s", init)

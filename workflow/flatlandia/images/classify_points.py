@@ -8,9 +8,9 @@ import numpy as np
 import pandas as pd
 from PIL import Image
 
-from flatlandia.errors import InputError
 from flatlandia.images.segment import NOT_AN_OBJECT
-from flatlandia.names import child, plain_name
+from flatlandia.plumbing.errors import InputError
+from flatlandia.plumbing.names import child, plain_name
 
 
 def point_votes(rec, class_maps: dict[str, np.ndarray]) -> pd.DataFrame:
@@ -123,7 +123,7 @@ def write_classified_ply(points: pd.DataFrame, path: Path) -> None:
     """
     import open3d as o3d
 
-    from flatlandia.io import atomic_path
+    from flatlandia.plumbing.files import atomic_path
 
     if points.empty:
         raise ValueError(f"{path}: no points to write (open3d writes no empty PLY)")

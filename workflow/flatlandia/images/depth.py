@@ -2,7 +2,7 @@
 
 Two backends behind one call, ``lift(view, box) -> world point or None``:
 - ``sparse`` (offline default): the detection centre lifted to the median camera depth of the
-  SfM points observed inside the detection (:func:`flatlandia.images.image_queries.sparse_depth_point`);
+  SfM points observed inside the detection (:func:`flatlandia.images.views.sparse_depth_point`);
 - ``transformers``: a monocular depth model (DPT, MiDaS, Depth-Anything, ...) loaded with
   ``transformers`` from a local folder the user provides (nothing is downloaded). Such models
   predict depth up to scale (or inverse depth up to scale), so each image's prediction is
@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from flatlandia import config
-from flatlandia.errors import InputError
-from flatlandia.images.image_queries import View, sparse_depth_point
 from flatlandia.images.segment import load_local_model
+from flatlandia.images.views import View, sparse_depth_point
+from flatlandia.plumbing.errors import InputError
 
 #: Defaults: the `images.depth` section of workflow/schemas/config.schema.yaml.
 _DEPTH = config.section_defaults("images.depth")

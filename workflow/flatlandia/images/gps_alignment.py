@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from flatlandia import config, geo
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 from flatlandia.scaled_rigid import ransac_scaled_rigid
 
 #: Defaults: the `images.align` section of workflow/schemas/config.schema.yaml.
@@ -224,30 +224,6 @@ def local_frame(centres: np.ndarray, rotations: np.ndarray, unit_m: float = _ALI
     }
 
 
-def is_local(alignment: dict) -> bool:
-    """A local-frame map (no GPS): x/y in SfM units, no lon/lat."""
-    return alignment.get("mode") == "none"
-
-
-def map_points(alignment: dict, X: np.ndarray) -> np.ndarray:
-    """SfM points (N, 3) -> map xy (N, 2): metres of the GPS frame, or the local frame's unit."""
-    return np.asarray(X, float).reshape(-1, 3) @ np.asarray(alignment["A"]).T + np.asarray(alignment["b"])
-
-
-def frame_of(alignment: dict) -> geo.MetricFrame | None:
-    """The metric frame of a GPS-aligned map; None for a local-frame map."""
-    if is_local(alignment):
-        return None
-    return geo.MetricFrame(lon0=alignment["frame_lon0"], lat0=alignment["frame_lat0"])
-
-
-def to_lonlat(alignment: dict, xy: np.ndarray) -> np.ndarray:
-    """Map xy -> lon/lat (N, 2); NaN in a local frame, which has no geographic position."""
-    frame = frame_of(alignment)
-    xy = np.asarray(xy, float).reshape(-1, 2)
-    return frame.to_lonlat(xy) if frame is not None and len(xy) else np.full((len(xy), 2), np.nan)
-
-
 def gps_outliers(
     centres: np.ndarray,
     rotations: np.ndarray,
@@ -277,9 +253,9 @@ def scene_alignment(scene: str, rec, cameras, params: dict, seed: int, source: s
     (:func:`align_camera_table`: metres, lon/lat) or ``none`` (:func:`local_frame`: the SfM ground
     plane in ``unit_m``, no lon/lat). Returns the record written to alignment.json: scene, method,
     the cameras used and the alignment (affine map ``A``, ``b``, residuals, frame)."""
-    from flatlandia.images import image_queries
+    from flatlandia.images import views
 
-    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
+    views = {v.name: v for v in views.views_from_colmap(rec)}
     cams = cameras[cameras["name"].isin(views)].sort_values("name").reset_index(drop=True)
     if params["mode"] == "none":
         out = local_frame(

@@ -32,8 +32,8 @@ from PIL import ExifTags, Image, UnidentifiedImageError
 from scipy.spatial.distance import pdist
 
 from flatlandia import config, geo
-from flatlandia.errors import InputError
-from flatlandia.names import plain_name
+from flatlandia.plumbing.errors import InputError
+from flatlandia.plumbing.names import plain_name
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 #: the formats PIL may read a photo as, whatever its suffix (no EPS, which PIL renders with Ghostscript)

@@ -16,80 +16,16 @@ detecting at least ``min_objects`` objects. Local maps (camera at the origin loo
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pandas as pd
 
 from flatlandia import config, geo
 from flatlandia.data.localmaps import normalise_depth_map, oracle_scale
 from flatlandia.data.queries import QUERY_COLUMNS
+from flatlandia.images.views import View, pose_3dof, project, sparse_depth_point, views_from_colmap
 
 #: Defaults: the `images` section of workflow/schemas/config.schema.yaml.
 _IMAGES = config.section_defaults("images")
-
-
-@dataclass
-class View:
-    """One registered image: intrinsics, pose (camera from world), size and its observations."""
-
-    name: str
-    K: np.ndarray  # 3x3 (distortion ignored for box projection)
-    R: np.ndarray  # 3x3 cam_from_world rotation
-    t: np.ndarray  # 3 cam_from_world translation
-    width: int
-    height: int
-    obs_point_ids: np.ndarray  # SfM point ids observed
-    obs_xy: np.ndarray  # (n, 2) their pixel positions
-
-    @property
-    def centre(self) -> np.ndarray:
-        return -self.R.T @ self.t
-
-    @property
-    def viewing_direction(self) -> np.ndarray:
-        return self.R[2]  # the camera's +z axis in world coordinates
-
-
-def views_from_colmap(rec) -> list[View]:
-    out = []
-    for img in rec.images.values():
-        if not img.has_pose:
-            continue
-        cam = rec.cameras[img.camera_id]
-        pose = img.cam_from_world() if callable(img.cam_from_world) else img.cam_from_world
-        mat = np.asarray(pose.matrix())
-        pts = [(p.point3D_id, p.xy) for p in img.points2D if p.has_point3D()]
-        ids = np.array([p[0] for p in pts], dtype=np.int64)
-        xy = np.array([p[1] for p in pts], dtype=float).reshape(-1, 2)
-        out.append(
-            View(
-                img.name,
-                np.asarray(cam.calibration_matrix()),
-                mat[:, :3],
-                mat[:, 3],
-                int(cam.width),
-                int(cam.height),
-                ids,
-                xy,
-            )
-        )
-    return out
-
-
-def pose_3dof(view: View, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
-    """Camera position on the map (metres) and heading (radians, CCW from east)."""
-    xy = A @ view.centre + b
-    d = A @ view.viewing_direction
-    return xy, float(np.arctan2(d[1], d[0]))
-
-
-def project(view: View, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel positions and depths of world points (pinhole)."""
-    cam = X @ view.R.T + view.t
-    z = cam[:, 2]
-    uv = cam @ view.K.T
-    return uv[:, :2] / np.where(np.abs(uv[:, 2:]) < 1e-12, 1e-12, uv[:, 2:]), z
 
 
 def detections(view: View, objects: pd.DataFrame, point_object: dict[int, int], min_points: int) -> pd.DataFrame:
@@ -119,24 +55,6 @@ def detections(view: View, objects: pd.DataFrame, point_object: dict[int, int], 
             continue
         rows.append({"object_id": int(oid), "n_points": n, "box": [float(x0), float(y0), float(x1), float(y1)]})
     return pd.DataFrame(rows, columns=["object_id", "n_points", "box"])
-
-
-def sparse_depth_point(view: View, box: list[float], point_xyz: dict[int, np.ndarray]) -> np.ndarray | None:
-    """The detection centre lifted to the median depth of SfM points observed inside the box."""
-    x0, y0, x1, y1 = box
-    inside = (
-        (view.obs_xy[:, 0] >= x0) & (view.obs_xy[:, 0] <= x1) & (view.obs_xy[:, 1] >= y0) & (view.obs_xy[:, 1] <= y1)
-    )
-    ids = view.obs_point_ids[inside]
-    if len(ids) == 0:
-        return None
-    X = np.array([point_xyz[int(i)] for i in ids])
-    depth = float(np.median((X @ view.R.T + view.t)[:, 2]))
-    if depth <= 0:
-        return None
-    ray = np.linalg.solve(view.K, np.array([(x0 + x1) / 2, (y0 + y1) / 2, 1.0]))
-    cam = ray * depth / ray[2]
-    return view.R.T @ (cam - view.t)  # world (SfM) coordinates
 
 
 def scene_queries(
@@ -257,7 +175,7 @@ def images_scene_queries(
     published scenes are, split as the published scenes are (config ``seed``, ``split``).
     """
     from flatlandia.data import queries
-    from flatlandia.images import depth, gps_alignment
+    from flatlandia.images import depth
     from flatlandia.objects import clustering
 
     views = views_from_colmap(rec)
@@ -296,7 +214,7 @@ def images_scene_queries(
         min_points=int(images["min_points"]),
         lift=lift,
     )
-    frame = gps_alignment.frame_of(alignment)  # None: a local frame (no GPS), no lon/lat
+    frame = geo.alignment_frame(alignment)  # None: a local frame (no GPS), no lon/lat
     labels = queries.split_queries(q["token"].tolist(), int(seed), queries.split_fractions(split), salt=scene)
     q = query_table(q, frame, labels)
     meta = {

@@ -36,8 +36,8 @@ from PIL import Image
 
 from flatlandia import config
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
 from flatlandia.images import image_audit
+from flatlandia.plumbing.errors import InputError
 
 #: Vistas label-name prefixes of things that move (their masks can be dilated).
 MOVING_PREFIXES = ("human--", "object--vehicle--", "animal--")

@@ -12,8 +12,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, escape, figures
-from flatlandia.errors import InputError
+from flatlandia import config
+from flatlandia.images.views import views_from_colmap
+from flatlandia.plumbing import escape
+from flatlandia.plumbing.errors import InputError
+from flatlandia.report import figures
 
 TESTED_PYCOLMAP = "4.2.1"
 
@@ -209,7 +212,7 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
     plt = figures.pyplot()
 
     from flatlandia import geo
-    from flatlandia.io import atomic_path
+    from flatlandia.plumbing.files import atomic_path
 
     cameras = cameras.sort_values("name")  # capture order for Mapillary sequences
     c = cameras[["x", "y", "z"]].to_numpy()
@@ -275,12 +278,12 @@ def clean_cameras(
     factor ``height_mad_k``), then, among the others, cameras over ``gps_max_residual_m`` from
     their own GPS fix once the model is aligned to GPS (:func:`flatlandia.images.gps_alignment.gps_outliers`:
     up axes + RANSAC, seeded). ``gps`` is indexed by image name with lon, lat (NaN: no GPS)."""
-    from flatlandia.images import gps_alignment, image_queries
+    from flatlandia.images import gps_alignment
 
     cams = camera_centres(rec)
     bad = height_outliers(cams[["x", "y", "z"]].to_numpy(), height_mad_k)
     removed = cams.loc[bad, ["image_id", "name"]].assign(reason="off the street-level camera plane")
-    views = {v.name: v for v in image_queries.views_from_colmap(rec)}
+    views = {v.name: v for v in views_from_colmap(rec)}
     kept = cams.loc[~bad].reset_index(drop=True)
     far = gps_alignment.gps_outliers(
         kept[["x", "y", "z"]].to_numpy(),
@@ -317,18 +320,18 @@ def reconstruct(
     """
     import pycolmap
 
-    from flatlandia import runlog
+    from flatlandia.plumbing import rule_log
 
     names = list(table.loc[table["kept"], "name"])
     o = dict(options)
     opts = SfmOptions.from_dict(o, seed=seed, num_threads=1 if o["deterministic"] else threads)
     pycolmap.logging.logtostderr = True  # COLMAP's own log, into native_log below
-    with runlog.native_output_to(native_log):
+    with rule_log.native_output_to(native_log):
         rec = run_sfm(Path(image_dir), names, None if mask_dir is None else Path(mask_dir), work, opts, log=log)
     gps = table.set_index("name")
     removed = clean_cameras(rec, gps, opts.height_mad_k, o["gps_max_residual_m"], seed=int(seed))
     log(f"removed {len(removed)} badly localised cameras; final bundle adjustment")
-    with runlog.native_output_to(native_log):
+    with rule_log.native_output_to(native_log):
         priors, frame = (
             gps_priors(rec, gps, float(o["gps_prior_sigma_m"]), float(o["gps_prior_alt_sigma_m"]))
             if o["gps_prior"]

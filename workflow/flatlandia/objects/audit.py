@@ -7,9 +7,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import config, escape, figures, geo, io, tables
-from flatlandia.io import atomic_path
+from flatlandia import config, geo
+from flatlandia.data import published
 from flatlandia.objects.cloud import BACKGROUND, macro_of_class, metres_per_unit, read_classified_cloud
+from flatlandia.plumbing import escape
+from flatlandia.plumbing.files import atomic_path
+from flatlandia.report import figures, tables
 
 AUDIT_THRESHOLDS_M = (0.05, 0.5, 2.0)
 
@@ -123,16 +126,16 @@ def audit_objects(
 
 
 def audit_published_scene(root: str | Path, scene: str, cluster: dict | None = None) -> tuple[dict, pd.DataFrame]:
-    """Run the objects stage on one published scene (:func:`flatlandia.objects.scene.published_objects`,
+    """Run the objects stage on one published scene (:func:`flatlandia.objects.scene_objects.published_objects`,
     config objects.cluster or ``cluster``) and audit it (tests and benchmarks); labels are not
     audited, so no other scene's map is read for them."""
-    from flatlandia.objects import scene as scene_objects
+    from flatlandia.objects import scene_objects
 
     root = Path(root)
     cloud_path = root / "maps" / scene / "class_segmented_point_cloud.ply"
     pts, labels = read_classified_cloud(cloud_path)
-    t = io.read_transformations(root / "maps" / scene / "transformations.json")
-    ref_ll, ref_cl = io.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
+    t = published.read_transformations(root / "maps" / scene / "transformations.json")
+    ref_ll, ref_cl = published.read_reference_map(root / "individual_reference_maps" / f"map_{scene}.json")
     cluster = config.section_defaults("objects.cluster") if cluster is None else cluster
     ours = scene_objects.published_objects(scene, pts, labels, t, ref_ll, [], cluster, source=str(cloud_path)).objects
     row, _ = audit_objects(scene, ours, (pts, labels), t, (ref_ll, ref_cl))

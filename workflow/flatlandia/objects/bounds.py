@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia.errors import InputError
+from flatlandia.plumbing.errors import InputError
 
 
 @dataclass(frozen=True)

@@ -27,9 +27,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import geo, ply
+from flatlandia import geo
 from flatlandia.classes import CLASSES
-from flatlandia.errors import InputError
+from flatlandia.plumbing import ply
+from flatlandia.plumbing.errors import InputError
 
 #: Metres per degree of latitude (mean, WGS84); used to turn the chain's scale into metres.
 METRES_PER_DEGREE = 111_320.0

@@ -33,9 +33,9 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import config
-from flatlandia.errors import InputError
-from flatlandia.io import atomic_path
 from flatlandia.objects.cloud import BACKGROUND, MACRO_BY_NAME
+from flatlandia.plumbing.errors import InputError
+from flatlandia.plumbing.files import atomic_path
 
 
 @config.settings("objects.cluster", frozen=True)

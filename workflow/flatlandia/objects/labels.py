@@ -13,7 +13,6 @@ import pandas as pd
 
 from flatlandia import geo
 from flatlandia.classes import CLASSES, N_CLASSES
-from flatlandia.images.gps_alignment import map_points, to_lonlat
 from flatlandia.objects import clustering
 from flatlandia.objects.cloud import BACKGROUND, MACRO_CLASSES, macro_of_class
 
@@ -136,8 +135,8 @@ def images_scene_objects(
         majority_class(cls[member == oid]) if (member == oid).any() else NOT_AN_OBJECT for oid in objs["object_id"]
     ]
     objs["class_label"] = [class_labels[c] if c < len(class_labels) else "" for c in objs["class_id"]]
-    xy = map_points(alignment, objs[["cx", "cy", "cz"]].to_numpy())
-    ll = to_lonlat(alignment, xy)  # NaN in a local frame (no GPS)
+    xy = geo.alignment_points(alignment, objs[["cx", "cy", "cz"]].to_numpy())
+    ll = geo.alignment_lonlat(alignment, xy)  # NaN in a local frame (no GPS)
     objs["lon"], objs["lat"], objs["x_m"], objs["y_m"] = ll[:, 0], ll[:, 1], xy[:, 0], xy[:, 1]
     objs.insert(0, "scene", scene)
     rest = [c for c in objs.columns if c not in OBJECT_MAP_COLUMNS]

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from flatlandia import config, geo
-from flatlandia.errors import InputError
 from flatlandia.objects import cloud
+from flatlandia.plumbing.errors import InputError
 from flatlandia.scaled_rigid import ScaledRigid, least_squares
 
 # --------------------------------------------------------------------------- plane

@@ -12,16 +12,16 @@ features and score) and ``verify_fit`` (learning it), ``likelihood`` (a pose sco
 missed objects counted; its compiled loop in ``likelihood_kernels``), ``calibration`` (a pool's
 log-odds as the probability of an answer) and ``calibration_fit`` (fitting it on the validation
 split), ``kernels`` (the compiled loops),
-``pipeline`` (the steps in order: :func:`localize`, the best pose and its alternatives, and
+``pipeline`` (the steps in order: :func:`locate`, the best pose and its alternatives, and
 :func:`solve`, the best alone), ``sequence`` (several frames tied by relative poses, localized
-together: :func:`localize_sequence`; its compiled loops in ``sequence_kernels``), ``learned`` (the fitted priors as one value,
+together: :func:`locate_sequence`; its compiled loops in ``sequence_kernels``), ``learned_priors`` (the fitted priors as one value,
 read and written as JSON), ``bound`` (the pose given the true matches).
 """
 
-from flatlandia.solver.learned import LearnedPriors
-from flatlandia.solver.pipeline import Localization, Solution, SolverConfig, candidates, localize, solve, warm_up
-from flatlandia.solver.priors import Fix, TrainingPriors, depth_scale_prior, fit_scale, scene_priors
-from flatlandia.solver.sequence import SequenceConfig, SequenceLocalization, localize_sequence
+from flatlandia.solver.learned_priors import LearnedPriors, scene_priors, with_learned
+from flatlandia.solver.pipeline import Localization, Solution, SolverConfig, candidates, locate, solve, warm_up
+from flatlandia.solver.priors import Fix, TrainingPriors, depth_scale_prior, fit_scale
+from flatlandia.solver.sequence import SequenceConfig, SequenceLocalization, locate_sequence
 
 __all__ = [
     "Fix",
@@ -35,9 +35,10 @@ __all__ = [
     "candidates",
     "depth_scale_prior",
     "fit_scale",
-    "localize",
-    "localize_sequence",
+    "locate",
+    "locate_sequence",
     "scene_priors",
     "solve",
     "warm_up",
+    "with_learned",
 ]

@@ -28,7 +28,7 @@ hypotheses are refined (robust Gauss-Newton on their matches, with re-associatio
 and the cheapest wins; (4) or, given a verifier (depth maps with priors), the ``verify_top_k``
 best are refined and the verifier's highest score wins (``solver_verify``: near-tie hypotheses
 that the cost ranks wrongly, told apart by what the training cameras near each pose saw). The
-next-best distinct poses of the same pool come along as alternatives (:func:`localize`, which
+next-best distinct poses of the same pool come along as alternatives (:func:`locate`, which
 :func:`solve` and every caller go through). The inner loops (hypotheses, scoring, refinement) are compiled with numba in
 ``solver_kernels``; ``scoring.padded_costs`` keeps the padded numpy form as the reference
 they are tested against. For depth maps hypotheses come from 3-bearing resections (range-free)
@@ -111,12 +111,12 @@ def solve(
     (``verify``; needs cameras and what they saw), else the cheapest of the ``top_k`` best wins.
     Inlier indices refer to rows of ``ref_xy``. ``fix`` (:class:`~flatlandia.solver.priors.Fix`): a
     position fix of the camera (GPS) and optionally a compass heading, as a likelihood (a gate at
-    ``Fix.GATE_SIGMAS`` sigmas and a cost; None: none). The best pose of :func:`localize`.
+    ``Fix.GATE_SIGMAS`` sigmas and a cost; None: none). The best pose of :func:`locate`.
     """
-    return localize(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors, fix=fix).best
+    return locate(query_xy, query_cls, ref_xy, ref_cls, metric, config, priors, fix=fix).best
 
 
-def localize(
+def locate(
     query_xy,
     query_cls,
     ref_xy,
@@ -201,7 +201,7 @@ def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Loc
     cost, or the verifier's score, with the likelihood ratio, :func:`ranking_key`), with its
     inliers, a confidence (the share of explained objects, lowered when a distinct pose is nearly
     as good: a log-likelihood ratio) and its probability (the pool's share of its place,
-    calibrated); and up to ``alternatives`` next-best distinct poses (:func:`localize`)."""
+    calibrated); and up to ``alternatives`` next-best distinct poses (:func:`locate`)."""
     problem, priors, t, theta, s = pool.problem, pool.priors, pool.t, pool.theta, pool.s
     data, cost, inl, match = scoring.score_terms(problem, priors, t, theta, s)
     ok = [k for k in range(len(t)) if np.all(np.isfinite(t[k])) and not priors.too_far(t[k])]

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -21,14 +21,9 @@ from scipy.spatial import cKDTree
 from flatlandia import geo
 from flatlandia.data import localmaps
 from flatlandia.solver import kernels
+from flatlandia.solver.calibration import Calibration
 from flatlandia.solver.kernels import CoSeen, PriorTerms
 from flatlandia.solver.settings import SolverConfig
-
-if TYPE_CHECKING:
-    from flatlandia.solver.calibration import Calibration
-    from flatlandia.solver.learned import LearnedPriors
-    from flatlandia.solver.likelihood import LikelihoodModel
-    from flatlandia.solver.verify import Verifier
 
 
 @dataclass(frozen=True)
@@ -48,8 +43,10 @@ class TrainingPriors:
     cameras: np.ndarray | None = None
     seen: np.ndarray | None = None
     scale: tuple[float, float] | None = None
-    verifier: Verifier | None = None
-    likelihood: LikelihoodModel | None = None
+    #: a :class:`flatlandia.solver.verify.Verifier` (typed loosely: the verifier and the likelihood
+    #: model read these priors, so this module cannot import them without a loop)
+    verifier: Any = None
+    likelihood: Any = None  # a :class:`flatlandia.solver.likelihood.LikelihoodModel`
     calibration: Calibration | None = None
 
     def rows(self, idx) -> TrainingPriors:
@@ -62,19 +59,6 @@ class TrainingPriors:
             return self
         seen = self.seen[keep] if self.seen is not None else None
         return replace(self, cameras=self.cameras[keep], seen=seen)
-
-    def with_learned(self, learned: LearnedPriors | None) -> TrainingPriors:
-        """These priors with a benchmark's learned scale prior, verifier, likelihood model and
-        calibration (None: without)."""
-        if learned is None:
-            return replace(self, scale=None, verifier=None, likelihood=None, calibration=None)
-        return replace(
-            self,
-            scale=learned.scale,
-            verifier=learned.verifier,
-            likelihood=learned.likelihood,
-            calibration=learned.calibration,
-        )
 
 
 @dataclass(frozen=True)
@@ -168,14 +152,12 @@ def seen_mask(obj_idx, prior_seen) -> np.ndarray | None:
     return seen
 
 
-def scene_priors(
-    ref: pd.DataFrame, queries: pd.DataFrame, settings: dict | None = None, learned: LearnedPriors | None = None
-) -> TrainingPriors:
-    """The priors of one scene's whole map (rows of ``ref``): its training cameras and what they
-    saw (:func:`training_priors`), with a benchmark's ``learned`` scale prior and verifier."""
+def camera_priors(ref: pd.DataFrame, queries: pd.DataFrame, settings: dict | None = None) -> TrainingPriors:
+    """The camera priors of one scene's whole map (rows of ``ref``): its training cameras and what
+    they saw (:func:`training_priors`); :func:`flatlandia.solver.scene_priors` adds the learned ones."""
     cams, seen_objs = training_priors(queries, settings)
     seen = seen_mask(ref["obj_idx"].to_numpy(), seen_objs) if cams is not None else None
-    return TrainingPriors(cams, seen).with_learned(learned)
+    return TrainingPriors(cams, seen)
 
 
 def fit_scale(train_local_maps_m: list[np.ndarray]) -> tuple[float, float]:

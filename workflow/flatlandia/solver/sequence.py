@@ -6,7 +6,7 @@ or wheel odometry). A wrong place that explains one frame rarely explains the ot
 the odometry predicts, and objects seen from two camera centres a known baseline apart are
 triangulated from their bearings, which depth maps get right.
 
-Steps (:func:`localize_sequence`):
+Steps (:func:`locate_sequence`):
 
 1. every frame hypothesises alone, as the single-frame solver does (3-bearing resections and
    2-point fits, gated by the training cameras and a fix, scored by MSAC with the priors), and
@@ -24,7 +24,7 @@ Steps (:func:`localize_sequence`):
 Inputs are the single-frame solver's (depth local maps, normalised to a median range of 1, and the
 map's candidates), one :class:`~flatlandia.solver.priors.TrainingPriors` value for all frames (a
 caller that evaluates on recorded queries must leave the companions' own cameras out of it:
-:mod:`flatlandia.beyond.protocol`), and per companion frame its pose in the anchor's camera frame
+:mod:`flatlandia.sequences.protocol`), and per companion frame its pose in the anchor's camera frame
 with the odometry's noise.
 """
 
@@ -136,7 +136,7 @@ class _Sequence:
         return self.fix.widened(float(np.hypot(*self.rel[f, :2])))
 
     def single_answer(self, f: int, scored, pr) -> list[Solution]:
-        """Frame ``f``'s own answer as the single-frame solver gives it (:func:`pipeline.localize`:
+        """Frame ``f``'s own answer as the single-frame solver gives it (:func:`pipeline.locate`:
         its verifier and likelihood ratio too), from the frame's search ``scored`` (its priors
         ``pr``): best first, with up to ``frame_answers - 1`` alternatives; empty where it has none.
         They join the joint candidates and say how many frames agree with the joint answer (its
@@ -359,7 +359,7 @@ class _Sequence:
         return total
 
 
-def localize_sequence(
+def locate_sequence(
     frames,
     rel_poses,
     ref_xy,
@@ -381,7 +381,7 @@ def localize_sequence(
     ``ref_cls``: the candidate reference objects; ``config``: the solver's settings, ``priors`` its
     training priors (one value for every frame), ``settings`` the sequence solver's
     (:class:`SequenceConfig`), ``fix``: the anchor's position fix (and compass). One frame is
-    :func:`flatlandia.solver.localize` (its verifier included). The answer's ``best.scale`` is the
+    :func:`flatlandia.solver.locate` (its verifier included). The answer's ``best.scale`` is the
     anchor's; ``frames`` holds every frame's refined pose."""
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
     seq = settings if isinstance(settings, SequenceConfig) else SequenceConfig.from_dict(settings)
@@ -389,7 +389,7 @@ def localize_sequence(
     if not frames:
         raise ValueError("a sequence needs at least one frame")
     if len(frames) == 1:  # one frame: the single-frame solver as every stage runs it (its verifier too)
-        found = pipeline.localize(*frames[0], ref_xy, ref_cls, False, cfg, priors, alternatives, fix=fix)
+        found = pipeline.locate(*frames[0], ref_xy, ref_cls, False, cfg, priors, alternatives, fix=fix)
         b = found.best
         poses = [FramePose(b.x, b.y, b.theta, b.scale)] if b is not None else []
         return SequenceLocalization(b, found.alternatives, poses)

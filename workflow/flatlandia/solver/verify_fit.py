@@ -36,7 +36,7 @@ def scene_groups(
     a boolean per training query, or all), each solved on its ``region`` with the priors of the
     scene's other training queries."""
     cfg = pipeline.SolverConfig.from_dict(settings)
-    whole = priors.scene_priors(ref, queries, settings)
+    whole = priors.camera_priors(ref, queries, settings)
     if whole.cameras is None or whole.seen is None:
         return []
     whole = replace(whole, scale=scale_prior)

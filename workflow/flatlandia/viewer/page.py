@@ -14,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from flatlandia import escape, figures, io
-from flatlandia.figures import MAP_TYPE_DASHES, TRUTH_COLOUR
+from flatlandia.plumbing import escape, files
+from flatlandia.report import figures
+from flatlandia.report.figures import MAP_TYPE_DASHES, TRUTH_COLOUR
 from flatlandia.viewer.query_figures import WRONG_COLOUR
-from flatlandia.viewer.scene import Estimate, QueryView, SceneView
+from flatlandia.viewer.scene_view import Estimate, QueryView, SceneView
 
 ASSETS = Path(__file__).parent / "assets"
 #: query cameras by split, as results/{scene}/maps/reference_map.png draws them
@@ -103,7 +104,7 @@ def page_data(view: SceneView, photo_url: str | None = None) -> dict:
 
 def render(view: SceneView, photo_url: str | None = None) -> str:
     """The page: the template with the style, the script and the scene's data written in. The title
-    is HTML-escaped (:func:`flatlandia.escape.html`), the data is JSON that cannot close its script
+    is HTML-escaped (:func:`flatlandia.plumbing.escape.html`), the data is JSON that cannot close its script
     block; the placeholders are filled in one pass, so a value that holds one is never filled again."""
     text = json.dumps(page_data(view, photo_url), sort_keys=True, separators=(",", ":"), allow_nan=False)
     text = text.replace("<", "\\u003c")  # the data can never close its <script> block
@@ -120,5 +121,5 @@ def render(view: SceneView, photo_url: str | None = None) -> str:
 def write_page(view: SceneView, path: str | Path, photo_url: str | None = None) -> int:
     """Write the page atomically; its size in bytes."""
     html = render(view, photo_url)
-    io.write_text(html, path)
+    files.write_text(html, path)
     return len(html.encode())

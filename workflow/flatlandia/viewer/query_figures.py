@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from flatlandia import escape, figures, names
-from flatlandia.figures import MAP_TYPE_STYLES, TRUTH_COLOUR, Run, method_label
-from flatlandia.viewer.scene import Estimate, QueryView, SceneView, worst_queries
+from flatlandia.plumbing import escape, names
+from flatlandia.report import figures
+from flatlandia.report.figures import MAP_TYPE_STYLES, TRUTH_COLOUR, Run, method_label
+from flatlandia.viewer.scene_view import Estimate, QueryView, SceneView, worst_queries
 
 #: a link to a reference object that is not the true one
 WRONG_COLOUR = "#d62728"

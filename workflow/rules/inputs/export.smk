@@ -9,7 +9,7 @@
 
 def export_coarse_tables():
     """{proposal: its table} of every coarse proposal of this run (config coarse.losses and the
-    solver's), present or not, in the vocabulary's order (flatlandia.export.COARSE_SOURCES)."""
+    solver's), present or not, in the vocabulary's order (flatlandia.data.export.COARSE_SOURCES)."""
     losses = set(coarse_losses())
     return {
         p: paths.proposal_table(p)

@@ -1,0 +1,165 @@
+"""The package's layout as docs/architecture.md tells it: at most 12 top-level modules, no module
+named after a standard-library module, one meaning per module name, no files importing each other
+in a loop and no import from a floor above (the rooms: top-level modules and subpackages), every
+room named in docs/architecture.md. Fast: it reads the source, imports nothing of it."""
+
+from __future__ import annotations
+
+import ast
+import re
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGE = REPO / "workflow" / "flatlandia"
+ARCHITECTURE = (REPO / "docs" / "architecture.md").read_text()
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted module name -> file, every module of the package."""
+    out = {}
+    for path in sorted(PACKAGE.rglob("*.py")):
+        rel = path.relative_to(PACKAGE.parent).with_suffix("")
+        parts = list(rel.parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = path
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(name: str, path: Path) -> set[str]:
+    """The package's modules ``name`` imports anywhere in its file (function bodies and
+    TYPE_CHECKING blocks too: a loop through them is still a loop to a reader)."""
+    found = set()
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(
+                    package.split(".")[: len(package.split(".")) - node.level + 1] + ([base] if base else [])
+                )
+            # ``from pkg import module`` imports the module; ``from module import name``, the module
+            targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in MODULES else base for a in node.names]
+        else:
+            continue
+        for t in targets:
+            while t and t not in MODULES:
+                t = t.rsplit(".", 1)[0] if "." in t else ""
+            if t and t != name and t != "flatlandia":
+                found.add(t)
+    return found
+
+
+GRAPH = {name: _imports(name, path) for name, path in MODULES.items()}
+
+
+def _room(module: str) -> str:
+    """A top-level module or subpackage: the rooms the layout is drawn in."""
+    parts = module.split(".")
+    return ".".join(parts[:2])
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one node (Tarjan)."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+    counter = [0]
+    sys.setrecursionlimit(max(10000, sys.getrecursionlimit()))
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_files_import_each_other_in_a_loop():
+    assert _cycles(GRAPH) == [], "modules that import each other in a loop"
+
+
+def test_no_room_imports_from_a_floor_above_its_own():
+    """The rooms (top-level modules, subpackages) form layers: a loop between two rooms means one
+    of them imports from a floor above its own."""
+    rooms: dict[str, set[str]] = defaultdict(set)
+    why: dict[tuple[str, str], list[str]] = defaultdict(list)
+    for m, targets in GRAPH.items():
+        for t in targets:
+            a, b = _room(m), _room(t)
+            if a != b:
+                rooms[a].add(b)
+                why[(a, b)].append(f"{m} -> {t}")
+    loops = _cycles(dict(rooms))
+    detail = [(a, b, why[(a, b)][:3]) for loop in loops for a in loop for b in loop if (a, b) in why]
+    assert loops == [], detail
+
+
+def test_at_most_twelve_top_level_modules_and_none_named_after_the_standard_library():
+    top = sorted(p.stem for p in PACKAGE.glob("*.py") if p.stem != "__init__")
+    assert len(top) <= 12, top
+    clashes = [
+        m.rsplit(".", 1)[-1] for m in MODULES if m.count(".") >= 1 and m.rsplit(".", 1)[-1] in sys.stdlib_module_names
+    ]
+    assert clashes == [], f"modules named after standard-library modules: {clashes}"
+
+
+#: the one job every stage has, named alike in each stage's subpackage: its evaluation (the
+#: stage's errors and summaries) and its training (the stage's models)
+STAGE_ROLES = {"evaluation", "training"}
+
+
+def test_one_meaning_per_module_name():
+    """No two modules of the same name in different subpackages doing different jobs: a name is
+    used once, or it is a role every stage has (:data:`STAGE_ROLES`)."""
+    by_name = defaultdict(list)
+    for m, path in MODULES.items():
+        if path.name != "__init__.py":
+            by_name[m.rsplit(".", 1)[-1]].append(m)
+    assert {k: v for k, v in by_name.items() if len(v) > 1 and k not in STAGE_ROLES} == {}
+
+
+def test_the_layers_of_entry_points_are_named_apart():
+    """The solver, the city search and the user's localizer each have their own verb."""
+    defined = defaultdict(list)
+    for m, path in MODULES.items():
+        for node in ast.parse(path.read_text()).body:
+            if isinstance(node, ast.FunctionDef) and node.name in {"localize", "localize_sequence"}:
+                defined[node.name].append(m)
+    assert defined == {"localize": ["flatlandia.localize.solve"], "localize_sequence": ["flatlandia.localize.solve"]}
+
+
+def test_docs_architecture_names_every_room():
+    rooms = sorted({_room(m) for m in MODULES if m != "flatlandia"})
+    missing = [r for r in rooms if not re.search(rf"`{re.escape(r.split('.', 1)[1])}/?`", ARCHITECTURE)]
+    assert missing == [], f"docs/architecture.md does not name: {missing}"
+    subpackages = sorted(p.parent.name for p in PACKAGE.glob("*/__init__.py"))
+    for sub in subpackages:  # and every module of each subpackage, in its row
+        for path in sorted((PACKAGE / sub).glob("*.py")):
+            if path.stem != "__init__":
+                assert f"`{path.stem}`" in ARCHITECTURE, f"docs/architecture.md does not name {sub}/{path.stem}"

@@ -1,0 +1,103 @@
+"""``flatlandia score``'s report: scores.md, the method's rows beside the built-in rows of the same
+setting (:func:`scores_markdown`), and every run's files (:func:`write_scores`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from flatlandia import paper
+from flatlandia.fine import evaluation
+from flatlandia.plumbing import escape, files
+from flatlandia.score.external_runs import Scores
+
+#: the columns of scores.md: what the run is, then every threshold and recall, failures
+#: (the README's headline, % within (5 m, 5°), among the paper's thresholds in their order)
+SCORE_COLUMNS = (
+    ["queries", "median_m", "median_deg"]
+    + evaluation.THRESHOLD_COLUMNS[:2]
+    + [evaluation.WITHIN_COLUMN]
+    + evaluation.THRESHOLD_COLUMNS[2:]
+    + evaluation.RECALL_COLUMNS
+    + ["no_pose_pct", "failure_pct", "gross_pct"]
+)
+
+
+def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
+    """scores.md: per setting, the method's row beside the built-in rows of the same map type
+    and proposal (every threshold and recall column)."""
+    from flatlandia.fine import fine_table
+
+    thresholds = [f"{m:g} m & {d:g}°" for m, d in paper.THRESHOLDS]
+    heads = (
+        ["queries", "median m", "median °"]
+        + thresholds[:2]
+        + ["{:g} m & {:g}°".format(*evaluation.WITHIN)]
+        + thresholds[2:]
+        + [f"recall {m:g} m" for m in evaluation.RECALL_M]
+        + [f"recall {d:g}°" for d in evaluation.RECALL_DEG]
+        + ["no pose %", "F %", "gross %"]
+    )
+    out = [
+        f"# Scores of {escape.markdown(name)}",
+        "",
+        f"Poses: `{escape.markdown(poses_path)}`, scored on the {escape.markdown(scores.runs[0].summary['split'])} split "
+        "with the built-in methods' functions (true metres; queries without a pose are failures: infinite error, "
+        "180°). Threshold columns: % of queries under both the position and the heading threshold; recalls: "
+        "position and heading apart.",
+        "",
+    ]
+    for note in scores.notes:
+        out += [f"Note: {escape.markdown(note)}", ""]
+    for w in scores.warnings:
+        out += [f"**Warning**: {escape.markdown(w)}", ""]
+    for run in scores.runs:
+        s = run.summary
+        mine = fine_table.table_rows([s])
+        rows = [mine]
+        if scores.builtin is not None:
+            same = scores.builtin[
+                (scores.builtin["map_type"] == run.map_type) & (scores.builtin["proposal"] == run.proposal)
+            ]
+            rows.append(same)
+        df = pd.concat(rows, ignore_index=True)
+        out += [
+            f"## {escape.markdown(run.map_type)} local maps, {escape.markdown(s['strategy'])} proposals",
+            "",
+            f"{s['queries']} queries, {s['scored']} scored, {s['missing']} missing (failures).",
+            "",
+            "| method | " + " | ".join(heads) + " |",
+            "|---|" + "---|" * len(heads),
+        ]
+        for r in df.to_dict("records"):
+            cells = []
+            for c in SCORE_COLUMNS:
+                v = r[c]
+                if c == "queries":
+                    cells.append(str(int(v)))
+                else:
+                    cells.append(
+                        "–" if v is None or not np.isfinite(v) else f"{v:.2f}" if c.startswith("median") else f"{v:.1f}"
+                    )
+            method = escape.markdown(r["method_label"]) + (" (yours)" if r["run"] == run.run else "")
+            out.append(f"| {method} | " + " | ".join(cells) + " |")
+        if len(df) == 1:
+            out += ["", "No built-in run of this setting in the results folder."]
+        out.append("")
+    return "\n".join(out)
+
+
+def write_scores(scores: Scores, name: str, poses_path: str, out: str | Path) -> list[Path]:
+    """Write each run's errors.parquet and summary.json (rule fine_eval's shapes) under
+    ``out/{name}_{map_type}_{proposal}/`` and ``out/scores.md``; the paths written."""
+    out = Path(out)
+    written = []
+    for run in scores.runs:
+        folder = out / run.run
+        run.write(folder / "errors.parquet", folder / "summary.json")
+        written += [folder / "errors.parquet", folder / "summary.json"]
+    files.write_text(scores_markdown(scores, name, poses_path), out / "scores.md")
+    return written + [out / "scores.md"]
