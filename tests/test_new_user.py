@@ -169,3 +169,25 @@ def test_audit_write_never_overwrites_an_artifact_of_the_run(tmp_path, monkeypat
         assert artifact.read_bytes() == b"map"
     assert cli.main(["audit", "--write", "my_manifest.parquet"]) == 0
     assert "wrote my_manifest.parquet: 1 artifacts" in capsys.readouterr().out
+
+
+def test_localize_out_never_overwrites_its_input_or_an_artifact_of_the_run(tmp_path, monkeypatch, capsys):
+    """`--batch results --out results/12/queries/queries.parquet` replaced the run's queries with
+    poses; `--query q.json --out q.json` replaced the query with its answer."""
+    artifact = _one_record(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    query = tmp_path / "q.json"
+    query.write_text('{"objects": []}')
+    assert cli.main(["localize", "--map", "m.parquet", "--query", "q.json", "--out", str(query)]) == 1
+    assert (
+        capsys.readouterr().out
+        == f"ERROR: --out: {query} is an input of this command: write the answer to a new file\n"
+    )
+    assert query.read_text() == '{"objects": []}'
+    given = "results/0/maps/reference_map.parquet"
+    assert cli.main(["localize", "--batch", "results", "--out", given]) == 1
+    assert capsys.readouterr().out.startswith(f"ERROR: --out: {given} is an artifact of this run (rule reference_map)")
+    assert artifact.read_bytes() == b"map"
+    (tmp_path / "poses.csv").write_text("mine")  # a file of the user's own is the user's to replace
+    assert cli.main(["localize", "--batch", "results", "--out", "poses.csv"]) == 1
+    assert "is an artifact" not in capsys.readouterr().out  # it fails on the folder, not on --out

@@ -273,6 +273,20 @@ def _prior_args(args) -> tuple[tuple | None, tuple | None]:
     return gps, compass
 
 
+def _refuse_overwriting(out: str, inputs: list) -> None:
+    """InputError (naming --out) when ``out`` is one of the command's own input files or an artifact
+    recorded by the run in this folder (its queries, maps, export): written there, the answer
+    would replace the file it came from. A file of the command's own earlier run is rewritten."""
+    target = Path(out).resolve()
+    if not target.exists():
+        return
+    if any(target == Path(p).resolve() for p in inputs if p):
+        raise InputError("--out", f"{out} is an input of this command: write the answer to a new file")
+    made_by = {Path(a).resolve(): r["rule"] for r in provenance.records() for a in r["outputs"]}
+    if target in made_by:
+        raise InputError("--out", f"{out} is an artifact of this run (rule {made_by[target]}): write to a new file")
+
+
 def localize_batch(args) -> int:
     """Localize every query of a split of an export or a results folder (--batch) and write the
     poses file that `flatlandia score` reads."""
@@ -290,6 +304,7 @@ def localize_batch(args) -> int:
         if not args.out:
             raise InputError("--batch", "needs --out POSES.csv (or .parquet): the poses file flatlandia score reads")
         batch.check_out(args.out)
+        _refuse_overwriting(args.out, [])
         fixes = batch.read_fixes(args.fixes) if args.fixes else None
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
         result = batch.localize_batch(
@@ -341,6 +356,8 @@ def localize_query(args) -> int:
         if alternatives < 0:
             raise InputError("--alternatives", f"{alternatives} is negative")
         gps, compass = _prior_args(args)
+        if args.out:
+            _refuse_overwriting(args.out, [args.query, args.sequence, args.map])
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
         result = localize.localize_file(
             args.map,
