@@ -191,3 +191,21 @@ def test_localize_out_never_overwrites_its_input_or_an_artifact_of_the_run(tmp_p
     (tmp_path / "poses.csv").write_text("mine")  # a file of the user's own is the user's to replace
     assert cli.main(["localize", "--batch", "results", "--out", "poses.csv"]) == 1
     assert "is an artifact" not in capsys.readouterr().out  # it fails on the folder, not on --out
+
+
+def test_a_command_piped_into_head_ends_without_a_traceback(tmp_path):
+    """`flatlandia score ... | head -1` printed Python's BrokenPipeError traceback: the reader had
+    left before the command's next line (here the command's write fails as it would then)."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "from flatlandia import cli\n"
+        "def gone(args):\n    raise BrokenPipeError(32, 'Broken pipe')\n"
+        "cli.config_files = gone\n"
+        "raise SystemExit(cli.main(['config']))\n"
+    )
+    env = os.environ | {"PYTHONPATH": os.pathsep.join(sys.path)}
+    run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, env=env)
+    assert run.returncode == 1 and run.stderr == "", run.stderr

@@ -549,7 +549,14 @@ def main(argv: list[str] | None = None) -> int:
     sc.add_argument("--split", default="test", choices=["train", "val", "test"], help="queries scored (default: test)")
     sc.set_defaults(func=score_poses)
     args = ap.parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except BrokenPipeError:  # the reader left (`| head`): no traceback, and none at exit either
+        import os
+        import sys
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":
