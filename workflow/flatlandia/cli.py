@@ -100,11 +100,27 @@ def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -
     return "\n".join(lines)
 
 
+def _run_relative(artifact: str) -> str:
+    """An artifact as the records name it: relative to the run's folder (the working folder), also
+    when given as an absolute path inside it (a shell's completion, a file manager's copy)."""
+    path = Path(artifact)
+    if path.is_absolute():
+        try:
+            path = path.resolve().relative_to(Path.cwd().resolve())
+        except (OSError, ValueError):  # outside the run's folder: no record names it
+            pass
+    return str(path)
+
+
 def audit(args) -> int:
     df = _records(args)
     if df.empty:
-        print(f"ERROR: no audit records: run the workflow first ({args.manifest} and {args.provenance} are empty)")
+        print(
+            f"ERROR: no audit records in {Path.cwd()}: run flatlandia audit in the run's folder, or run the workflow "
+            f"first ({args.manifest} and {args.provenance} are empty)"
+        )
         return 1
+    made_by = dict(zip(df["artifact"], df["rule"]))  # every recorded artifact, before --scene narrows df
     if args.check:  # every recorded artifact re-hashed
         bad = provenance.check(df)
         if bad.empty:
@@ -115,7 +131,7 @@ def audit(args) -> int:
             print(f"  {r.artifact} (rule {r.rule}): recorded {_short(r.recorded)}, now {_short(r.now)}")
         return 1
     if args.artifact:
-        text = audit_artifact(df, str(Path(args.artifact)), args.tree, Path(args.provenance) / "configs")
+        text = audit_artifact(df, _run_relative(args.artifact), args.tree, Path(args.provenance) / "configs")
         if not text:
             near = [a for a in df["artifact"] if Path(a).name == Path(args.artifact).name][:5]
             print(
@@ -132,6 +148,10 @@ def audit(args) -> int:
             print(f"ERROR: no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}")
             return 1
     if args.write:  # the manifest of any run, whatever its target (rule manifest comes with `all`)
+        rule = made_by.get(_run_relative(args.write))
+        if rule:  # a run's own artifact overwritten with its manifest would break the run it audits
+            print(f"ERROR: --write {args.write}: an artifact of this run (rule {rule}): give a new file")
+            return 1
         files.write_parquet(df.reset_index(drop=True), args.write)
         print(f"wrote {args.write}: {len(df)} artifacts from {df['rule'].nunique()} rules")
         return 0
@@ -148,9 +168,10 @@ def config_files(args) -> int:
     if release.pyproject_version(Path(args.repo) / "pyproject.toml") is None:
         print(f"ERROR: {args.repo} is not a clone of the workflow (no flatlandia pyproject.toml): give --repo")
         return 1
-    stale = []
+    stale, fresh = [], []
     for path, text in config.generated_files(Path(args.repo)).items():
         if path.exists() and path.read_text() == text:
+            fresh.append(str(path))
             continue
         if args.write:
             path.write_text(text)
@@ -160,6 +181,8 @@ def config_files(args) -> int:
     if stale:
         print(f"ERROR: {', '.join(stale)} out of date with {config.SCHEMA_PATH}: run `flatlandia config --write`")
         return 1
+    if fresh:  # a check that passes says so (it printed nothing)
+        print(f"{', '.join(fresh)}: up to date with {config.SCHEMA_PATH}")
     return 0
 
 
@@ -250,6 +273,20 @@ def _prior_args(args) -> tuple[tuple | None, tuple | None]:
     return gps, compass
 
 
+def _refuse_overwriting(out: str, inputs: list) -> None:
+    """InputError (naming --out) when ``out`` is one of the command's own input files or an artifact
+    recorded by the run in this folder (its queries, maps, export): written there, the answer
+    would replace the file it came from. A file of the command's own earlier run is rewritten."""
+    target = Path(out).resolve()
+    if not target.exists():
+        return
+    if any(target == Path(p).resolve() for p in inputs if p):
+        raise InputError("--out", f"{out} is an input of this command: write the answer to a new file")
+    made_by = {Path(a).resolve(): r["rule"] for r in provenance.records() for a in r["outputs"]}
+    if target in made_by:
+        raise InputError("--out", f"{out} is an artifact of this run (rule {made_by[target]}): write to a new file")
+
+
 def localize_batch(args) -> int:
     """Localize every query of a split of an export or a results folder (--batch) and write the
     poses file that `flatlandia score` reads."""
@@ -267,6 +304,7 @@ def localize_batch(args) -> int:
         if not args.out:
             raise InputError("--batch", "needs --out POSES.csv (or .parquet): the poses file flatlandia score reads")
         batch.check_out(args.out)
+        _refuse_overwriting(args.out, [])
         fixes = batch.read_fixes(args.fixes) if args.fixes else None
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
         result = batch.localize_batch(
@@ -318,6 +356,8 @@ def localize_query(args) -> int:
         if alternatives < 0:
             raise InputError("--alternatives", f"{alternatives} is negative")
         gps, compass = _prior_args(args)
+        if args.out:
+            _refuse_overwriting(args.out, [args.query, args.sequence, args.map])
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
         result = localize.localize_file(
             args.map,
@@ -509,7 +549,14 @@ def main(argv: list[str] | None = None) -> int:
     sc.add_argument("--split", default="test", choices=["train", "val", "test"], help="queries scored (default: test)")
     sc.set_defaults(func=score_poses)
     args = ap.parse_args(argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except BrokenPipeError:  # the reader left (`| head`): no traceback, and none at exit either
+        import os
+        import sys
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":

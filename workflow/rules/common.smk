@@ -102,12 +102,27 @@ def config_path(path):
     return beside_repo if beside_repo.exists() else p
 
 
+def separated_by_spaces(sheet):
+    """The first line of the sheet written with spaces between its columns (an editor that turns
+    tabs into spaces), as 'line N: ...'; None when there is none."""
+    if len(sheet.columns) == 1 and len(str(sheet.columns[0]).split()) > 1:
+        return f"line 1: {str(sheet.columns[0])[:80]!r} is one column"
+    if "scene" in sheet.columns:
+        for i, cell in enumerate(sheet["scene"]):
+            if len(str(cell).split()) > 1:
+                return f"line {i + 2}: {str(cell)[:80]!r} is one column"
+    return None
+
+
 def read_scene_sheet(path):
     """The scene sheet, checked against its schema: a problem stops the run with one ERROR line."""
     try:
         sheet = pd.read_csv(path, sep="\t", dtype=str, keep_default_na=False)
     except (OSError, ValueError) as err:
         sys.exit(f"ERROR: {path}: unreadable scene sheet ({err})")
+    spaced = separated_by_spaces(sheet)
+    if spaced:
+        sys.exit(f"ERROR: {path}: {spaced}: the sheet's columns are separated by tabs, not spaces")
     try:
         validate(sheet, schema="../schemas/scenes.schema.yaml")
     except WorkflowError as err:
@@ -197,6 +212,26 @@ def benchmark_cities():
 
 def images_scenes():
     return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "images"]
+
+
+def check_images_folders():
+    """Stop before any job when a selected images scene's folder (the sheet's path) is not a folder
+    and no url fetches it: otherwise the first rule's input function fails inside Snakemake, with
+    a traceback."""
+    for scene in images_scenes():
+        row = SCENES_SHEET.loc[scene]
+        path = config_path(row["path"]) if row.get("path", "") else None
+        if path is not None and path.exists() and not path.is_dir():
+            sys.exit(f"ERROR: {config['scenes']}: images scene {scene}: its path {str(path)!r} is a file, not a folder")
+        if (path is None or not path.exists()) and not row.get("url", ""):
+            given = f"its path {str(path)!r} does not exist" if path is not None else "its path is empty"
+            sys.exit(
+                f"ERROR: {config['scenes']}: images scene {scene}: {given} and the row gives no url to fetch "
+                "the photos from (give the folder of photos in the path column; the sheet is tab-separated)"
+            )
+
+
+check_images_folders()
 
 
 def localization_scenes():

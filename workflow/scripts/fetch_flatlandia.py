@@ -25,8 +25,12 @@ def main(smk, log):
             data_folder=smk.params.data_folder,
         )
     except fetch.FetchError as e:
-        log.error("%s", e)
-        raise SystemExit(f"ERROR: {e}") from None
+        # say why it fetched: a mistyped flatlandia_root looks like a missing download otherwise
+        line = (
+            f"the data folder {smk.params.data_folder} (flatlandia_root) does not exist, so the data was fetched: {e}"
+        )
+        log.error("%s", line)
+        raise SystemExit(f"ERROR: {line}") from None
     open(smk.output.flag, "w").write(f"{dest}\n")
     log.info("done: %s", dest)
 

@@ -1,5 +1,7 @@
 """Rule ingest: check a scene's published files and report what is available."""
 
+import sys
+
 from flatlandia.data import ingest
 from flatlandia.plumbing import files, rule_log
 
@@ -14,6 +16,9 @@ def main(smk, log):
             f["problem"],
         )
     log.info("scene %s: %d queries", rep["scene"], rep["n_queries"])
+    for line in ingest.optional_problems(rep):  # on the console too: the run goes on without that file
+        log.warning(line)
+        print(f"WARNING: {line}", file=sys.stderr)
     files.write_json(rep, smk.output.report)
 
 

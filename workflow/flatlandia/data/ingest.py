@@ -93,6 +93,20 @@ def check_file(root: Path, rel: str, key: str, manifest: dict, verify_hash: bool
     return rec
 
 
+def optional_problems(report: dict) -> list[str]:
+    """One line per optional file of a scene that is present but broken (truncated, corrupt): the
+    run goes on, so the user hears of it on the console, not only in the rule's log (a missing
+    optional file is the published data's normal state and says nothing)."""
+    required = {k for k, _, req in SCENE_FILES if req} | {"local_maps"}
+    return [
+        f"{Path(report['root']) / f['path']}: {f['problem']}: an optional file of scene {report['scene']}, "
+        "left as it is for the rules that read it: replace it with an intact copy (MANIFEST.tsv holds its size "
+        "and sha256)"
+        for f in report["files"]
+        if f["key"] not in required and f["present"] and f["problem"]
+    ]
+
+
 def ingest_scene(root: str | Path, scene: str, verify_hash: bool = True) -> dict:
     """Report every file of a scene; raise InputError if a required one is missing or broken."""
     root = Path(root)

@@ -11,9 +11,16 @@ def _external_methods():
     from flatlandia.config import ConfigError
 
     try:
-        return score.external_entries(config["external"])
+        entries = score.external_entries(config["external"])
     except ConfigError as err:
         sys.exit(f"ERROR: config: {err}")
+    for k, e in enumerate(entries):  # a missing poses file left the method out of every table, status 0
+        if not config_path(e["poses"]).is_file():
+            sys.exit(
+                f"ERROR: config: 'external.{k}.poses': {e['poses']!r} is not a file (relative to the working "
+                "folder, else to the repository): the poses of method " + repr(e["name"])
+            )
+    return entries
 
 
 EXTERNAL_METHODS = _external_methods()

@@ -1,0 +1,211 @@
+"""What a new user trips over, found by following README.md from a fresh clone: each ends in a
+result or one clear ERROR/WARNING line, never a traceback or a silent success."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from conftest import REPO, TINY_ROOT, smk_dry_run
+
+from flatlandia import cli
+from flatlandia.data import ingest
+
+TINY = REPO / "config" / "test" / "tiny.yaml"
+SHEET_HEAD = "scene\tsource\tcity\tname\tpath\turl\tsubfolder\n"
+
+
+def _plan_with_sheet(tmp_path: Path, row: str):
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text(SHEET_HEAD + row + "\n")
+    return smk_dry_run(REPO, tmp_path, "maps", "--configfile", str(TINY), "--config", f"scenes={sheet}")
+
+
+def _one_error(res) -> str:
+    assert res.returncode != 0 and "Traceback" not in res.stderr + res.stdout, (res.stdout + res.stderr)[-3000:]
+    errors = [ln for ln in (res.stdout + res.stderr).splitlines() if ln.startswith("ERROR:")]
+    assert len(errors) == 1, (res.stdout + res.stderr)[-3000:]
+    return errors[0]
+
+
+def test_an_images_scene_whose_folder_is_missing_is_one_error_line_before_any_job(tmp_path):
+    """A typo in the sheet's path column: was Snakemake's InputFunctionException with a traceback."""
+    line = _one_error(_plan_with_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{tmp_path / 'my_wlak'}\t\t"))
+    assert "images scene mine" in line and "my_wlak' does not exist" in line and "no url" in line
+    line = _one_error(_plan_with_sheet(tmp_path, "mine\timages\tLund\tmy_walk\t\t\t"))
+    assert "images scene mine: its path is empty" in line
+
+
+def test_an_images_scene_whose_path_is_a_photo_is_one_error_line(tmp_path):
+    photo = tmp_path / "01.jpg"
+    photo.write_bytes(b"\xff\xd8\xff")
+    line = _one_error(_plan_with_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{photo}\t\t"))
+    assert f"its path '{photo}' is a file, not a folder" in line
+
+
+def test_a_sheet_row_written_with_spaces_is_one_error_saying_tabs(tmp_path):
+    """An editor that turns tabs into spaces: was a schema dump about the scene id's pattern."""
+    line = _one_error(_plan_with_sheet(tmp_path, "mine    images  Lund    my_walk /data/my_walk"))
+    assert line.endswith(
+        "line 2: 'mine    images  Lund    my_walk /data/my_walk' is one column: the sheet's "
+        "columns are separated by tabs, not spaces"
+    )
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text("scene source city\n0 flatlandia Tinytown\n")
+    res = smk_dry_run(REPO, tmp_path, "maps", "--configfile", str(TINY), "--config", f"scenes={sheet}")
+    assert "line 1: 'scene source city' is one column: the sheet's columns are separated by tabs" in _one_error(res)
+
+
+def test_an_images_scene_with_its_folder_still_plans(tmp_path):
+    (tmp_path / "photos").mkdir()
+    res = _plan_with_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{tmp_path / 'photos'}\t\t")
+    assert res.returncode == 0 and "image_audit" in res.stdout, res.stderr[-3000:]
+
+
+def test_a_broken_optional_published_file_is_said_a_missing_one_is_not(tmp_path):
+    """A truncated tokens.txt let the run end with status 0 and a PROBLEM line only in the rule's log."""
+    root = tmp_path / "flat"
+    shutil.copytree(TINY_ROOT, root)
+    assert ingest.optional_problems(ingest.ingest_scene(root, "0")) == []
+    tokens = root / "maps/0/tokens.txt"
+    tokens.write_bytes(tokens.read_bytes()[:-5])
+    (line,) = ingest.optional_problems(ingest.ingest_scene(root, "0"))
+    assert line.startswith(f"{tokens}: size ") and "truncated" in line and "scene 0" in line
+    tokens.unlink()  # absent: the published data's normal state for some scenes
+    assert ingest.optional_problems(ingest.ingest_scene(root, "0")) == []
+
+
+def _one_record(run: Path) -> Path:
+    """A run folder holding one artifact and its provenance record, as a rule script leaves them."""
+    artifact = run / "results/0/maps/reference_map.parquet"
+    artifact.parent.mkdir(parents=True)
+    artifact.write_bytes(b"map")
+    from flatlandia.plumbing import provenance
+
+    digest, size = provenance.path_digest(artifact)
+    rec = {
+        "rule": "reference_map",
+        "wildcards": {"scene": "0"},
+        "inputs": {},
+        "outputs": {"results/0/maps/reference_map.parquet": {"sha256": digest, "bytes": size}},
+        "config_hash": "0" * 16,
+        "package_version": "0.1.0",
+        "git_commit": "abc",
+        "finished_at": "2026-11-28T00:00:00+00:00",
+    }
+    (run / "logs/provenance/reference_map").mkdir(parents=True)
+    (run / "logs/provenance/reference_map/scene-0.json").write_text(json.dumps(rec))
+    return artifact
+
+
+def test_audit_takes_an_artifact_by_its_absolute_path(tmp_path, monkeypatch, capsys):
+    """`flatlandia audit /full/path/results/...` in the run's folder said "no audit record"."""
+    artifact = _one_record(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["audit", str(artifact)]) == 0
+    assert "artifact: results/0/maps/reference_map.parquet" in capsys.readouterr().out
+
+
+def test_audit_outside_the_run_folder_says_where_it_looked(tmp_path, monkeypatch, capsys):
+    artifact = _one_record(tmp_path / "run")
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    assert cli.main(["audit", str(artifact)]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith(f"ERROR: no audit records in {tmp_path / 'elsewhere'}: run flatlandia audit in the run's")
+
+
+def test_an_external_method_whose_poses_file_is_missing_is_one_error_line(tmp_path):
+    """A misspelt `external[].poses`: the method was left out of every table, the run status 0."""
+    import yaml
+
+    cfg = tmp_path / "my.yaml"
+    cfg.write_text(yaml.safe_dump({"external": [{"name": "poor", "poses": "poor_poses.cvs"}]}))
+    res = smk_dry_run(REPO, tmp_path, "all", "--configfile", str(TINY), str(cfg))
+    line = _one_error(res)
+    assert line.startswith("ERROR: config: 'external.0.poses': 'poor_poses.cvs' is not a file") and "'poor'" in line
+    (tmp_path / "poor_poses.cvs").write_text("scene,token,x_m,y_m,theta_deg\n")
+    res = smk_dry_run(REPO, tmp_path, "all", "--configfile", str(TINY), str(cfg))
+    assert res.returncode == 0 and "external_eval" in res.stdout, res.stderr[-3000:]
+
+
+def test_flatlandia_config_says_the_files_are_up_to_date(capsys):
+    """The check printed nothing on success: a user who just ran it could not tell what it did."""
+    from flatlandia import config
+
+    assert cli.main(["config", "--repo", str(REPO)]) == 0
+    out = capsys.readouterr().out
+    assert "config/config.yaml" in out and "config/README.md" in out
+    assert out.rstrip().endswith(f"up to date with {config.SCHEMA_PATH}")
+
+
+@pytest.mark.slow  # a Snakemake job (the fetch, which fails at once)
+def test_a_mistyped_data_folder_says_it_does_not_exist_when_the_fetch_fails(tmp_path):
+    """`--config flatlandia_root=/typo`: the fetch's ERROR told to set flatlandia_root, which was set."""
+    from snakemake_runner import smk
+
+    cfg = tmp_path / "typo.yaml"
+    cfg.write_text(
+        f"flatlandia_root: {tmp_path / 'flatlandai'}\n"
+        f"fetch: {{url: '{(tmp_path / 'no_archive.zip').as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
+    )
+    res = smk(REPO, tmp_path, "--cores", "1", "maps", "--configfile", str(TINY), str(cfg))
+    line = _one_error(res)
+    assert line.startswith(f"ERROR: the data folder {tmp_path / 'flatlandai'} (flatlandia_root) does not exist, so")
+    assert "flatlandia_root=/path/to/data" in line and not (tmp_path / "fetched").exists()
+
+
+def test_audit_write_never_overwrites_an_artifact_of_the_run(tmp_path, monkeypatch, capsys):
+    """`flatlandia audit --write results/.../reference_map.parquet` replaced the map with the manifest."""
+    artifact = _one_record(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    for given in ("results/0/maps/reference_map.parquet", str(artifact)):
+        assert cli.main(["audit", "--write", given]) == 1
+        assert capsys.readouterr().out.startswith(
+            f"ERROR: --write {given}: an artifact of this run (rule reference_map)"
+        )
+        assert artifact.read_bytes() == b"map"
+    assert cli.main(["audit", "--write", "my_manifest.parquet"]) == 0
+    assert "wrote my_manifest.parquet: 1 artifacts" in capsys.readouterr().out
+
+
+def test_localize_out_never_overwrites_its_input_or_an_artifact_of_the_run(tmp_path, monkeypatch, capsys):
+    """`--batch results --out results/12/queries/queries.parquet` replaced the run's queries with
+    poses; `--query q.json --out q.json` replaced the query with its answer."""
+    artifact = _one_record(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    query = tmp_path / "q.json"
+    query.write_text('{"objects": []}')
+    assert cli.main(["localize", "--map", "m.parquet", "--query", "q.json", "--out", str(query)]) == 1
+    assert (
+        capsys.readouterr().out
+        == f"ERROR: --out: {query} is an input of this command: write the answer to a new file\n"
+    )
+    assert query.read_text() == '{"objects": []}'
+    given = "results/0/maps/reference_map.parquet"
+    assert cli.main(["localize", "--batch", "results", "--out", given]) == 1
+    assert capsys.readouterr().out.startswith(f"ERROR: --out: {given} is an artifact of this run (rule reference_map)")
+    assert artifact.read_bytes() == b"map"
+    (tmp_path / "poses.csv").write_text("mine")  # a file of the user's own is the user's to replace
+    assert cli.main(["localize", "--batch", "results", "--out", "poses.csv"]) == 1
+    assert "is an artifact" not in capsys.readouterr().out  # it fails on the folder, not on --out
+
+
+def test_a_command_piped_into_head_ends_without_a_traceback(tmp_path):
+    """`flatlandia score ... | head -1` printed Python's BrokenPipeError traceback: the reader had
+    left before the command's next line (here the command's write fails as it would then)."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "from flatlandia import cli\n"
+        "def gone(args):\n    raise BrokenPipeError(32, 'Broken pipe')\n"
+        "cli.config_files = gone\n"
+        "raise SystemExit(cli.main(['config']))\n"
+    )
+    env = os.environ | {"PYTHONPATH": os.pathsep.join(sys.path)}
+    run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, env=env)
+    assert run.returncode == 1 and run.stderr == "", run.stderr
