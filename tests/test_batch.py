@@ -159,7 +159,7 @@ def test_tokens_read_as_floats_get_a_one_line_hint(tiny_run, tmp_path, capsys):
         poses = q[q["split"] == SPLIT][["scene", "token", "x_m", "y_m", "theta_deg"]].copy()
         poses["token"] = [spoil(t) for t in poses["token"]]
         poses.to_csv(tmp_path / "floats.csv", index=False)
-        status, out, _ = _cli(
+        status, _, out = _cli(
             capsys,
             *("score", tmp_path / "floats.csv", "--name", "f", "--out", tmp_path / "s", "--results", tiny_run),
             *("--split", SPLIT),
@@ -257,7 +257,8 @@ def test_fixes_per_query(tiny_run, tmp_path, capsys):
 )
 def test_bad_input_is_one_error_line_and_nothing_written(tiny_run, tmp_path, capsys, args, says):
     args = [a.format(tmp=tmp_path, run=tiny_run) for a in args]
-    status, out, _ = _cli(capsys, "localize", *args)
+    status, stdout, out = _cli(capsys, "localize", *args)
+    assert stdout == ""  # errors on stderr: `> poses.txt` never catches one
     assert status == 1 and out.startswith("ERROR: ") and len(out.strip().splitlines()) == 1, out
     assert says in out, out
     assert not (tmp_path / "p.csv").exists() and not (tmp_path / "p.txt").exists()

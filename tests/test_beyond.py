@@ -521,9 +521,9 @@ def bad_values(tmp: Path, twins: Path, q: Path, seq: Path) -> dict:
 def test_bad_values_are_one_error_line(sequence_files, tmp_path, capsys):
     twins, seq, q, _, _ = sequence_files
     for name, (args, says) in bad_values(tmp_path, twins, q, seq).items():
-        status, text, err = run_cli(capsys, *args)
+        status, out, text = run_cli(capsys, *args)
         lines = text.strip().splitlines()
-        assert status == 1 and len(lines) == 1 and lines[0].startswith("ERROR: ") and err == "", (name, text, err)
+        assert status == 1 and len(lines) == 1 and lines[0].startswith("ERROR: ") and out == "", (name, text, out)
         for s in says:
             assert s in lines[0], (name, lines[0])
 
@@ -536,8 +536,8 @@ def test_the_installed_command_has_no_traceback(sequence_files):
         capture_output=True,
         text=True,
     )
-    assert run.returncode == 1 and run.stderr == ""
-    assert run.stdout.splitlines() == ["ERROR: --gps: (1000.0, 0.0) is not lon, lat in degrees"]
+    assert run.returncode == 1 and run.stdout == ""
+    assert run.stderr.splitlines() == ["ERROR: --gps: (1000.0, 0.0) is not lon, lat in degrees"]
 
 
 # ---------------------------------------------------------------- the table

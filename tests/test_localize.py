@@ -230,8 +230,14 @@ def test_a_city_index_places_queries_and_their_lon_lat(tiny_scene, tmp_path):
 
 # ---------------------------------------------------------------- the command
 def run_cli(capsys, *args) -> tuple[int, str]:
+    """(status, stdout), or (status, stderr) of a failure, whose stdout must be empty: an error
+    never lands in a file that `> answer.json` redirects."""
     status = cli.main(["localize", *map(str, args)])
-    return status, capsys.readouterr().out
+    got = capsys.readouterr()
+    if status:
+        assert got.out == "", got.out
+        return status, got.err
+    return status, got.out
 
 
 def test_the_command_prints_json_and_writes_it(tiny_scene, tiny_map, tmp_path, capsys):
@@ -362,9 +368,11 @@ def test_the_installed_command(tiny_scene, tiny_map, tmp_path):
     bad = subprocess.run(
         [exe, "localize", "--map", str(tmp_path / "none.parquet"), "--query", str(good)], capture_output=True, text=True
     )
-    assert bad.returncode == 1 and bad.stdout.strip().splitlines() == [
-        f"ERROR: {tmp_path / 'none.parquet'}: file is missing"
-    ]
+    assert (
+        bad.returncode == 1
+        and bad.stdout == ""
+        and bad.stderr.strip().splitlines() == [f"ERROR: {tmp_path / 'none.parquet'}: file is missing"]
+    )
 
 
 def test_input_error_names_the_closest_label():

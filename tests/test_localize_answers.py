@@ -108,7 +108,7 @@ def test_a_sequence_is_of_depth_maps_by_default(tiny, tmp_path, capsys):
     assert answer["map_type"] == "depth" and answer["priors"]["sequence"] == {"frames": 2}
     assert answer["found"] and math.hypot(answer["x_m"] - a.x_m, answer["y_m"] - a.y_m) < 5.0
     assert [f["scene"] for f in answer["frames"]] == [TINY_SCENE, TINY_SCENE]
-    status, out, _ = _cli(capsys, "--map", path, "--sequence", seq, "--map-type", "gt")
+    status, _, out = _cli(capsys, "--map", path, "--sequence", seq, "--map-type", "gt")
     assert status == 1 and out.startswith("ERROR: --map-type: a sequence is of depth local maps")
 
 

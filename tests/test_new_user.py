@@ -113,7 +113,7 @@ def test_audit_outside_the_run_folder_says_where_it_looked(tmp_path, monkeypatch
     (tmp_path / "elsewhere").mkdir()
     monkeypatch.chdir(tmp_path / "elsewhere")
     assert cli.main(["audit", str(artifact)]) == 1
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert out.startswith(f"ERROR: no audit records in {tmp_path / 'elsewhere'}: run flatlandia audit in the run's")
 
 
@@ -163,7 +163,7 @@ def test_audit_write_never_overwrites_an_artifact_of_the_run(tmp_path, monkeypat
     monkeypatch.chdir(tmp_path)
     for given in ("results/0/maps/reference_map.parquet", str(artifact)):
         assert cli.main(["audit", "--write", given]) == 1
-        assert capsys.readouterr().out.startswith(
+        assert capsys.readouterr().err.startswith(
             f"ERROR: --write {given}: an artifact of this run (rule reference_map)"
         )
         assert artifact.read_bytes() == b"map"
@@ -180,17 +180,17 @@ def test_localize_out_never_overwrites_its_input_or_an_artifact_of_the_run(tmp_p
     query.write_text('{"objects": []}')
     assert cli.main(["localize", "--map", "m.parquet", "--query", "q.json", "--out", str(query)]) == 1
     assert (
-        capsys.readouterr().out
+        capsys.readouterr().err
         == f"ERROR: --out: {query} is an input of this command: write the answer to a new file\n"
     )
     assert query.read_text() == '{"objects": []}'
     given = "results/0/maps/reference_map.parquet"
     assert cli.main(["localize", "--batch", "results", "--out", given]) == 1
-    assert capsys.readouterr().out.startswith(f"ERROR: --out: {given} is an artifact of this run (rule reference_map)")
+    assert capsys.readouterr().err.startswith(f"ERROR: --out: {given} is an artifact of this run (rule reference_map)")
     assert artifact.read_bytes() == b"map"
     (tmp_path / "poses.csv").write_text("mine")  # a file of the user's own is the user's to replace
     assert cli.main(["localize", "--batch", "results", "--out", "poses.csv"]) == 1
-    assert "is an artifact" not in capsys.readouterr().out  # it fails on the folder, not on --out
+    assert "is an artifact" not in capsys.readouterr().err  # it fails on the folder, not on --out
 
 
 def test_a_command_piped_into_head_ends_without_a_traceback(tmp_path):

@@ -127,7 +127,7 @@ def test_debug_takes_only_wildcards_a_run_could_give(tmp_path, args, says):
     """region=../../../../x/pwn wrote outside the working folder; an unknown scene was a traceback."""
     before = tree(tmp_path)
     res = _debug(tmp_path, *args)
-    errors = [ln for ln in res.stdout.splitlines() if ln.startswith("ERROR:")]
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("ERROR:")]
     assert res.returncode == 2 and errors == [f"ERROR: {says}" + errors[0].split(says, 1)[1]], (
         res.stdout + res.stderr[-2000:]
     )
@@ -228,10 +228,11 @@ def test_the_audit_skips_broken_records_and_hashes_only_the_runs_own_files(tmp_p
     monkeypatch.chdir(run)
     t0 = time.monotonic()
     rc = cli.main(["audit", "--check"])
-    lines = capsys.readouterr().out.splitlines()
+    got = capsys.readouterr()
+    lines = got.out.splitlines()
     assert time.monotonic() - t0 < 30, "the audit read what it must not"
     assert rc == 0 and lines[-1] == "all 1 recorded artifacts match their records", lines
-    warnings = [ln for ln in lines if ln.startswith("WARNING: ")]
+    warnings = [ln for ln in got.err.splitlines() if ln.startswith("WARNING: ")]
     for name in ("root", "big", "up", "list", "norule", "config", "broken"):
         assert any(f"{name}/all.json" in w for w in warnings), (name, warnings)
     assert any("results/link" in w and "outside the run's folder" in w for w in warnings), warnings

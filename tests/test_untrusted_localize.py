@@ -58,7 +58,8 @@ def tiny(tmp_path_factory) -> dict:
 def run(capsys, *args) -> tuple[int, list[str]]:
     """`flatlandia localize ARGS` in this process: (status, stdout lines)."""
     status = cli.main(["localize", *map(str, args)])
-    return status, capsys.readouterr().out.strip().splitlines()
+    got = capsys.readouterr()
+    return status, (got.err if status else got.out).strip().splitlines()
 
 
 def one_error(status: int, lines: list[str], *says: str) -> str:
@@ -96,7 +97,7 @@ def test_an_index_whose_pointers_leave_its_arrays_is_one_error_line_not_a_segfau
         timeout=120,
     )
     assert res.returncode == 1, (res.returncode, res.stderr[-2000:])
-    assert res.stdout.strip().splitlines() == [
+    assert res.stderr.strip().splitlines() == [
         f"ERROR: {tmp_path / 'bad.npz'}: view_ptr must run from 0 to the {len(bad['view_obj'])} seen objects "
         "without decreasing (it indexes view_obj)"
     ]
@@ -238,7 +239,7 @@ def test_a_pipe_or_a_device_is_refused_without_being_read(tiny, tmp_path, what):
             timeout=60,
         )
         assert res.returncode == 1 and time.monotonic() - t0 < 30, res.stderr[-2000:]
-        assert res.stdout.strip().splitlines() == [
+        assert res.stderr.strip().splitlines() == [
             f"ERROR: {path}: is not a regular file (a named pipe, a device or a socket): refused without reading it"
         ]
 

@@ -83,7 +83,7 @@ def test_a_pipe_as_poses_file_is_refused_without_being_opened(tiny_results, tmp_
     os.mkfifo(fifo)
     args = ["score", str(fifo), *SCORE, "--out", str(tmp_path / "out"), "--results", str(tiny_results)]
     res = subprocess.run([sys.executable, "-m", "flatlandia.cli", *args], capture_output=True, text=True, timeout=60)
-    assert res.returncode == 1 and res.stdout.strip().splitlines() == [
+    assert res.returncode == 1 and res.stderr.strip().splitlines() == [
         f"ERROR: {fifo}: is not a regular file (a named pipe, a device or a socket): refused without reading it"
     ], (res.stdout, res.stderr[-2000:])
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 
 import pandas as pd
@@ -26,7 +27,7 @@ def _records(args) -> pd.DataFrame:
     skipped: list[str] = []
     df = provenance.manifest(args.provenance, skipped)
     for line in skipped:  # a broken or tampered record: said, and the others audited
-        print(f"WARNING: {line}")
+        print(f"WARNING: {line}", file=sys.stderr)
     if not df.empty:
         df = df[[Path(a).exists() for a in df["artifact"]]]
     path = Path(args.manifest)
@@ -35,7 +36,9 @@ def _records(args) -> pd.DataFrame:
     if not df.empty:  # only what lies inside this run's folder is ever hashed
         inside = [provenance.in_run(a) for a in df["artifact"]]
         for a in df.loc[[not i for i in inside], "artifact"]:
-            print(f"WARNING: {str(a)[:200]}: an artifact outside the run's folder, left out of the audit")
+            print(
+                f"WARNING: {str(a)[:200]}: an artifact outside the run's folder, left out of the audit", file=sys.stderr
+            )
         df = df[inside]
     return df
 
@@ -117,7 +120,8 @@ def audit(args) -> int:
     if df.empty:
         print(
             f"ERROR: no audit records in {Path.cwd()}: run flatlandia audit in the run's folder, or run the workflow "
-            f"first ({args.manifest} and {args.provenance} are empty)"
+            f"first ({args.manifest} and {args.provenance} are empty)",
+            file=sys.stderr,
         )
         return 1
     made_by = dict(zip(df["artifact"], df["rule"]))  # every recorded artifact, before --scene narrows df
@@ -136,7 +140,8 @@ def audit(args) -> int:
             near = [a for a in df["artifact"] if Path(a).name == Path(args.artifact).name][:5]
             print(
                 f"ERROR: {args.artifact}: no audit record (not an output of this run's rules, or built before "
-                "records existed)" + (f"; recorded artifacts of that name: {', '.join(near)}" if near else "")
+                "records existed)" + (f"; recorded artifacts of that name: {', '.join(near)}" if near else ""),
+                file=sys.stderr,
             )
             return 1
         print(text)
@@ -145,12 +150,17 @@ def audit(args) -> int:
         known = sorted(set(df["scene"].dropna().astype(str)) - {""})
         df = df[df["scene"] == args.scene]
         if df.empty:
-            print(f"ERROR: no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}")
+            print(
+                f"ERROR: no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}",
+                file=sys.stderr,
+            )
             return 1
     if args.write:  # the manifest of any run, whatever its target (rule manifest comes with `all`)
         rule = made_by.get(_run_relative(args.write))
         if rule:  # a run's own artifact overwritten with its manifest would break the run it audits
-            print(f"ERROR: --write {args.write}: an artifact of this run (rule {rule}): give a new file")
+            print(
+                f"ERROR: --write {args.write}: an artifact of this run (rule {rule}): give a new file", file=sys.stderr
+            )
             return 1
         files.write_parquet(df.reset_index(drop=True), args.write)
         print(f"wrote {args.write}: {len(df)} artifacts from {df['rule'].nunique()} rules")
@@ -166,7 +176,10 @@ def audit(args) -> int:
 def config_files(args) -> int:
     """Rewrite (``--write``) or check config/config.yaml and config/README.md against the schema."""
     if release.pyproject_version(Path(args.repo) / "pyproject.toml") is None:
-        print(f"ERROR: {args.repo} is not a clone of the workflow (no flatlandia pyproject.toml): give --repo")
+        print(
+            f"ERROR: {args.repo} is not a clone of the workflow (no flatlandia pyproject.toml): give --repo",
+            file=sys.stderr,
+        )
         return 1
     stale, fresh = [], []
     for path, text in config.generated_files(Path(args.repo)).items():
@@ -179,7 +192,10 @@ def config_files(args) -> int:
         else:
             stale.append(str(path))
     if stale:
-        print(f"ERROR: {', '.join(stale)} out of date with {config.SCHEMA_PATH}: run `flatlandia config --write`")
+        print(
+            f"ERROR: {', '.join(stale)} out of date with {config.SCHEMA_PATH}: run `flatlandia config --write`",
+            file=sys.stderr,
+        )
         return 1
     if fresh:  # a check that passes says so (it printed nothing)
         print(f"{', '.join(fresh)}: up to date with {config.SCHEMA_PATH}")
@@ -196,7 +212,7 @@ def debug_rule(args) -> int:
     for item in args.wildcards:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            print(f"ERROR: wildcard {item!r}: expected key=value, e.g. scene=12")
+            print(f"ERROR: wildcard {item!r}: expected key=value, e.g. scene=12", file=sys.stderr)
             return 2
         wildcards[key] = value
     try:
@@ -210,7 +226,7 @@ def debug_rule(args) -> int:
             **wildcards,
         )
     except debug.DebugError as e:
-        print(f"ERROR: {e}")
+        print(f"ERROR: {e}", file=sys.stderr)
         return 2
     if args.log_to_terminal:
         smk.log = type(smk.log)()  # no log file: the script's logger writes to stderr
@@ -221,7 +237,7 @@ def debug_rule(args) -> int:
     try:
         debug.run_script(smk)
     except debug.DebugError as e:
-        print(f"ERROR: {e}")
+        print(f"ERROR: {e}", file=sys.stderr)
         return 2
     except SystemExit as e:  # rule_log.run ends a script with bad input with exit status 1
         return int(e.code or 0) if not isinstance(e.code, str) else 1
@@ -290,7 +306,6 @@ def _refuse_overwriting(out: str, inputs: list) -> None:
 def localize_batch(args) -> int:
     """Localize every query of a split of an export or a results folder (--batch) and write the
     poses file that `flatlandia score` reads."""
-    import sys
 
     from flatlandia.localize import batch
 
@@ -319,7 +334,7 @@ def localize_batch(args) -> int:
         )
         batch.write_poses(result, args.out)
     except InputError as e:
-        print(f"ERROR: {e}")
+        print(f"ERROR: {e}", file=sys.stderr)
         return 1
     for note in result.notes:
         print(f"note: {note}")
@@ -372,7 +387,7 @@ def localize_query(args) -> int:
             learned=learned,
         )
     except InputError as e:
-        print(f"ERROR: {e}")
+        print(f"ERROR: {e}", file=sys.stderr)
         return 1
     _print_warnings(result)
     text = localize.dumps(result)
@@ -402,12 +417,12 @@ def score_poses(args) -> int:
     try:
         scores = score.score_file(args.poses, args.name, args.results, args.split)
     except InputError as e:
-        print(f"ERROR: {e}")
+        print(f"ERROR: {e}", file=sys.stderr)
         return 1
     for note in scores.notes:
         print(f"note: {note}")
     for warning in scores.warnings:
-        print(f"WARNING: {warning}")
+        print(f"WARNING: {warning}", file=sys.stderr)
     for run in scores.runs:
         print(run.describe())
     score.write_scores(scores, args.name, args.poses, args.out)
