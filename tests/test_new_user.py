@@ -209,3 +209,23 @@ def test_a_command_piped_into_head_ends_without_a_traceback(tmp_path):
     env = os.environ | {"PYTHONPATH": os.pathsep.join(sys.path)}
     run = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, env=env)
     assert run.returncode == 1 and run.stderr == "", run.stderr
+
+
+def test_principal_plane_runs_after_ingest_has_checked_the_published_files(tmp_path):
+    """A truncated transformations.json was two ERROR lines: ingest's and principal_plane's, run
+    side by side; principal_plane now waits for ingest, whose line stops the run."""
+    root = tmp_path / "data"
+    shutil.copytree(TINY_ROOT, root)
+    (root / "maps" / "0" / "class_segmented_point_cloud.ply").write_bytes(b"ply\n")  # only planned, never read
+    res = smk_dry_run(
+        REPO,
+        tmp_path,
+        "results/0/objects/principal_plane.json",
+        "--configfile",
+        str(TINY),
+        "--config",
+        f"flatlandia_root={root}",
+    )
+    assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
+    block = next(b for b in res.stdout.split("\n\n") if "rule principal_plane:" in b)
+    assert "results/0/ingest/ingest.json" in block and "rule ingest:" in res.stdout

@@ -28,6 +28,9 @@ def principal_plane_inputs(wildcards):
     return {
         "cloud": flatlandia_file(f"maps/{s}/class_segmented_point_cloud.ply"),
         "transformations": flatlandia_file(f"maps/{s}/transformations.json"),
+        # after ingest has checked the published files: a broken transformations.json is then one
+        # ERROR line (ingest's), not two from jobs running side by side
+        "ingest": paths.ingest(s),
     }
 
 
