@@ -6,7 +6,7 @@ import pandas as pd
 import torch
 
 from flatlandia import checkpoints
-from flatlandia.fine import scene_localization
+from flatlandia.fine import models, scene_localization
 from flatlandia.plumbing import files, rule_log
 
 
@@ -18,15 +18,15 @@ def main(smk, log):
     if len(queries) == 0:
         meta["empty_because"] = "the scene has no query, so nothing is evaluated (see results/summary.md)"
         log.warning("scene %s: %s", scene, meta["empty_because"])
-    models = {}
+    loaded = {}
     for path in smk.input.checkpoints:
         model, cfg = checkpoints.load_checkpoint(path, models.FineTrainConfig, models.build_model)
         slug = Path(path).parent.name.rsplit("_", 2)[0]  # {model}_{map_type}_{train}
-        models[(slug, cfg.map_type)] = (model, cfg)
+        loaded[(slug, cfg.map_type)] = (model, cfg)
     rows = scene_localization.scene_rows(
         ref,
         queries,
-        models,
+        loaded,
         list(smk.params["fine.runs.map_types"]),
         dict(smk.params["solver"]),
         progress=rule_log.progress(log, f"scene {scene}"),
