@@ -163,3 +163,26 @@ def test_docs_architecture_names_every_room():
         for path in sorted((PACKAGE / sub).glob("*.py")):
             if path.stem != "__init__":
                 assert f"`{path.stem}`" in ARCHITECTURE, f"docs/architecture.md does not name {sub}/{path.stem}"
+
+
+def test_no_rule_script_shadows_a_module_it_imports():
+    """A rule script that binds a name it imported from flatlandia (``models = {}`` beside ``from
+    flatlandia.fine import models``) reads the wrong object at its first use after the binding; a
+    lint fix then drops the "unused" import, and only a full run finds it (the images scene's
+    scene_localization did so once)."""
+    shadowed = []
+    for path in sorted((REPO / "workflow" / "scripts").glob("*.py")):
+        tree = ast.parse(path.read_text())
+        imported = {
+            (a.asname or a.name).split(".")[0]
+            for n in ast.walk(tree)
+            if isinstance(n, (ast.Import, ast.ImportFrom))
+            and (getattr(n, "module", None) or (n.names[0].name if isinstance(n, ast.Import) else "")).startswith(
+                "flatlandia"
+            )
+            for a in n.names
+        }
+        bound = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)}
+        bound |= {n.arg for n in ast.walk(tree) if isinstance(n, ast.arg)}
+        shadowed += [f"{path.name}: {name}" for name in sorted(imported & bound)]
+    assert shadowed == []
