@@ -152,8 +152,10 @@ def test_manifest_and_audit_trace_every_artifact(run_two_scenes):
         capture_output=True,
         text=True,
     )
-    assert res.returncode == 1 and res.stdout == "" and res.stderr.startswith(
-        "ERROR: no audit records for scene '99'; scenes with records: "
+    assert (
+        res.returncode == 1
+        and res.stdout == ""
+        and res.stderr.startswith("ERROR: no audit records for scene '99'; scenes with records: ")
     )
     assert {oct((wd / q).stat().st_mode & 0o777), oct((wd / "results/manifest.parquet").stat().st_mode & 0o777)} == {
         oct(0o666 & ~_umask())
