@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import TINY_SCENE
-from tiny_results import tiny_scene
+from tiny_results import builtin_summary, tiny_scene
 
 from flatlandia import cli, config, geo, paths, score
 from flatlandia.city import index, tiling
@@ -30,23 +30,6 @@ NAME_COLUMNS = {"run", "method", "method_label"}
 TEXT = {"scene": str, "token": str}
 #: the tiny scene's test split holds one query: the flow runs on its train split (10 queries)
 SPLIT = "train"
-
-
-def _summary(errors, method, map_type, proposal, label, ref) -> dict:
-    s = evaluation.summarise(errors)
-    s.update(
-        method=str(errors["method"].iloc[0]),
-        method_slug=method,
-        map_type=map_type,
-        proposal=proposal,
-        strategy=label,
-        run=f"{method}_{map_type}_{proposal}",
-        ref_map_kb=evaluation.ref_map_kb(ref),
-        train_s=0.0,
-        epochs=0,
-        trained_on="",
-    )
-    return s
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +52,7 @@ def tiny_run(tmp_path_factory):
             e["strategy"] = label
             folder = results / "fine" / f"solver_{map_type}_{proposal}"
             files.write_parquet(e, folder / "errors.parquet")
-            summaries.append(_summary(e, "solver", map_type, proposal, label, ref))
+            summaries.append(builtin_summary(e, "solver", map_type, proposal, label, ref))
             files.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
     files.write_parquet(fine_table.table_rows(summaries), results / "tables" / "fine_localization.parquet")
     ex = results / "export"
@@ -313,7 +296,7 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
     for map_type, proposal in settings_runs:
         e = evaluation.solver_errors(read, map_type, proposal, settings, learned[proposal])
         e["strategy"] = {"whole": "whole map", "gtbb": "GT-BB"}[proposal]
-        summaries.append(_summary(e, "solver", map_type, proposal, e["strategy"].iloc[0], read[0][0]))
+        summaries.append(builtin_summary(e, "solver", map_type, proposal, e["strategy"].iloc[0], read[0][0]))
         summaries[-1]["ref_map_kb"] = float(np.mean([evaluation.ref_map_kb(r) for r, _ in read]))
     builtin = fine_table.table_rows(summaries)
     for map_type, proposal in settings_runs:
