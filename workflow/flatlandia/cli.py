@@ -20,6 +20,16 @@ from flatlandia.plumbing import files, provenance
 from flatlandia.plumbing.errors import InputError
 
 
+def _error(text: str) -> None:
+    """An ``ERROR:`` line, on stderr: a result on stdout redirected into a file never hides one."""
+    print(f"ERROR: {text}", file=sys.stderr)
+
+
+def _warning(text: str) -> None:
+    """A ``WARNING:`` line, on stderr beside the errors."""
+    print(f"WARNING: {text}", file=sys.stderr)
+
+
 def _records(args) -> pd.DataFrame:
     """The live provenance records (they describe the latest run, whatever its target), without
     those of outputs since deleted; the manifest is the fallback for a results folder copied
@@ -27,7 +37,7 @@ def _records(args) -> pd.DataFrame:
     skipped: list[str] = []
     df = provenance.manifest(args.provenance, skipped)
     for line in skipped:  # a broken or tampered record: said, and the others audited
-        print(f"WARNING: {line}", file=sys.stderr)
+        _warning(str(line))
     if not df.empty:
         df = df[[Path(a).exists() for a in df["artifact"]]]
     path = Path(args.manifest)
@@ -36,9 +46,7 @@ def _records(args) -> pd.DataFrame:
     if not df.empty:  # only what lies inside this run's folder is ever hashed
         inside = [provenance.in_run(a) for a in df["artifact"]]
         for a in df.loc[[not i for i in inside], "artifact"]:
-            print(
-                f"WARNING: {str(a)[:200]}: an artifact outside the run's folder, left out of the audit", file=sys.stderr
-            )
+            _warning(f"{str(a)[:200]}: an artifact outside the run's folder, left out of the audit")
         df = df[inside]
     return df
 
@@ -118,10 +126,9 @@ def _run_relative(artifact: str) -> str:
 def audit(args) -> int:
     df = _records(args)
     if df.empty:
-        print(
-            f"ERROR: no audit records in {Path.cwd()}: run flatlandia audit in the run's folder, or run the workflow "
-            f"first ({args.manifest} and {args.provenance} are empty)",
-            file=sys.stderr,
+        _error(
+            f"no audit records in {Path.cwd()}: run flatlandia audit in the run's folder, or run the workflow "
+            f"first ({args.manifest} and {args.provenance} are empty)"
         )
         return 1
     made_by = dict(zip(df["artifact"], df["rule"]))  # every recorded artifact, before --scene narrows df
@@ -138,10 +145,9 @@ def audit(args) -> int:
         text = audit_artifact(df, _run_relative(args.artifact), args.tree, Path(args.provenance) / "configs")
         if not text:
             near = [a for a in df["artifact"] if Path(a).name == Path(args.artifact).name][:5]
-            print(
-                f"ERROR: {args.artifact}: no audit record (not an output of this run's rules, or built before "
-                "records existed)" + (f"; recorded artifacts of that name: {', '.join(near)}" if near else ""),
-                file=sys.stderr,
+            _error(
+                f"{args.artifact}: no audit record (not an output of this run's rules, or built before "
+                "records existed)" + (f"; recorded artifacts of that name: {', '.join(near)}" if near else "")
             )
             return 1
         print(text)
@@ -150,17 +156,12 @@ def audit(args) -> int:
         known = sorted(set(df["scene"].dropna().astype(str)) - {""})
         df = df[df["scene"] == args.scene]
         if df.empty:
-            print(
-                f"ERROR: no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}",
-                file=sys.stderr,
-            )
+            _error(f"no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}")
             return 1
     if args.write:  # the manifest of any run, whatever its target (rule manifest comes with `all`)
         rule = made_by.get(_run_relative(args.write))
         if rule:  # a run's own artifact overwritten with its manifest would break the run it audits
-            print(
-                f"ERROR: --write {args.write}: an artifact of this run (rule {rule}): give a new file", file=sys.stderr
-            )
+            _error(f"--write {args.write}: an artifact of this run (rule {rule}): give a new file")
             return 1
         files.write_parquet(df.reset_index(drop=True), args.write)
         print(f"wrote {args.write}: {len(df)} artifacts from {df['rule'].nunique()} rules")
@@ -176,10 +177,7 @@ def audit(args) -> int:
 def config_files(args) -> int:
     """Rewrite (``--write``) or check config/config.yaml and config/README.md against the schema."""
     if release.pyproject_version(Path(args.repo) / "pyproject.toml") is None:
-        print(
-            f"ERROR: {args.repo} is not a clone of the workflow (no flatlandia pyproject.toml): give --repo",
-            file=sys.stderr,
-        )
+        _error(f"{args.repo} is not a clone of the workflow (no flatlandia pyproject.toml): give --repo")
         return 1
     stale, fresh = [], []
     for path, text in config.generated_files(Path(args.repo)).items():
@@ -192,10 +190,7 @@ def config_files(args) -> int:
         else:
             stale.append(str(path))
     if stale:
-        print(
-            f"ERROR: {', '.join(stale)} out of date with {config.SCHEMA_PATH}: run `flatlandia config --write`",
-            file=sys.stderr,
-        )
+        _error(f"{', '.join(stale)} out of date with {config.SCHEMA_PATH}: run `flatlandia config --write`")
         return 1
     if fresh:  # a check that passes says so (it printed nothing)
         print(f"{', '.join(fresh)}: up to date with {config.SCHEMA_PATH}")
@@ -212,7 +207,7 @@ def debug_rule(args) -> int:
     for item in args.wildcards:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            print(f"ERROR: wildcard {item!r}: expected key=value, e.g. scene=12", file=sys.stderr)
+            _error(f"wildcard {item!r}: expected key=value, e.g. scene=12")
             return 2
         wildcards[key] = value
     try:
@@ -226,7 +221,7 @@ def debug_rule(args) -> int:
             **wildcards,
         )
     except debug.DebugError as e:
-        print(f"ERROR: {e}", file=sys.stderr)
+        _error(str(e))
         return 2
     if args.log_to_terminal:
         smk.log = type(smk.log)()  # no log file: the script's logger writes to stderr
@@ -237,7 +232,7 @@ def debug_rule(args) -> int:
     try:
         debug.run_script(smk)
     except debug.DebugError as e:
-        print(f"ERROR: {e}", file=sys.stderr)
+        _error(str(e))
         return 2
     except SystemExit as e:  # rule_log.run ends a script with bad input with exit status 1
         return int(e.code or 0) if not isinstance(e.code, str) else 1
@@ -334,12 +329,12 @@ def localize_batch(args) -> int:
         )
         batch.write_poses(result, args.out)
     except InputError as e:
-        print(f"ERROR: {e}", file=sys.stderr)
+        _error(str(e))
         return 1
     for note in result.notes:
         print(f"note: {note}")
     for w in result.warnings:
-        print(f"WARNING: {w}", file=sys.stderr)
+        _warning(str(w))
     print(result.describe())
     print(f"wrote {args.out}: score it with `flatlandia score {args.out} --name NAME --out DIR`")
     return 0
@@ -387,7 +382,7 @@ def localize_query(args) -> int:
             learned=learned,
         )
     except InputError as e:
-        print(f"ERROR: {e}", file=sys.stderr)
+        _error(str(e))
         return 1
     _print_warnings(result)
     text = localize.dumps(result)
@@ -400,11 +395,9 @@ def localize_query(args) -> int:
 def _print_warnings(result: dict) -> None:
     """The answers' warnings (a fix that looks swapped or off the map) as WARNING lines on stderr,
     each once: stdout carries the JSON."""
-    import sys
-
     answers = result["results"] if "results" in result else [result]
     for w in dict.fromkeys(w for a in answers for w in a.get("warnings", [])):
-        print(f"WARNING: {w}", file=sys.stderr)
+        _warning(str(w))
 
 
 def score_poses(args) -> int:
@@ -417,12 +410,12 @@ def score_poses(args) -> int:
     try:
         scores = score.score_file(args.poses, args.name, args.results, args.split)
     except InputError as e:
-        print(f"ERROR: {e}", file=sys.stderr)
+        _error(str(e))
         return 1
     for note in scores.notes:
         print(f"note: {note}")
     for warning in scores.warnings:
-        print(f"WARNING: {warning}", file=sys.stderr)
+        _warning(str(warning))
     for run in scores.runs:
         print(run.describe())
     score.write_scores(scores, args.name, args.poses, args.out)
