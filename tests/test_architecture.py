@@ -11,6 +11,8 @@ import sys
 from collections import defaultdict
 from pathlib import Path
 
+import networkx as nx
+
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = REPO / "workflow" / "flatlandia"
 ARCHITECTURE = (REPO / "docs" / "architecture.md").read_text()
@@ -67,37 +69,9 @@ def _room(module: str) -> str:
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
-    """The strongly connected components of more than one node (Tarjan)."""
-    index, low, stack, on, out = {}, {}, [], set(), []
-    counter = [0]
-    sys.setrecursionlimit(max(10000, sys.getrecursionlimit()))
-
-    def visit(v):
-        index[v] = low[v] = counter[0]
-        counter[0] += 1
-        stack.append(v)
-        on.add(v)
-        for w in graph.get(v, ()):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            if len(comp) > 1:
-                out.append(sorted(comp))
-
-    for v in graph:
-        if v not in index:
-            visit(v)
-    return out
+    """The strongly connected components of more than one node: the loops."""
+    g = nx.DiGraph((a, b) for a, targets in graph.items() for b in targets)
+    return [sorted(c) for c in nx.strongly_connected_components(g) if len(c) > 1]
 
 
 def test_no_files_import_each_other_in_a_loop():
@@ -165,6 +139,17 @@ def test_docs_architecture_names_every_room():
                 assert f"`{path.stem}`" in ARCHITECTURE, f"docs/architecture.md does not name {sub}/{path.stem}"
 
 
+def _flatlandia_imports(tree: ast.AST) -> list[ast.alias]:
+    """The names a file imports from the flatlandia package."""
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("flatlandia"):
+            out += n.names
+        elif isinstance(n, ast.Import):
+            out += [a for a in n.names if a.name.startswith("flatlandia")]
+    return out
+
+
 def test_no_rule_script_shadows_a_module_it_imports():
     """A rule script that binds a name it imported from flatlandia (``models = {}`` beside ``from
     flatlandia.fine import models``) reads the wrong object at its first use after the binding; a
@@ -173,15 +158,7 @@ def test_no_rule_script_shadows_a_module_it_imports():
     shadowed = []
     for path in sorted((REPO / "workflow" / "scripts").glob("*.py")):
         tree = ast.parse(path.read_text())
-        imported = {
-            (a.asname or a.name).split(".")[0]
-            for n in ast.walk(tree)
-            if isinstance(n, (ast.Import, ast.ImportFrom))
-            and (getattr(n, "module", None) or (n.names[0].name if isinstance(n, ast.Import) else "")).startswith(
-                "flatlandia"
-            )
-            for a in n.names
-        }
+        imported = {(a.asname or a.name).split(".")[0] for a in _flatlandia_imports(tree)}
         bound = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)}
         bound |= {n.arg for n in ast.walk(tree) if isinstance(n, ast.arg)}
         shadowed += [f"{path.name}: {name}" for name in sorted(imported & bound)]
