@@ -214,21 +214,31 @@ def images_scenes():
     return [s for s in selected_scenes() if SCENES_SHEET.loc[s, "source"] == "images"]
 
 
+def images_folder_problem(scene):
+    """What is wrong with an images scene's folder (the sheet's path), or None: a file where the
+    folder should be, or no folder and no url that fetches one. One check, for the run's start
+    (check_images_folders) and for a job asked for by name (images_dir)."""
+    row = SCENES_SHEET.loc[scene]
+    path = config_path(row["path"]) if row.get("path", "") else None
+    if path is not None and path.exists() and not path.is_dir():
+        return f"its path {str(path)!r} is a file, not a folder"
+    if (path is None or not path.exists()) and not row.get("url", ""):
+        given = f"its path {str(path)!r} does not exist" if path is not None else "its path is empty"
+        return (
+            f"{given} and the row gives no url to fetch the photos from (give the folder of photos in "
+            "the path column; the sheet is tab-separated)"
+        )
+    return None
+
+
 def check_images_folders():
-    """Stop before any job when a selected images scene's folder (the sheet's path) is not a folder
-    and no url fetches it: otherwise the first rule's input function fails inside Snakemake, with
-    a traceback."""
+    """Stop before any job when a selected images scene's folder is wrong
+    (images_folder_problem): otherwise the first rule's input function fails inside Snakemake,
+    with a traceback."""
     for scene in images_scenes():
-        row = SCENES_SHEET.loc[scene]
-        path = config_path(row["path"]) if row.get("path", "") else None
-        if path is not None and path.exists() and not path.is_dir():
-            sys.exit(f"ERROR: {config['scenes']}: images scene {scene}: its path {str(path)!r} is a file, not a folder")
-        if (path is None or not path.exists()) and not row.get("url", ""):
-            given = f"its path {str(path)!r} does not exist" if path is not None else "its path is empty"
-            sys.exit(
-                f"ERROR: {config['scenes']}: images scene {scene}: {given} and the row gives no url to fetch "
-                "the photos from (give the folder of photos in the path column; the sheet is tab-separated)"
-            )
+        problem = images_folder_problem(scene)
+        if problem:
+            sys.exit(f"ERROR: {config['scenes']}: images scene {scene}: {problem}")
 
 
 check_images_folders()

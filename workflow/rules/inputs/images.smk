@@ -7,14 +7,12 @@ def images_dir(wildcards):
     row = SCENES_SHEET.loc[wildcards.scene]
     if row["source"] != "images":
         raise WorkflowError(f"{config['scenes']}: scene {wildcards.scene} is not an images scene")
+    problem = images_folder_problem(wildcards.scene)
+    if problem:
+        raise WorkflowError(f"{config['scenes']}: images scene {wildcards.scene}: {problem}")
     if row["path"] and config_path(row["path"]).exists():
         return str(config_path(row["path"]))
-    if row.get("url", ""):
-        return f"resources/images/{wildcards.scene}"  # fetched by rule fetch_images
-    raise WorkflowError(
-        f"{config['scenes']}: images folder {row['path']!r} of scene {wildcards.scene} does not exist "
-        "and the sheet gives no url to fetch it from"
-    )
+    return f"resources/images/{wildcards.scene}"  # fetched by rule fetch_images
 
 
 def images_fetch_params(wildcards):
