@@ -32,7 +32,10 @@ def upstream_zip(tmp_path, flat_root):
 @pytest.mark.slow  # the published data (flat_root)
 def test_fetch_flatlandia_unpacks_data_and_adds_sheets(upstream_zip, tmp_path):
     scenes = pd.DataFrame({"scene": ["12"], "city": ["Paris"], "name": ["ParisRosaPark"]})
-    dest = fetch.fetch_flatlandia(tmp_path / "data", scenes, url=upstream_zip.as_uri(), timeout_s=5, workdir=tmp_path)
+    (tmp_path / "resources").mkdir()  # a fetch writes below the working folder's resources/
+    dest = fetch.fetch_flatlandia(
+        tmp_path / "resources/flatlandia", scenes, url=upstream_zip.as_uri(), timeout_s=5, workdir=tmp_path
+    )
     assert (dest / "local_maps.json").exists() and not (dest / "README.md").exists()
     assert (dest / "classes.tsv").read_text().count("\n") == 43
     rep = ingest.ingest_scene(dest, "12", verify_hash=True)
@@ -46,28 +49,32 @@ def test_fetch_images_takes_the_subfolder(tmp_path, lund):
         for name in ("01.jpg", "02.jpg"):
             out.write(lund / name, f"OpenSfM-main/data/lund/images/{name}")
         out.writestr("OpenSfM-main/data/lund/config.yaml", "x")
-    dest = fetch.fetch_images(z.as_uri(), "data/lund/images", tmp_path / "imgs", timeout_s=5, workdir=tmp_path)
+    (tmp_path / "resources").mkdir()  # a fetch writes below the working folder's resources/
+    lund_dest = tmp_path / "resources/images/lund"
+    dest = fetch.fetch_images(z.as_uri(), "data/lund/images", lund_dest, timeout_s=5, workdir=tmp_path)
     assert sorted(p.name for p in dest.iterdir()) == [fetch.FETCH_MARKER, "01.jpg", "02.jpg"]
 
 
 def test_offline_fetch_fails_at_once_with_instructions(tmp_path):
-    with pytest.raises(fetch.FetchError, match="FLATLANDIA_ROOT"):
+    dest = tmp_path / "resources/flatlandia"  # a fetch writes below the working folder's resources/
+    (tmp_path / "resources").mkdir()
+    with pytest.raises(fetch.FetchError, match="could not download the Flatlandia data.*FLATLANDIA_ROOT"):
         fetch.fetch_flatlandia(
-            tmp_path / "data",
+            dest,
             pd.DataFrame({"scene": ["0"], "city": ["x"], "name": ["y"]}),
             url="https://127.0.0.1:9/nothing.zip",
             timeout_s=5,
             workdir=tmp_path,
         )
-    assert not (tmp_path / "data").exists()
+    assert not dest.exists()
     with pytest.raises(fetch.FetchError, match="archive holds no data/ folder"):
         bad = tmp_path / "bad.zip"
         with zipfile.ZipFile(bad, "w") as out:
             out.writestr("x/readme", "nothing")
         fetch.fetch_flatlandia(
-            tmp_path / "data", pd.DataFrame({"scene": [], "city": [], "name": []}), url=bad.as_uri(), workdir=tmp_path
+            dest, pd.DataFrame({"scene": [], "city": [], "name": []}), url=bad.as_uri(), workdir=tmp_path
         )
-    assert not (tmp_path / "data").exists()
+    assert not dest.exists()
 
 
 @pytest.mark.slow  # the published data (flat_root)
@@ -76,7 +83,7 @@ def test_workflow_fetches_when_the_data_folder_is_missing(repo, upstream_zip, tm
     pin = hashlib.sha256(upstream_zip.read_bytes()).hexdigest()  # a pinned archive that matches unpacks
     cfg.write_text(
         f"flatlandia_root: {tmp_path / 'nowhere'}\n"
-        f"fetch: {{url: '{upstream_zip.as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5, sha256: {pin}}}\n"
+        f"fetch: {{url: '{upstream_zip.as_uri()}', dest: '{tmp_path / 'resources/fetched'}', timeout_s: 5, sha256: {pin}}}\n"
     )
     res = smk(
         repo,
@@ -92,7 +99,7 @@ def test_workflow_fetches_when_the_data_folder_is_missing(repo, upstream_zip, tm
         "benchmark_scenes=[12]",
     )
     assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
-    assert (tmp_path / "fetched/local_maps.json").exists()
+    assert (tmp_path / "resources/fetched/local_maps.json").exists()  # below the working folder's resources/
     assert len(pd.read_parquet(tmp_path / "results/12/queries/queries.parquet")) == 3
     stats = pd.read_parquet(tmp_path / "results/tables/dataset_stats.parquet").set_index("city")
     assert stats.loc["Paris", "images"] == 49  # tokens.txt of the fetched scene 12

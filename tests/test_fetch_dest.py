@@ -2,10 +2,10 @@
 
 ``fetch.dest`` (and an images scene's folder) is replaced only when the run's own record says a fetch
 of this run wrote it and it is unchanged since; '.', '..', the working folder, its parents, the root,
-the home folder and any folder outside the working folder (but the declared data folder) are refused
-before anything is downloaded. Temporaries of an interrupted fetch or atomic write (a ``kill -9``,
-simulated here by a child process that kills itself mid-write) are removed at the next start when
-their process is gone, and nothing else is. Every hostile input is built in the test's tmp_path and
+the home folder and any folder but one below the working folder's resources/ (or the declared data
+folder while it does not exist) are refused before anything is downloaded. Temporaries of an
+interrupted fetch or atomic write (a ``kill -9``, simulated here by a child process that kills
+itself mid-write) are removed at the next start when their process is gone, and nothing else is. Every hostile input is built in the test's tmp_path and
 each test checks that nothing there was deleted or written outside the destination.
 """
 
@@ -70,8 +70,8 @@ def with_canary(folder: Path) -> Path:
 @pytest.mark.parametrize("kind", ["folder", "empty folder", "file", "link to a folder"])
 @pytest.mark.parametrize("which", ["flatlandia", "images"])
 def test_an_existing_destination_no_fetch_wrote_is_refused_and_kept(tmp_path, archive, downloads, kind, which):
-    dest = tmp_path / "dest"
-    canary = with_canary(tmp_path / "mine")
+    dest = tmp_path / "resources" / "dest"  # where a fetch may write: below the working folder's resources/
+    canary = with_canary(tmp_path / "resources" / "mine")
     if kind == "folder":
         canary = with_canary(dest)
     elif kind == "empty folder":
@@ -79,7 +79,7 @@ def test_an_existing_destination_no_fetch_wrote_is_refused_and_kept(tmp_path, ar
     elif kind == "file":
         dest.write_text("a file of mine")
     else:
-        dest.symlink_to(tmp_path / "mine", target_is_directory=True)
+        dest.symlink_to(tmp_path / "resources" / "mine", target_is_directory=True)
     before = tree(tmp_path)
     with pytest.raises(fetch.FetchError) as err:
         if which == "flatlandia":
@@ -127,9 +127,9 @@ def test_dest_holding_the_working_folder_is_refused_before_any_download(tmp_path
         with pytest.raises(fetch.FetchError, match="is refused"):
             fetch.fetch_images(archive.as_uri(), "imgs", dest, timeout_s=5)
     assert downloads == [] and tree(tmp_path) == before
-    for ok in ("resources/flatlandia", "resources/images/x", "data"):
+    for ok in ("resources/flatlandia", "resources/images/x"):
         fetch.check_dest(ok, run_dir)
-    for outside in ("../shared/flatlandia", str(tmp_path / "data")):  # only as the declared data folder
+    for outside in ("data", "../shared/flatlandia", str(tmp_path / "data")):  # only as the declared data folder
         with pytest.raises(fetch.FetchError, match="outside the working folder"):
             fetch.check_dest(outside, run_dir)
         fetch.check_dest(outside, run_dir, data_folder=outside)
@@ -143,7 +143,7 @@ def test_a_folder_from_an_earlier_fetch_is_replaced_whole(tmp_path, downloads):
     src.mkdir()
     one = make_zip(src / "one.zip", {"Flatlandia-main/data/local_maps.json": b"{}", "Flatlandia-main/data/old": b"o"})
     two = make_zip(src / "two.zip", {"Flatlandia-main/data/local_maps.json": b"{1}"})
-    dest = tmp_path / "data"
+    dest = tmp_path / "resources" / "data"  # below the working folder's resources/
     fetch.fetch_flatlandia(dest, SCENES, url=one.as_uri(), timeout_s=5, workdir=tmp_path)
     assert tree(dest) == {"local_maps.json", "old", "scenes.tsv", "classes.tsv", fetch.FETCH_MARKER}
     assert fetch.fetched_before(dest, tmp_path)
@@ -153,7 +153,8 @@ def test_a_folder_from_an_earlier_fetch_is_replaced_whole(tmp_path, downloads):
     marker = json.loads((dest / fetch.FETCH_MARKER).read_text())
     assert marker["url"] == two.as_uri() and marker["subfolder"] == "data" and len(marker["sha256"]) == 64
     state = {"resources", str(fetch.FETCH_STATE)}  # the run's record of what its fetches wrote
-    assert tree(tmp_path) == {"src", "src/one.zip", "src/two.zip", "data"} | {f"data/{p}" for p in tree(dest)} | state
+    fetched = {"resources/data"} | {f"resources/data/{p}" for p in tree(dest)}
+    assert tree(tmp_path) == {"src", "src/one.zip", "src/two.zip"} | fetched | state
     assert downloads == [one.as_uri(), two.as_uri()]
     (dest / "added-by-hand").write_text("x")  # changed since the fetch: no longer the fetch's alone
     with pytest.raises(fetch.FetchError, match="whose files changed since"):
@@ -162,7 +163,8 @@ def test_a_folder_from_an_earlier_fetch_is_replaced_whole(tmp_path, downloads):
 
 
 def test_a_destination_appearing_during_the_download_is_kept(tmp_path, archive, monkeypatch):
-    dest = tmp_path / "imgs"
+    dest = tmp_path / "resources" / "imgs"  # below the working folder's resources/
+    (tmp_path / "resources").mkdir()
     real = fetch.download
 
     def meanwhile(*args, **kwargs):
@@ -174,7 +176,7 @@ def test_a_destination_appearing_during_the_download_is_kept(tmp_path, archive, 
     with pytest.raises(fetch.FetchError, match="a folder not written by a fetch"):
         fetch.fetch_images(archive.as_uri(), "imgs", dest, timeout_s=5, workdir=tmp_path)
     assert tree(dest) == {"canary.txt"}
-    assert tree(tmp_path) == {"src", "src/good.zip", "imgs", "imgs/canary.txt"}
+    assert tree(tmp_path) == {"src", "src/good.zip", "resources", "resources/imgs", "resources/imgs/canary.txt"}
 
 
 # ----------------------------------------------------------------------------- killed runs

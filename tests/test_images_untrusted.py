@@ -27,6 +27,7 @@ import pandas as pd
 import pytest
 from conftest import berlin_images, lund_images
 from PIL import Image, ImageFile
+from snakemake.iocontainers import Namedlist
 from snakemake_runner import smk
 
 from flatlandia import config, geo
@@ -57,6 +58,11 @@ def _jpeg_declaring(path: Path, width: int, height: int) -> Path:
     data[i + 5 : i + 9] = height.to_bytes(2, "big") + width.to_bytes(2, "big")
     path.write_bytes(bytes(data))
     return path
+
+
+def _named(**paths: str) -> Namedlist:
+    """A job's input or output as Snakemake gives a rule script: a list of paths, each also by name."""
+    return Namedlist(fromdict=paths)
 
 
 def _run_script(name: str, snakemake: SimpleNamespace, capsys) -> list[str]:
@@ -128,10 +134,8 @@ def test_tiny_images_are_dropped_and_segment_refuses_them(tmp_path, capsys):
     files.write_parquet(pd.DataFrame({"name": ["01.jpg", "pixel.jpg"], "kept": [True, True]}), table)
     out = tmp_path / "segment"
     smk_ = SimpleNamespace(
-        input=SimpleNamespace(table=str(table), images=str(photos)),
-        output=SimpleNamespace(
-            masks=str(out / "masks"), classes=str(out / "classes"), stats=str(out / "stats.parquet")
-        ),
+        input=_named(table=str(table), images=str(photos)),
+        output=_named(masks=str(out / "masks"), classes=str(out / "classes"), stats=str(out / "stats.parquet")),
         params={
             "segment.backend": "offline",
             "segment.weights": None,
@@ -196,8 +200,8 @@ def test_the_audit_rule_stops_with_one_line_when_nothing_usable_is_left(tmp_path
     os.mkfifo(photos / "x.jpg")
     table = tmp_path / "images.parquet"
     smk_ = SimpleNamespace(
-        input=SimpleNamespace(images=str(photos)),
-        output=SimpleNamespace(table=str(table)),
+        input=_named(images=str(photos)),
+        output=_named(table=str(table)),
         params={  # the config keys rule image_audit names
             "images.dedup_threshold": 0.02,
             "images.missing_gps": "keep",
@@ -255,8 +259,8 @@ def test_a_malformed_metadata_csv_is_one_error_naming_line_column_and_value(tmp_
     # through the rule: that one line, no traceback, no table
     table = tmp_path / "images.parquet"
     smk_ = SimpleNamespace(
-        input=SimpleNamespace(images=str(photos)),
-        output=SimpleNamespace(table=str(table)),
+        input=_named(images=str(photos)),
+        output=_named(table=str(table)),
         params={  # the config keys rule image_audit names
             "images.dedup_threshold": 0.02,
             "images.missing_gps": "keep",
@@ -289,11 +293,11 @@ def test_metadata_csv_values_are_typed_and_empty_cells_keep_the_exif(tmp_path):
     exif = image_audit.read_folder_metadata(photos).set_index("name")
     (photos / "metadata.csv").write_text(
         "\ufeff name , lat , lon , alt , heading , capture_time \n"  # a BOM and spaces, as spreadsheets write
-        "01.jpg, 55.5 , 13.1 , , 450 , 2020:01:02 03:04:05\n"
+        "01.jpg, 55.5 , 13.1 , , 350 , 2020:01:02 03:04:05\n"  # a heading in range (450: refused)
         "02.jpg,,,12.5,,\n"
     )
     df = image_audit.read_folder_metadata(photos).set_index("name")
-    assert df.loc["01.jpg", ["lat", "lon", "heading"]].tolist() == [55.5, 13.1, 450.0]
+    assert df.loc["01.jpg", ["lat", "lon", "heading"]].tolist() == [55.5, 13.1, 350.0]
     assert df.loc["01.jpg", "alt"] == exif.loc["01.jpg", "alt"]  # empty: the EXIF altitude stays
     assert df.loc["01.jpg", "capture_time"] == "2020-01-02T03:04:05"
     assert (

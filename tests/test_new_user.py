@@ -149,12 +149,12 @@ def test_a_mistyped_data_folder_says_it_does_not_exist_when_the_fetch_fails(tmp_
     cfg = tmp_path / "typo.yaml"
     cfg.write_text(
         f"flatlandia_root: {tmp_path / 'flatlandai'}\n"
-        f"fetch: {{url: '{(tmp_path / 'no_archive.zip').as_uri()}', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
+        f"fetch: {{url: '{(tmp_path / 'no_archive.zip').as_uri()}', dest: '{tmp_path / 'resources/fetched'}', timeout_s: 5}}\n"
     )
     res = smk(REPO, tmp_path, "--cores", "1", "maps", "--configfile", str(TINY), str(cfg))
     line = _one_error(res)
     assert line.startswith(f"ERROR: the data folder {tmp_path / 'flatlandai'} (flatlandia_root) does not exist, so")
-    assert "flatlandia_root=/path/to/data" in line and not (tmp_path / "fetched").exists()
+    assert "flatlandia_root=/path/to/data" in line and not (tmp_path / "resources/fetched").exists()
 
 
 def test_audit_write_never_overwrites_an_artifact_of_the_run(tmp_path, monkeypatch, capsys):

@@ -60,7 +60,7 @@ def test_a_planted_fetch_marker_no_longer_lets_a_fetch_delete_a_folder(tmp_path,
     """A folder of photos holding a forged .flatlandia-fetch ({"url": "x"}) was replaced when
     fetch.dest named it: its photos were deleted. Only the run's own record allows a replacement."""
     run = tmp_path / "run"
-    photos = run / "my_photos"
+    photos = run / "resources" / "my_photos"  # where a fetch may write: below resources/
     photos.mkdir(parents=True)
     (photos / "01.jpg").write_bytes(b"my photo")
     (photos / fetch.FETCH_MARKER).write_text(json.dumps({"url": "x"}))
@@ -96,8 +96,8 @@ def test_a_file_source_that_is_a_pipe_is_refused_at_once(tmp_path):
     os.mkfifo(fifo)
     t0 = time.monotonic()
     with pytest.raises(fetch.FetchError, match="not a regular file"):
-        fetch.fetch_images(fifo.as_uri(), "imgs", tmp_path / "imgs", timeout_s=5, workdir=tmp_path)
-    assert time.monotonic() - t0 < 5 and not (tmp_path / "imgs").exists()
+        fetch.fetch_images(fifo.as_uri(), "imgs", tmp_path / "resources/imgs", timeout_s=5, workdir=tmp_path)
+    assert time.monotonic() - t0 < 5 and not (tmp_path / "resources/imgs").exists()
 
 
 # ----------------------------------------------------------------------------- 3. flatlandia debug

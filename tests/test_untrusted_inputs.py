@@ -42,8 +42,9 @@ def tree(root: Path) -> set[str]:
 
 @pytest.fixture
 def deep_dest(tmp_path):
-    """A destination four folders down, so a ``../../../..`` member would still land in tmp_path."""
-    parent = tmp_path / "a" / "b" / "c" / "d"
+    """A destination four folders down below resources/ (where a fetch may write), so a
+    ``../../../..`` member would still land in tmp_path."""
+    parent = tmp_path / "resources" / "a" / "b" / "c" / "d"
     parent.mkdir(parents=True)
     return parent / "dest"
 
@@ -85,7 +86,8 @@ def test_crafted_archive_is_refused_and_nothing_is_written(tmp_path, deep_dest, 
 
 def test_too_many_members_and_too_big_a_download_are_refused(tmp_path):
     archive = make_zip(tmp_path / "many.zip", [(f"top/imgs/{i}.jpg", b"x" * 500) for i in range(5)])
-    dest = tmp_path / "dest"
+    dest = tmp_path / "resources" / "dest"  # below the working folder's resources/
+    dest.parent.mkdir()
     before = tree(tmp_path)
     with pytest.raises(fetch.FetchError, match=r"holds 5 members, over fetch.max_members \(4\)"):
         fetch.fetch_images(archive.as_uri(), "imgs", dest, limits=fetch.Limits(max_members=4), workdir=tmp_path)
@@ -103,10 +105,11 @@ def test_members_outside_the_subfolder_are_never_written(tmp_path):
         tmp_path / "mixed.zip",
         [("top/imgs/ok.jpg", b"a"), ("top/src/imgs/other.jpg", b"b"), ("top/../imgs/x.jpg", b"c"), ("top/imgs/", b"")],
     )
-    got = fetch.fetch_images(archive.as_uri(), "imgs", tmp_path / "dest", workdir=tmp_path)
+    got = fetch.fetch_images(archive.as_uri(), "imgs", tmp_path / "resources/dest", workdir=tmp_path)
     assert tree(got) == {"ok.jpg", fetch.FETCH_MARKER}
     state = {"resources", str(fetch.FETCH_STATE)}  # the run's record of what its fetches wrote
-    assert tree(tmp_path) == {"mixed.zip", "dest", "dest/ok.jpg", f"dest/{fetch.FETCH_MARKER}"} | state
+    fetched = {"resources/dest", "resources/dest/ok.jpg", f"resources/dest/{fetch.FETCH_MARKER}"}
+    assert tree(tmp_path) == {"mixed.zip"} | fetched | state
 
 
 @pytest.mark.parametrize("url", ["http://example.org/a.zip", "ftp://example.org/a.zip", "data:,x", "/tmp/a.zip"])
@@ -127,7 +130,8 @@ def test_a_redirect_away_from_https_is_refused():
 def test_sha256_mismatch_stops_before_unpacking_and_a_match_unpacks(tmp_path):
     archive = make_zip(tmp_path / "good.zip", [("top/imgs/01.jpg", b"one"), ("top/imgs/02.jpg", b"two")])
     pin = hashlib.sha256(archive.read_bytes()).hexdigest()
-    dest = tmp_path / "dest"
+    dest = tmp_path / "resources" / "dest"  # below the working folder's resources/
+    dest.parent.mkdir()
     before = tree(tmp_path)
     with pytest.raises(fetch.FetchError, match=f"sha256 mismatch: the download is {pin}, the pinned value is 0+;"):
         fetch.fetch_images(archive.as_uri(), "imgs", dest, sha256="0" * 64, workdir=tmp_path)
@@ -139,9 +143,11 @@ def test_sha256_mismatch_stops_before_unpacking_and_a_match_unpacks(tmp_path):
 def test_flatlandia_archive_pin_mismatch_says_how_to_point_at_a_local_copy(tmp_path):
     archive = make_zip(tmp_path / "Flatlandia-main.zip", [("Flatlandia-main/data/local_maps.json", b"{}")])
     scenes = SimpleNamespace()  # never reached: the mismatch stops first
+    dest = tmp_path / "resources" / "flatlandia"  # below the working folder's resources/
+    dest.parent.mkdir()
     with pytest.raises(fetch.FetchError, match="sha256 mismatch.*FLATLANDIA_ROOT"):
-        fetch.fetch_flatlandia(tmp_path / "data", scenes, url=archive.as_uri(), sha256="a" * 64, workdir=tmp_path)
-    assert tree(tmp_path) == {"Flatlandia-main.zip"}
+        fetch.fetch_flatlandia(dest, scenes, url=archive.as_uri(), sha256="a" * 64, workdir=tmp_path)
+    assert tree(tmp_path) == {"Flatlandia-main.zip", "resources"}  # nothing but the (empty) parent made here
 
 
 def _sheet(tmp_path: Path, url: str, sha256: str = "") -> Path:

@@ -13,6 +13,8 @@ from flatlandia import config as config_schema
 from flatlandia import device as device_check
 from flatlandia import paths, vocabulary
 from flatlandia.plumbing import stale_locks, scheduler
+from flatlandia.plumbing import validate as config_door
+from flatlandia.plumbing.errors import InputError
 from flatlandia.data.fetch import FetchError, check_dest
 
 # A lock of this folder left by a killed run is removed before this run locks, when provably stale
@@ -26,6 +28,15 @@ scheduler.install(workflow)
 include: "resources.smk"
 
 
+# Every config file of the run (config/config.yaml, --configfile) read again by the workflow's own
+# door first (flatlandia.plumbing.validate.read_config): Snakemake's reader keeps the last of a key
+# given twice and shares aliased subtrees (an alias bomb); either stops the run with one line.
+try:
+    for _configfile in workflow.configfiles:
+        if os.path.lexists(_configfile):
+            config_door.read_config(_configfile)
+except InputError as err:
+    sys.exit(f"ERROR: {err}")
 # Every key checked against workflow/schemas/config.schema.yaml (the one source of defaults)
 # before any job: a typo or a wrong type stops the run with one line naming the key.
 try:
@@ -271,13 +282,15 @@ def _resolve_root():
 
 
 FLAT_ROOT_GIVEN = _resolve_root()
-# a fetch replaces fetch.dest: '.', '..', the working folder, its parents, the root or home are refused,
-# and so is a folder outside the working folder unless it is the declared data folder (flatlandia_root)
-try:
-    check_dest(config["fetch"]["dest"], data_folder=FLAT_ROOT_GIVEN)
-except FetchError as err:
-    sys.exit(f"ERROR: config: {err}")
 FLAT_FETCH = not FLAT_ROOT_GIVEN.exists()
+# a fetch writes fetch.dest, before any job: only a folder below resources/ or the declared data folder
+# (flatlandia_root, absent), never '.', '..', the working folder, its parents, the root or home, a
+# dot-folder, a Python installation or environment (.venv), the source tree (flatlandia.data.fetch.check_dest)
+if FLAT_FETCH:
+    try:
+        check_dest(config["fetch"]["dest"], data_folder=FLAT_ROOT_GIVEN)
+    except FetchError as err:
+        sys.exit(f"ERROR: config: {err}")
 FLAT_ROOT = Path(config["fetch"]["dest"]) if FLAT_FETCH else FLAT_ROOT_GIVEN
 FETCH_FLAG = str(Path(config["fetch"]["dest"]).with_suffix(".fetched"))
 

@@ -3,7 +3,7 @@
 import pandas as pd
 
 from flatlandia.data import fetch
-from flatlandia.plumbing import rule_log
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -31,7 +31,7 @@ def main(smk, log):
         )
         log.error("%s", line)
         raise SystemExit(f"ERROR: {line}") from None
-    open(smk.output.flag, "w").write(f"{dest}\n")
+    files.write_text(f"{dest}\n", smk.output.flag)
     log.info("done: %s", dest)
 
 

@@ -11,12 +11,14 @@ The archives are untrusted: the scene sheet and the config name them. So a fetch
   and more bytes than ``fetch.max_unpacked_mb`` are refused, naming the archive and the member;
 - writes nothing outside the destination: all happens in one temporary folder beside it, renamed
   into place once complete and removed on any failure;
-- never deletes what it did not write: the destination may not be '.', '..', the working folder or
-  its parents, the root or the home folder, nor lie outside the working folder unless the config
-  declares it as the data folder (:func:`check_dest`); an existing one is replaced only when the
-  run's own record (FETCH_STATE, in the working folder) says a fetch of this run wrote it and its
-  files are unchanged since; a marker file inside a folder proves nothing. Otherwise the fetch is
-  refused.
+- never deletes what it did not write, and never writes where code runs from: the destination lies
+  below the working folder's ``resources/``, or is exactly the folder the config declares as the data
+  folder (``flatlandia_root``) while that folder does not exist; never in a dot-folder, a Python
+  installation or environment, the source tree, ``/dev``... (:func:`check_dest`, the write door of
+  :mod:`flatlandia.plumbing.files`); an existing one is replaced only when the run's own record
+  (FETCH_STATE, in the working folder) says a fetch of this run wrote it and its files are
+  unchanged since; a marker file inside a folder proves nothing. Otherwise the fetch is refused.
+- writes its files without exec bits (mode 0666 less the umask), whatever the archive says.
 """
 
 from __future__ import annotations
@@ -262,7 +264,8 @@ def _plan(
 def _copy(z: zipfile.ZipFile, info: zipfile.ZipInfo, target: Path, budget: int, url: str) -> int:
     """Copy one member to ``target``, counting the bytes really written against ``budget``."""
     n = 0
-    with z.open(info) as src, open(target, "wb") as out:
+    fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o666)  # no exec bit, never a link
+    with z.open(info) as src, open(fd, "wb") as out:
         while chunk := src.read(CHUNK):
             n += len(chunk)
             if n > budget:
@@ -316,46 +319,71 @@ def check_dest(
     dest: str | Path, cwd: str | Path | None = None, setting: str = "fetch.dest", data_folder: str | Path | None = None
 ) -> Path:
     """The resolved destination of a fetch, refused (FetchError) when replacing it could delete
-    what a fetch did not write: '.', '..', a name ending in them, the working folder ``cwd``, any
-    of its parents, the filesystem root, the home folder or its parents, a folder of the workflow's
-    own (results, resources, ...), or any folder outside the working folder but the one the config
-    declares as the data folder (``data_folder``: ``flatlandia_root``). Called at parse time and
-    again before any download."""
+    what a fetch did not write or the files could run as code: '.', '..', a name ending in them,
+    the working folder ``cwd``, any of its parents, the filesystem root, the home folder or its
+    parents, a folder of the workflow's own (results, resources, ...), a place the write door never
+    writes (a dot-folder, a Python installation or environment, the source tree, /dev: :mod:`flatlandia.plumbing.files`),
+    and anything but a folder below ``cwd``'s ``resources/`` or, while it does not exist, the folder
+    the config declares as the data folder (``data_folder``: ``flatlandia_root``). Called at parse
+    time and again before any download."""
     raw = str(dest)
     cwd = Path(cwd if cwd is not None else os.getcwd()).resolve()
     try:
         target = (cwd / raw).resolve() if raw.strip() else cwd
         declared = (cwd / Path(data_folder)).resolve() if data_folder is not None else None
+        own = (cwd / "resources").resolve()
     except (OSError, RuntimeError) as e:  # a loop of links
         raise FetchError(f"{setting} {raw!r} is refused: it cannot be resolved ({e}); nothing was downloaded") from e
-    try:
-        home = Path.home().resolve()
-    except (OSError, RuntimeError, KeyError):  # no home folder known: nothing to compare with
-        home = cwd
-    why = None
-    if target == Path(target.anchor):
-        why = "the filesystem root"
-    elif target == cwd:
-        why = "the working folder"
-    elif target in cwd.parents:
-        why = f"a parent of the working folder {cwd}"
-    elif target == home or target in home.parents:
-        why = "the home folder" if target == home else "a parent of the home folder"
-    elif target.parent == cwd and target.name in WORKFLOW_FOLDERS:
-        why = "a folder the workflow writes itself"
-    elif not raw.strip() or Path(raw).name in ("", ".", ".."):
-        why = "it does not end in a folder name of its own (it is empty or ends in '.' or '..')"
-    elif not target.is_relative_to(cwd) and target != declared:
-        why = (
-            f"it lies outside the working folder {cwd}; a fetch writes there, or into the folder the config "
-            "declares as the data folder (set flatlandia_root to the same folder)"
-        )
+    why = _dest_problem(raw, target, cwd) or _place_problem(target, cwd)
+    if why is None and not (target.is_relative_to(own) and target != own):
+        if target != declared:
+            why = (
+                f"it lies outside the working folder's resources/ ({own}); a fetch writes there, or into the "
+                "folder the config declares as the data folder while it does not exist (set flatlandia_root to "
+                "the same folder)"
+            )
+        elif os.path.lexists(target):
+            why = "the declared data folder (flatlandia_root) already exists: a fetch only creates it"
     if why:
         raise FetchError(
             f"{setting} {raw!r} ({target}) is refused: {why}. A fetch replaces its destination, so "
             f"{setting} must name a folder of its own (e.g. resources/flatlandia); nothing was downloaded"
         )
     return target
+
+
+def _dest_problem(raw: str, target: Path, cwd: Path) -> str | None:
+    """Why a fetch must never replace ``target``: it holds the working folder, the home folder, the
+    workflow's own output folders, or the name ends in no folder of its own."""
+    try:
+        home = Path.home().resolve()
+    except (OSError, RuntimeError, KeyError):  # no home folder known: nothing to compare with
+        home = cwd
+    if target == Path(target.anchor):
+        return "the filesystem root"
+    if target == cwd:
+        return "the working folder"
+    if target in cwd.parents:
+        return f"a parent of the working folder {cwd}"
+    if target == home or target in home.parents:
+        return "the home folder" if target == home else "a parent of the home folder"
+    if target.parent == cwd and target.name in WORKFLOW_FOLDERS:
+        return "a folder the workflow writes itself"
+    if not raw.strip() or Path(raw).name in ("", ".", ".."):
+        return "it does not end in a folder name of its own (it is empty or ends in '.' or '..')"
+    return None
+
+
+def _place_problem(target: Path, cwd: Path) -> str | None:
+    """The write door's refusal of ``target`` (a dot-folder, Python's folders, the source tree,
+    /dev, a file in the way), judged from the working folder ``cwd``."""
+    from flatlandia.plumbing.errors import InputError
+
+    try:
+        files.check_target(target, kind="any", cwd=cwd)
+    except InputError as e:
+        return f"it {e.problem}"
+    return None
 
 
 def _fingerprint(dest: Path) -> dict:
@@ -389,7 +417,33 @@ def _read_state(workdir: Path) -> dict:
     except InputError as e:
         _LOG.warning("ignoring the fetch record %s: %s", path, e)
         return {}
-    return state if isinstance(state, dict) else {}
+    if not isinstance(state, dict):
+        _LOG.warning("ignoring the fetch record %s: not a JSON object but %s", path, type(state).__name__)
+        return {}
+    kept = {}
+    for dest, rec in state.items():
+        why = _entry_problem(rec)
+        if why:  # unknown: its folder is never replaced, and the entry is not written back
+            _LOG.warning("ignoring the entry %r of the fetch record %s: %s", validate.shown(dest), path, why)
+        else:
+            kept[dest] = rec
+    return kept
+
+
+#: each entry of FETCH_STATE: its fields and their types (what _fingerprint and _record_fetch write)
+_ENTRY_FIELDS = {"device": int, "inode": int, "files": str, "url": str, "subfolder": str, "sha256": str, "time": str}
+
+
+def _entry_problem(rec) -> str | None:
+    """Why an entry of the fetch record is not one a fetch wrote (None: it is): a field missing or
+    of another type (NaN where an inode should be, a list, a string)."""
+    if not isinstance(rec, dict):
+        return f"not a JSON object but {type(rec).__name__}"
+    for key, kind in _ENTRY_FIELDS.items():
+        value = rec.get(key)
+        if type(value) is not kind or (kind is int and value < 0):
+            return f"'{key}' is missing or not {'a whole number' if kind is int else 'text'}"
+    return None
 
 
 class _StateLock:
@@ -496,8 +550,8 @@ def fetch_archive(
 ) -> Path:
     """Download a zip archive and unpack its ``<top>/<subfolder>/`` files into ``dest``.
 
-    ``dest`` is checked first (:func:`check_dest`: inside the working folder ``workdir``, default the
-    current one, or the declared ``data_folder``; an existing one must be recorded in the run's
+    ``dest`` is checked first (:func:`check_dest`: below the working folder ``workdir``'s resources/,
+    default the current one's, or the declared ``data_folder`` while absent; an existing one must be recorded in the run's
     FETCH_STATE as its own fetch, unchanged since, else it is refused with ``hint``), then all
     happens in one temporary folder beside it (download, checksum, unpacking, ``finish(folder)`` for
     files of the caller, the marker); ``dest`` appears, replacing an older fetched copy, only once
@@ -544,7 +598,7 @@ def fetch_images(
     workdir: str | Path | None = None,
 ) -> Path:
     """An images scene's folder from a repository archive (e.g. OpenSfM's data/lund/images), into
-    ``dest`` inside the working folder ``workdir`` (default: the current one)."""
+    ``dest`` below the working folder ``workdir``'s resources/ (default: the current one's)."""
     try:
         return fetch_archive(
             url,
@@ -571,8 +625,9 @@ def fetch_flatlandia(
     workdir: str | Path | None = None,
     data_folder: str | Path | None = None,
 ) -> Path:
-    """Download the upstream repository archive and unpack its ``data/`` folder into ``dest`` (inside
-    the working folder ``workdir``, default the current one, or the declared ``data_folder``).
+    """Download the upstream repository archive and unpack its ``data/`` folder into ``dest`` (below
+    the working folder ``workdir``'s resources/, default the current one's, or the declared
+    ``data_folder`` while it does not exist).
 
     Adds ``scenes.tsv`` and ``classes.tsv`` to it (the upstream keeps them in code) before it is
     renamed into place: the folder appears only once complete.

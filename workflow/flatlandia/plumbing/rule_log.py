@@ -83,24 +83,26 @@ def progress(logger: logging.Logger, desc: str):
 def run(main, smk) -> None:
     """Run a rule script's ``main(smk, logger)``; bad input ends it with one clear line.
 
-    An :class:`InputError` is written to the rule's log and to stderr as ``ERROR: <file>: <problem>``
+    While it runs, the writers of :mod:`flatlandia.plumbing.files` write only inside
+    :func:`write_roots`. An :class:`InputError` is written to the rule's log and to stderr as ``ERROR: <file>: <problem>``
     and the script exits 1, so Snakemake reports the rule failed; so is a write that found the disk
     full or the quota used up (``ERROR: <file>: no space left on device; ...``; the atomic writers of
     :mod:`flatlandia.plumbing.files` name the output and have removed their temporary). Any other error is
     logged with its traceback and raised.
     """
-    from flatlandia.plumbing import provenance
+    from flatlandia.plumbing import escape, files, provenance
     from flatlandia.plumbing.errors import InputError
     from flatlandia.plumbing.files import full_disk_error
 
     logger = setup(smk.log[0] if len(smk.log) else None)
     provenance.started()
     try:
-        main(smk, logger)
-        logger.info("provenance: %s", provenance.write_record(smk))
+        with files.write_roots(*write_roots(smk)):
+            main(smk, logger)
+            logger.info("provenance: %s", provenance.write_record(smk))
     except InputError as e:
         logger.error("%s", e)
-        print(f"ERROR: {e}", file=sys.stderr)
+        print(f"ERROR: {escape.terminal(e)}", file=sys.stderr)  # Snakemake shows it: no raw controls
         raise SystemExit(1) from None
     except Exception as e:
         full = full_disk_error(e)
@@ -111,6 +113,16 @@ def run(main, smk) -> None:
     log_full = _log_full(logger)
     if log_full:  # the outputs are whole, their log is not: the disk is full for the next rule anyway
         _end_out_of_room(logger, disk_full_line(log_full[1], log_full[0]))
+
+
+def write_roots(smk) -> list[Path]:
+    """Where a rule script may write (flatlandia.plumbing.files.write_roots): the working folder's
+    results/, resources/ and logs/, and the folders of the job's own outputs and log (a fetch flag
+    beside a data folder outside the working folder); a path built from a hostile input elsewhere is refused."""
+    from flatlandia.plumbing.files import RUN_FOLDERS
+
+    declared = [*(getattr(smk, "output", None) or []), *(getattr(smk, "log", None) or [])]
+    return [Path.cwd() / f for f in RUN_FOLDERS] + [Path(p).absolute().parent for p in declared]
 
 
 def _unnamed_write(logger: logging.Logger, smk) -> str:

@@ -90,14 +90,16 @@ def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
     return "\n".join(out)
 
 
-def write_scores(scores: Scores, name: str, poses_path: str, out: str | Path) -> list[Path]:
+def write_scores(scores: Scores, name: str, poses_path: str, out: str | Path, *, reads=(), artifacts=()) -> list[Path]:
     """Write each run's errors.parquet and summary.json (rule fine_eval's shapes) under
-    ``out/{name}_{map_type}_{proposal}/`` and ``out/scores.md``; the paths written."""
+    ``out/{name}_{map_type}_{proposal}/`` and ``out/scores.md``, staged together and moved into place
+    as one (:func:`flatlandia.plumbing.files.staged`: a failed write leaves the older set whole, never
+    new runs beside a stale scores.md); ``reads``/``artifacts``: what the write door refuses to replace.
+    The paths written."""
     out = Path(out)
-    written = []
-    for run in scores.runs:
-        folder = out / run.run
-        run.write(folder / "errors.parquet", folder / "summary.json")
-        written += [folder / "errors.parquet", folder / "summary.json"]
-    files.write_text(scores_markdown(scores, name, poses_path), out / "scores.md")
-    return written + [out / "scores.md"]
+    names = [f"{run.run}/{part}" for run in scores.runs for part in ("errors.parquet", "summary.json")]
+    with files.staged(out, [*names, "scores.md"], reads=reads, artifacts=artifacts) as tmp:
+        for run in scores.runs:
+            run.write(tmp[f"{run.run}/errors.parquet"], tmp[f"{run.run}/summary.json"])
+        files.write_text(scores_markdown(scores, name, poses_path), tmp["scores.md"])
+    return [out / n for n in [*names, "scores.md"]]
