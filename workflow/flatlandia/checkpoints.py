@@ -85,6 +85,7 @@ def _read(path) -> dict:
     from flatlandia.plumbing import validate
 
     validate.regular_file(path, validate.MAX_CHECKPOINT_BYTES, "MAX_CHECKPOINT_BYTES")
+    _inflated_size(path)
     try:
         ck = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as e:
@@ -94,11 +95,32 @@ def _read(path) -> dict:
             f"({_unsafe_global(e)}); loading it could run code, so it is not loaded. If it is one of "
             f"this workflow's older checkpoints, {REBUILD}",
         ) from None
-    except (RuntimeError, EOFError, OSError) as e:
-        raise InputError(path, f"not a readable checkpoint ({e})") from None
+    except Exception as e:  # a corrupt file: torch's reader raises RuntimeError, EOFError, IndexError, ...
+        raise InputError(path, f"not a readable checkpoint ({type(e).__name__}: {validate.one_line(e)})") from None
     if not isinstance(ck, dict) or ck.get("format") != FORMAT:
         raise InputError(path, f"not a checkpoint of this workflow's format {FORMAT}: {REBUILD}")
     return ck
+
+
+def _inflated_size(path) -> None:
+    """Before ``torch.load``: the file is a zip (what ``torch.save`` writes) of at most
+    MAX_CHECKPOINT_MEMBERS members whose sizes once inflated, as its directory declares them and as
+    torch allocates them, total at most MAX_CHECKPOINT_BYTES: a 1.5 MB file whose tensor record is
+    deflated took 2 GB. (The total bounds any compression ratio; torch's reader checks each record
+    inflates to its declared size.)"""
+    from flatlandia.plumbing import validate
+
+    members = validate.zip_members(
+        path, validate.MAX_CHECKPOINT_MEMBERS, "MAX_CHECKPOINT_MEMBERS", f"a checkpoint (torch.save's zip): {REBUILD}"
+    )
+    total = sum(i.file_size for i in members)
+    if total > validate.MAX_CHECKPOINT_BYTES:
+        big = max(members, key=lambda i: i.file_size)
+        raise InputError(
+            path,
+            f"its records inflate to {total:,} bytes ({validate.shown(big.filename)}: {big.file_size:,}), over the "
+            f"limit of {validate.MAX_CHECKPOINT_BYTES:,} (flatlandia.plumbing.validate.MAX_CHECKPOINT_BYTES): not loaded",
+        )
 
 
 def _meta(path, ck: dict) -> dict:

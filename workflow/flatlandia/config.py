@@ -127,12 +127,13 @@ def _coerce(value, node: dict):
     if isinstance(value, list) and isinstance(node.get("items"), dict):
         return [_coerce(v, node["items"]) for v in value]
     if isinstance(value, str) and _types(node) and "string" not in _types(node):
-        import yaml
+        from flatlandia.plumbing import validate
+        from flatlandia.plumbing.errors import InputError
 
-        try:
-            parsed = yaml.safe_load(value)
-        except yaml.YAMLError:
-            return value
+        try:  # the YAML door: no alias bomb, no key given twice
+            parsed = validate.parse_yaml(value, "--config")
+        except InputError:
+            return value  # left as text: the type check names it
         return parsed if not isinstance(parsed, str) else value
     return value
 
@@ -142,7 +143,12 @@ def _type_errors(cfg: dict) -> list[str]:
 
     validator = jsonschema.Draft202012Validator(schema())
     errors = sorted(validator.iter_errors(cfg), key=lambda e: list(e.absolute_path))
-    return [f"'{'.'.join(map(str, e.absolute_path)) or '(top level)'}': {e.message}" for e in errors]
+    return [f"'{'.'.join(map(str, e.absolute_path)) or '(top level)'}': {_cut(e.message)}" for e in errors]
+
+
+def _cut(message: str, limit: int = 300) -> str:
+    """A jsonschema message quotes the whole value it refuses (a list of 100,000 values): its start."""
+    return message if len(message) <= limit else f"{message[:limit]}... ({len(message):,} characters)"
 
 
 def _non_finite(value, prefix: str = "") -> list[str]:
@@ -174,17 +180,46 @@ def _cross_key_errors(full: dict) -> list[str]:
     return []
 
 
+def _bounded_shape(cfg: dict, validate) -> None:
+    """Each value of ``cfg`` nests at most MAX_CONFIG_DEPTH deep and all of them, shared subtrees
+    counted where each appears (YAML aliases: Snakemake's config keeps them shared), hold at most
+    MAX_CONFIG_NODES values: measured in time linear in the distinct values
+    (:func:`flatlandia.plumbing.validate.tree_shape`), so an alias bomb is refused in milliseconds."""
+    limit, budget, total = validate.MAX_CONFIG_DEPTH, validate.MAX_CONFIG_NODES, 0
+    for key, value in cfg.items():
+        deep, size = validate.tree_shape(value, max_nodes=budget - total, max_depth=limit)
+        name = str(key)[:80]
+        if size == math.inf:
+            raise ConfigError(f"'{name}': the value holds itself (a recursive YAML alias)")
+        if deep > limit:
+            raise ConfigError(f"'{name}': the value nests deeper than {limit} levels (MAX_CONFIG_DEPTH)")
+        total += size
+        if total > budget:
+            raise ConfigError(
+                f"'{name}': the config holds over {budget:,} values once its YAML aliases are expanded "
+                "(MAX_CONFIG_NODES): an alias bomb?"
+            )
+
+
 def resolve(cfg: dict | None) -> dict:
     """The complete config: ``cfg`` over the schema's defaults, after refusing unknown keys,
     values of the wrong type, numbers that are not finite and settings that contradict each other.
-    Raises :class:`ConfigError` listing every problem."""
-    cfg = dict(cfg or {})
+    Raises :class:`ConfigError` listing every problem, as one line (a key's control characters
+    escaped: the message names what a file gave)."""
+    from flatlandia.plumbing import escape
+
+    if cfg is not None and not isinstance(cfg, dict):
+        raise ConfigError(f"the config must be a mapping of keys, not {type(cfg).__name__}")
+    try:
+        return _resolved(dict(cfg or {}))
+    except ConfigError as e:
+        raise ConfigError(escape.terminal(str(e))) from None
+
+
+def _resolved(cfg: dict) -> dict:
     from flatlandia.plumbing import validate
 
-    limit = validate.MAX_CONFIG_DEPTH
-    deep = [k for k, v in cfg.items() if validate.depth(v, limit) > limit]
-    if deep:  # before any of the recursive checks below (a RecursionError is no message)
-        raise ConfigError(f"'{str(deep[0])[:80]}': the value nests deeper than {limit} levels (MAX_CONFIG_DEPTH)")
+    _bounded_shape(cfg, validate)  # before any of the walks below (a RecursionError is no message)
     unknown = unknown_keys(cfg)
     if unknown:
         raise ConfigError("unknown key " + "; unknown key ".join(unknown))
@@ -399,11 +434,11 @@ def config_section(paths, section: str) -> dict:
     """One top-level section of layered YAML config files (later files update earlier ones, one
     level deep, as Snakemake's ``--configfile`` does); missing files are skipped. For benchmarks
     that read the workflow's config outside Snakemake."""
-    import yaml
+    from flatlandia.plumbing import validate
 
     out: dict = {}
     for p in map(Path, paths):
         if p.exists():
-            for key, v in ((yaml.safe_load(p.read_text()) or {}).get(section) or {}).items():
+            for key, v in ((validate.read_config(p) or {}).get(section) or {}).items():
                 out[key] = {**out.get(key, {}), **v} if isinstance(v, dict) else v
     return out

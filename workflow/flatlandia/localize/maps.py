@@ -144,15 +144,16 @@ def _read_table(path: Path) -> tuple[pd.DataFrame, dict]:
 
     if path.suffix.lower() == ".parquet":
         try:
-            validate.parquet_size(
+            df = validate.read_parquet(  # bounded on what it decodes to, not only on disk
                 path, validate.MAX_MAP_OBJECTS, validate.MAX_MAP_BYTES, "objects", ("MAX_MAP_OBJECTS", "MAX_MAP_BYTES")
-            )
-            df = pd.read_parquet(path)
+            ).to_pandas()
             meta = files.read_parquet_metadata(path)
         except InputError:
             raise
         except Exception as e:  # pyarrow raises several types for files that are not Parquet
-            raise InputError(path, f"not a readable Parquet file ({type(e).__name__}: {e})") from None
+            raise InputError(
+                path, f"not a readable Parquet file ({type(e).__name__}: {validate.one_line(e)})"
+            ) from None
         if "geometry" in df.columns and not (_pick(df.columns, LON_KEYS) and _pick(df.columns, LAT_KEYS)):
             df = _geometry_lonlat(path, df)
         return df, meta
@@ -196,7 +197,9 @@ def _geometry_lonlat(path: Path, df: pd.DataFrame) -> pd.DataFrame:
     except InputError:
         raise
     except Exception as e:
-        raise InputError(path, f"could not read its point geometries ({type(e).__name__}: {e})") from None
+        raise InputError(
+            path, f"could not read its point geometries ({type(e).__name__}: {validate.one_line(e)})"
+        ) from None
 
 
 def _numbers(df: pd.DataFrame, columns: list[str], path: Path, dtype=float) -> np.ndarray:
@@ -239,21 +242,17 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
     elif lonlat is None:
         raise InputError(path, "no lon/lat: expected lon and lat columns or properties, or point geometries")
     else:
-        if not np.isfinite(lonlat).all() or (np.abs(lonlat[:, 0]) > 180).any() or (np.abs(lonlat[:, 1]) > 90).any():
-            raise InputError(path, "lon/lat must be finite degrees (lon in [-180, 180], lat in [-90, 90])")
+        validate.lonlat_degrees(lonlat, path)
         if ours:  # the workflow's map: its own frame and metres, as the benchmark reads them
             lon0, lat0 = origin
             xy = _numbers(df, ["x_m", "y_m"], path)
         else:
-            from flatlandia import geo
-
-            f = geo.frame_for(lonlat)
-            lon0, lat0 = f.lon0, f.lat0
+            lon0, lat0 = _centre(lonlat)
         to_lonlat, to_xy = _transformers(lon0, lat0)
         if not ours:
             xy = np.column_stack(to_xy.transform(lonlat[:, 0], lonlat[:, 1]))
         elif np.isfinite(xy).all():  # the metadata must describe the map's own lon/lat and metres
-            validate.frame_matches(lonlat, xy, to_xy, origin, path)
+            validate.frame_matches(lonlat, xy, lambda ll: np.column_stack(to_xy.transform(*ll.T)), origin, path)
         frame = f"transverse Mercator at lon {lon0:.7f}, lat {lat0:.7f} (x east, y north, metres)"
     if not np.isfinite(xy).all():
         raise InputError(path, "some objects have no finite position")
@@ -262,28 +261,44 @@ def _scene_map(path: Path, settings, learned) -> ObjectMap:
     m = ObjectMap(path, "scene", obj, cls, xy, lonlat, settings, frame, to_lonlat, to_xy, scene=scene)
     m.learned_path = learned_auto if learned == "auto" else (Path(learned) if learned else None)
     m.learned = solver.LearnedPriors.read(m.learned_path) if m.learned_path else None
-    training = None
-    if queries_path is not None:
-        import pandas as pd
-
-        try:
-            training = pd.read_parquet(queries_path)
-        except Exception as e:
-            raise InputError(queries_path, f"not a readable Parquet file ({type(e).__name__}: {e})") from None
+    training = read_training(queries_path, obj) if queries_path is not None else None
     set_training_priors(m, training, queries_path)
     if scene is not None:
         m.cities = scene_cities(results)
     return m
 
 
+def _centre(lonlat: np.ndarray) -> tuple[float, float]:
+    """The frame origin of a map without one (:func:`flatlandia.geo.frame_for`: its box's centre),
+    its longitudes taken around its first object's (:func:`~flatlandia.plumbing.validate.lon_offset`):
+    a map across the antimeridian is centred on it, not on the Greenwich meridian half a turn away."""
+    from flatlandia import geo
+
+    east = validate.lon_offset(lonlat[:, 0], float(lonlat[0, 0]))
+    f = geo.frame_for(np.column_stack([east, lonlat[:, 1]]))
+    return float(validate.lon_offset(f.lon0 + lonlat[0, 0], 0.0)), f.lat0
+
+
+def read_training(path: Path, obj_idx: np.ndarray) -> pd.DataFrame:
+    """A workflow map's queries table (results/{scene}/queries/queries.parquet), the training cameras
+    its priors come from, through the door ``flatlandia score`` reads it by (a regular Parquet file
+    within its bounds; each camera finite, every object it saw one of the map's ``obj_idx``:
+    :func:`flatlandia.plumbing.validate.ground_truth`)."""
+    q = validate.read_table(
+        path, validate.MAX_QUERIES, validate.MAX_QUERY_TABLE_BYTES, ("MAX_QUERIES", "MAX_QUERY_TABLE_BYTES")
+    )
+    tokens = q["token"].astype(str).to_numpy() if "token" in q.columns else []
+    validate.ground_truth(q, path, lambda i: f"row {i + 1} (token {validate.shown(tokens[i])})", obj_idx)
+    return q
+
+
 def scene_cities(results: Path) -> dict:
     """scene -> its city's name, from a results folder's ``tables/dataset_stats_per_scene.parquet``
     (rule dataset_stats; empty where it is missing or unreadable: the answers then give no city)."""
-    import pandas as pd
 
     table = paths.within(results, paths.BENCHMARK_RECORD)
-    try:
-        t = pd.read_parquet(table, columns=["scene", "city"])
+    try:  # through the Parquet door: a results folder is a user's
+        t = validate.read_table(table, validate.MAX_SCENES, validate.MAX_MAP_BYTES, columns=["scene", "city"])
     except Exception:  # missing, or not the table: a city name is a courtesy, not needed for a pose
         return {}
     return dict(zip(t["scene"].astype(str), t["city"].astype(str)))
@@ -345,17 +360,15 @@ def _city_map(path: Path, settings, learned, search) -> ObjectMap:
         m.learned, m.map_size_path = m.learned.with_map_size(read_map_size(correction)), correction
     table = city_dir / "map.parquet"
     if path.parent.name == "index" and table.is_file():
-        import pandas as pd
-
         try:
-            validate.parquet_size(
+            t = validate.read_parquet(
                 table,
                 validate.MAX_INDEX_OBJECTS,
                 validate.MAX_INDEX_BYTES,
                 "objects",
                 ("MAX_INDEX_OBJECTS", "MAX_INDEX_BYTES"),
-            )
-            t = pd.read_parquet(table, columns=["city", "scene", "obj_idx", "scene_obj_idx", "lon", "lat"])
+                columns=["city", "scene", "obj_idx", "scene_obj_idx", "lon", "lat"],
+            ).to_pandas()
         except InputError:
             raise
         except Exception as e:

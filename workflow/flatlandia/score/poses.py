@@ -80,12 +80,9 @@ def _read_table(path: Path) -> tuple[pd.DataFrame, str, dict[str, np.ndarray]]:
         )
     try:
         if fmt == "Parquet":
-            import pyarrow.parquet as pq
-
-            validate.parquet_size(
+            table = validate.read_parquet(  # bounded on what it decodes to, not only on disk
                 path, validate.MAX_POSES_ROWS, validate.MAX_POSES_BYTES, "rows", ("MAX_POSES_ROWS", "MAX_POSES_BYTES")
             )
-            table = pq.read_table(path)
             df = table.to_pandas()
             # a null cell is blank (no value); a NaN is a value, and not a finite one
             blank = {name: np.asarray(table.column(name).is_null(), bool) for name in table.column_names}
