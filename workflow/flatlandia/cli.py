@@ -10,24 +10,27 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
 import pandas as pd
 
 from flatlandia import __version__, config, release, vocabulary
-from flatlandia.plumbing import files, provenance
+from flatlandia.plumbing import escape, files, provenance, validate
 from flatlandia.plumbing.errors import InputError
 
 
 def _error(text: str) -> None:
-    """An ``ERROR:`` line, on stderr: a result on stdout redirected into a file never hides one."""
-    print(f"ERROR: {text}", file=sys.stderr)
+    """An ``ERROR:`` line, on stderr: a result on stdout redirected into a file never hides one. Its
+    text quotes files (names, values), so it is escaped for the terminal (:func:`escape.terminal`:
+    one line, no ESC or bidi override of a file's reaching the terminal)."""
+    print(f"ERROR: {escape.terminal(text)}", file=sys.stderr)
 
 
 def _warning(text: str) -> None:
-    """A ``WARNING:`` line, on stderr beside the errors."""
-    print(f"WARNING: {text}", file=sys.stderr)
+    """A ``WARNING:`` line, on stderr beside the errors (escaped as :func:`_error`'s)."""
+    print(f"WARNING: {escape.terminal(text)}", file=sys.stderr)
 
 
 def _records(args) -> pd.DataFrame:
@@ -41,8 +44,11 @@ def _records(args) -> pd.DataFrame:
     if not df.empty:
         df = df[[Path(a).exists() for a in df["artifact"]]]
     path = Path(args.manifest)
-    if df.empty and path.exists():
-        df = pd.read_parquet(path)
+    if df.empty and path.exists():  # checked row by row: a copied manifest is as easily edited as a record
+        skipped = []
+        df = provenance.read_manifest(path, skipped)
+        for line in skipped:
+            _warning(line)
     if not df.empty:  # only what lies inside this run's folder is ever hashed
         inside = [provenance.in_run(a) for a in df["artifact"]]
         for a in df.loc[[not i for i in inside], "artifact"]:
@@ -52,7 +58,7 @@ def _records(args) -> pd.DataFrame:
 
 
 def _short(digest: str) -> str:
-    return (digest or "")[:12]
+    return str(digest or "")[:12]
 
 
 def _flat(d: dict, prefix: str = "") -> dict:
@@ -65,7 +71,8 @@ def _flat(d: dict, prefix: str = "") -> dict:
 
 
 def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -> str:
-    """What produced one artifact, as text: rule, settings by value, inputs and their rules."""
+    """What produced one artifact, as text: rule, settings by value, inputs and their rules (each line
+    escaped for the terminal: :func:`escape.terminal`)."""
     rows = provenance.producers(df)
     rec = rows.get(artifact)
     if rec is None:
@@ -102,13 +109,13 @@ def audit_artifact(df: pd.DataFrame, artifact: str, tree: bool, configs: Path) -
     lines.append("inputs" + (" (back to the files no rule produced: the sources)" if tree else "") + ":")
     if tree:  # each subtree once, shared ones referred back to
         lines += ["  " * depth + text for depth, text in provenance.lineage_tree(artifact, df)]
-        return "\n".join(lines)
-    for inp in provenance.lineage(artifact, df, tree):
-        pad = "  " * inp["depth"]
-        made = f"<- {inp['rule']}" if inp["rule"] else "(source)"
-        flag = "  CHANGED since used" if inp["changed"] else ""
-        lines.append(f"{pad}{inp['input']}  {_short(inp['sha256'])}  {made}{flag}")
-    return "\n".join(lines)
+    else:
+        for inp in provenance.lineage(artifact, df, tree):
+            pad = "  " * inp["depth"]
+            made = f"<- {inp['rule']}" if inp["rule"] else "(source)"
+            flag = "  CHANGED since used" if inp["changed"] else ""
+            lines.append(f"{pad}{inp['input']}  {_short(inp['sha256'])}  {made}{flag}")
+    return "\n".join(escape.terminal(line) for line in lines)  # each line of names and values from records
 
 
 def _run_relative(artifact: str) -> str:
@@ -124,7 +131,11 @@ def _run_relative(artifact: str) -> str:
 
 
 def audit(args) -> int:
-    df = _records(args)
+    try:
+        df = _records(args)
+    except InputError as e:  # the manifest fallback is not a manifest
+        _error(str(e))
+        return 1
     if df.empty:
         _error(
             f"no audit records in {Path.cwd()}: run flatlandia audit in the run's folder, or run the workflow "
@@ -139,7 +150,8 @@ def audit(args) -> int:
             return 0
         print(f"{len(bad)} of {len(df)} recorded artifacts changed since their rule wrote them:")
         for r in bad.itertuples(index=False):
-            print(f"  {r.artifact} (rule {r.rule}): recorded {_short(r.recorded)}, now {_short(r.now)}")
+            line = f"  {r.artifact} (rule {r.rule}): recorded {_short(r.recorded)}, now {_short(r.now)}"
+            print(escape.terminal(line))
         return 1
     if args.artifact:
         text = audit_artifact(df, _run_relative(args.artifact), args.tree, Path(args.provenance) / "configs")
@@ -159,18 +171,38 @@ def audit(args) -> int:
             _error(f"no audit records for scene {args.scene!r}; scenes with records: {', '.join(known)}")
             return 1
     if args.write:  # the manifest of any run, whatever its target (rule manifest comes with `all`)
-        rule = made_by.get(_run_relative(args.write))
-        if rule:  # a run's own artifact overwritten with its manifest would break the run it audits
-            _error(f"--write {args.write}: an artifact of this run (rule {rule}): give a new file")
-            return 1
-        files.write_parquet(df.reset_index(drop=True), args.write)
-        print(f"wrote {args.write}: {len(df)} artifacts from {df['rule'].nunique()} rules")
-        return 0
+        return _write_manifest(args, df, made_by)
     cols = ["artifact", "rule", "sha256", "bytes", "config_hash", "git_commit", "finished_at"]
     with pd.option_context("display.max_rows", None, "display.max_colwidth", 64, "display.width", 250):
         out = df[cols].assign(sha256=df["sha256"].str[:12])
+        out = out.map(lambda v: escape.terminal(v) if isinstance(v, str) else v)  # names from the records
         print(out.to_string(index=False))
     print("\nflatlandia audit PATH shows one artifact's settings and inputs (--tree: back to the sources)")
+    return 0
+
+
+def _write_manifest(args, df: pd.DataFrame, made_by: dict[str, str]) -> int:
+    """``audit --write FILE``: the records as a manifest, through the write door
+    (:func:`files.check_target`), never onto a file the audit reads (the manifest, the records) nor
+    onto or into an artifact any record names (compared resolved: ``results/../results/x`` and a
+    link to ``results/`` are the artifact itself): its manifest would break the run it audits."""
+    named = {a: r["rule"] for r in provenance.records(args.provenance) for a in r["outputs"]} | made_by
+    target = files.resolved(args.write)
+    rule = next((r for a, r in named.items() if target.is_relative_to(os.path.realpath(a))), None)
+    if rule is not None:
+        _error(f"--write {args.write}: an artifact of this run (rule {rule}): give a new file")
+        return 1
+    try:
+        files.write_parquet(
+            df.reset_index(drop=True), args.write, reads=[args.manifest, args.provenance], artifacts=named
+        )
+    except InputError as e:
+        _error(f"--write {e}")
+        return 1
+    except OSError as e:  # a full disk, a folder that cannot be made
+        _error(f"--write {args.write}: cannot be written ({e.strerror or e})")
+        return 1
+    print(f"wrote {args.write}: {len(df)} artifacts from {df['rule'].nunique()} rules")
     return 0
 
 
@@ -225,7 +257,7 @@ def debug_rule(args) -> int:
         return 2
     if args.log_to_terminal:
         smk.log = type(smk.log)()  # no log file: the script's logger writes to stderr
-    print(debug.describe(smk), flush=True)
+    print("\n".join(map(escape.terminal, debug.describe(smk).split("\n"))), flush=True)  # config values
     if args.show:
         return 0
     print(f"running {smk.script.name} in this process ...", flush=True)
@@ -247,9 +279,9 @@ def debug_rule(args) -> int:
         return 1
     print("done; outputs:")
     for p in smk.output:
-        print(f"  {p}{'' if (smk.workdir / p).exists() else ' (not written)'}")
+        print(f"  {escape.terminal(p)}{'' if (smk.workdir / p).exists() else ' (not written)'}")
     if smk.log:
-        print(f"log: {smk.log[0]}")
+        print(f"log: {escape.terminal(smk.log[0])}")
     return 0
 
 
@@ -284,18 +316,50 @@ def _prior_args(args) -> tuple[tuple | None, tuple | None]:
     return gps, compass
 
 
-def _refuse_overwriting(out: str, inputs: list) -> None:
-    """InputError (naming --out) when ``out`` is one of the command's own input files or an artifact
-    recorded by the run in this folder (its queries, maps, export): written there, the answer
-    would replace the file it came from. A file of the command's own earlier run is rewritten."""
-    target = Path(out).resolve()
-    if not target.exists():
-        return
-    if any(target == Path(p).resolve() for p in inputs if p):
-        raise InputError("--out", f"{out} is an input of this command: write the answer to a new file")
-    made_by = {Path(a).resolve(): r["rule"] for r in provenance.records() for a in r["outputs"]}
-    if target in made_by:
-        raise InputError("--out", f"{out} is an artifact of this run (rule {made_by[target]}): write to a new file")
+def _run_artifacts() -> dict[str, str]:
+    """Every file the run's provenance records name -> the rule that made it ('' for a file the
+    rules only read): what a command's --out must never replace."""
+    made: dict[str, str] = {}
+    for r in provenance.records():
+        for a in r["inputs"]:
+            made.setdefault(a, "")
+        for a in r["outputs"]:
+            made[a] = r["rule"]
+    return made
+
+
+def _refuse_overwriting(out: str, inputs: list, kind: str = "file") -> Path:
+    """The resolved --out, or an InputError naming --out when the write door refuses it
+    (:func:`flatlandia.plumbing.files.check_target`): one of the command's own inputs (or an existing
+    file in a folder it reads), an artifact recorded by the run in this folder (its queries, maps,
+    export), a link, a device, a folder in the way, a dot-folder, Python's or the source tree's
+    folders; all compared resolved (``results/../results/x`` and links are caught). Checked before
+    any work, and again by the writer."""
+    try:
+        return files.check_target(out, reads=[p for p in inputs if p], artifacts=_run_artifacts(), kind=kind)
+    except InputError as e:
+        raise InputError("--out", f"{out} {e.problem}") from None
+
+
+def _priors_file(priors: str | None) -> str | None:
+    """The priors JSON a command reads (None for auto and none)."""
+    return None if priors in (None, "auto", "none") else priors
+
+
+def _write_out(write, out: str) -> bool:
+    """Run ``write()``, a command's write of --out; False after one ERROR line when the write door
+    refused it or the write failed (a full disk, a folder in the way): nothing half-written is kept."""
+    try:
+        write()
+    except InputError as e:
+        _error(f"--out: {e.path} {e.problem}")  # the door names --out or a file below it
+        return False
+    except OSError as e:
+        full = files.full_disk_error(e)
+        why = files.FULL_ERRNOS[full.errno] if full is not None else (e.strerror or str(e))
+        _error(f"--out: could not write {out}: {why}; nothing was written (free some space or give another --out)")
+        return False
+    return True
 
 
 def localize_batch(args) -> int:
@@ -314,7 +378,8 @@ def localize_batch(args) -> int:
         if not args.out:
             raise InputError("--batch", "needs --out POSES.csv (or .parquet): the poses file flatlandia score reads")
         batch.check_out(args.out)
-        _refuse_overwriting(args.out, [])
+        reads = [args.batch, args.map, args.fixes, _priors_file(args.priors)]
+        _refuse_overwriting(args.out, reads)
         fixes = batch.read_fixes(args.fixes) if args.fixes else None
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
         result = batch.localize_batch(
@@ -327,9 +392,10 @@ def localize_batch(args) -> int:
             progress=True,
             proposal=args.proposal,
         )
-        batch.write_poses(result, args.out)
     except InputError as e:
         _error(str(e))
+        return 1
+    if not _write_out(lambda: batch.write_poses(result, args.out, reads=reads, artifacts=_run_artifacts()), args.out):
         return 1
     for note in result.notes:
         print(f"note: {note}")
@@ -366,8 +432,9 @@ def localize_query(args) -> int:
         if alternatives < 0:
             raise InputError("--alternatives", f"{alternatives} is negative")
         gps, compass = _prior_args(args)
+        reads = [args.query, args.sequence, args.map, _priors_file(args.priors)]
         if args.out:
-            _refuse_overwriting(args.out, [args.query, args.sequence, args.map])
+            _refuse_overwriting(args.out, reads)
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
         result = localize.localize_file(
             args.map,
@@ -386,8 +453,10 @@ def localize_query(args) -> int:
         return 1
     _print_warnings(result)
     text = localize.dumps(result)
-    if args.out:
-        files.write_text(text + "\n", args.out)
+    if args.out and not _write_out(
+        lambda: files.write_text(text + "\n", args.out, reads=reads, artifacts=_run_artifacts()), args.out
+    ):
+        return 1
     print(text)
     return 0
 
@@ -402,13 +471,16 @@ def _print_warnings(result: dict) -> None:
 
 def score_poses(args) -> int:
     """Score a poses file against a results folder's benchmark: DIR/{NAME}_{map_type}_{proposal}/
-    (errors.parquet, summary.json: rule fine_eval's shapes) and DIR/scores.md; a bad file is one
-    ERROR line, exit status 1 and nothing written."""
+    (errors.parquet, summary.json: rule fine_eval's shapes) and DIR/scores.md, moved into place
+    together (:func:`flatlandia.plumbing.files.staged`); a bad file, a refused --out or a failed
+    write is one ERROR line, exit status 1 and nothing written."""
     from flatlandia import score
-    from flatlandia.plumbing.errors import InputError
 
     try:
+        _refuse_overwriting(args.out, [args.poses, args.results], kind="dir")
         scores = score.score_file(args.poses, args.name, args.results, args.split)
+        _refuse_external(args.out, [r.run for r in scores.runs], args.results)
+        reads = _score_inputs(args.poses, args.results, scores)
     except InputError as e:
         _error(str(e))
         return 1
@@ -418,10 +490,47 @@ def score_poses(args) -> int:
         _warning(str(warning))
     for run in scores.runs:
         print(run.describe())
-    score.write_scores(scores, args.name, args.poses, args.out)
+    if not _write_out(
+        lambda: score.write_scores(scores, args.name, args.poses, args.out, reads=reads, artifacts=_run_artifacts()),
+        args.out,
+    ):
+        return 1
     runs = ", ".join(f"{r.run}/" for r in scores.runs)
     print(f"wrote {Path(args.out) / 'scores.md'} and, in {args.out}, {runs} (errors.parquet, summary.json)")
     return 0
+
+
+def _score_inputs(poses: str, results: str, scores) -> list[Path]:
+    """The files ``flatlandia score`` read: the poses file and, in the results folder, the benchmark
+    record, each scene's map and queries, the fine table and the coarse proposals of its runs (a
+    score may write into the results folder, a new folder of its own, never over one of these)."""
+    from flatlandia import paths, score
+
+    record = Path(results) / score.BENCHMARK_RECORD
+    inputs = [Path(poses), record, paths.within(results, paths.table("fine_localization"))]
+    table = validate.read_table(record, validate.MAX_SCENES, validate.MAX_MAP_BYTES, columns=["scene"])
+    for scene in table["scene"].astype(str):  # read once already through the door: sound
+        inputs += [paths.within(results, paths.reference_map(scene)), paths.within(results, paths.queries(scene))]
+    coarse = {r.proposal for r in scores.runs if vocabulary.coarse_source(r.proposal)}
+    return inputs + [paths.within(results, paths.proposal_table(p)) for p in sorted(coarse)]
+
+
+def _refuse_external(out: str, runs: list[str], results: str) -> None:
+    """InputError naming --out when a run folder of the score would land in rule external_eval's
+    tree (results/external/, of this folder or of --results): the workflow's runs of the config's
+    ``external`` methods, which a score must never replace."""
+    from flatlandia import paths
+
+    trees = {files.resolved(paths.within(r, paths.external_run()).parents[1]) for r in ("results", results)}
+    for run in runs:
+        folder = files.resolved(Path(out) / run)
+        tree = next((t for t in trees if folder.is_relative_to(t)), None)
+        if tree is not None:
+            raise InputError(
+                "--out",
+                f"{out}: its run folder {run}/ would lie in {tree}, rule external_eval's outputs: write the scores "
+                "to a folder of their own",
+            )
 
 
 def main(argv: list[str] | None = None) -> int:

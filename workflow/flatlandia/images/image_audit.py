@@ -19,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import csv as _csv
 import difflib
-import json
 import math
 import os
 import stat
@@ -32,6 +31,7 @@ from PIL import ExifTags, Image, UnidentifiedImageError
 from scipy.spatial.distance import pdist
 
 from flatlandia import config, geo
+from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
 from flatlandia.plumbing.names import plain_name
 
@@ -43,9 +43,14 @@ EXIF_IFD = 0x8769
 #: Defaults: the `images` section of workflow/schemas/config.schema.yaml.
 _IMAGES = config.section_defaults("images")
 
+#: what a geotag's values can be (degrees, metres); EXIF allows any rational, so a forged or broken
+#: tag of latitude 1e9 or heading 1e308 is refused by name rather than used or silently ignored
+GEOTAG_RANGES = {"lat": (-90.0, 90.0), "lon": (-180.0, 180.0), "alt": (-1_000.0, 100_000.0), "heading": (-360.0, 360.0)}
+
 #: metadata.csv: its columns (``name`` required) and the ones read as numbers, with their valid range
+#: (the geotag's, as EXIF's: an altitude or heading of 1e308 is no more a value in the CSV)
 CSV_COLUMNS = ("name", "lat", "lon", "alt", "heading", "capture_time")
-CSV_RANGES = {"lat": (-90.0, 90.0), "lon": (-180.0, 180.0), "alt": None, "heading": None}
+CSV_RANGES = dict(GEOTAG_RANGES)
 
 
 def list_images(folder: str | Path) -> list[Path]:
@@ -198,28 +203,41 @@ def read_exif_metadata(path: str | Path, max_megapixels: float = _IMAGES["max_me
         "capture_time": _parse_time(sub.get("DateTimeOriginal") or tags.get("DateTime")),
         "focal_35mm": _float(sub.get("FocalLengthIn35mmFilm")),
     }
-    desc = tags.get("ImageDescription")
-    if isinstance(desc, str) and desc.strip().startswith("{"):
-        try:
-            mp = json.loads(desc)
-        except json.JSONDecodeError:
-            mp = {}
-        mp = mp if isinstance(mp, dict) else {}
-        head = mp.get("MAPCompassHeading", {}) if isinstance(mp.get("MAPCompassHeading"), dict) else {}
-        rec["heading"] = _float(head.get("TrueHeading")) if head.get("TrueHeading") is not None else rec["heading"]
+    mp = _description(path, tags.get("ImageDescription"))
+    head = mp.get("MAPCompassHeading", {}) if isinstance(mp.get("MAPCompassHeading"), dict) else {}
+    if head.get("TrueHeading") is not None:
+        rec["heading"] = _json_number(head.get("TrueHeading"))
+    if mp:
         rec["heading_accuracy"] = _float(head.get("AccuracyDegrees"))
-        rec["gps_accuracy_m"] = _float(mp.get("MAPGPSAccuracyMeters")) or rec["gps_accuracy_m"]
-        rec["capture_time"] = _parse_time(mp.get("MAPCaptureTime")) or rec["capture_time"]
-        for key, field in (("lat", "MAPLatitude"), ("lon", "MAPLongitude"), ("alt", "MAPAltitude")):
-            if rec[key] is None:
-                rec[key] = _float(mp.get(field))
+    rec["gps_accuracy_m"] = _float(mp.get("MAPGPSAccuracyMeters")) or rec["gps_accuracy_m"]
+    rec["capture_time"] = _parse_time(mp.get("MAPCaptureTime")) or rec["capture_time"]
+    for key, field in (("lat", "MAPLatitude"), ("lon", "MAPLongitude"), ("alt", "MAPAltitude")):
+        if rec[key] is None:
+            rec[key] = _json_number(mp.get(field))
     rec["bad_geotag"] = _impossible_geotag(rec)
     return rec
 
 
-#: what a geotag's values can be (degrees, metres); EXIF allows any rational, so a forged or broken
-#: tag of latitude 1e9 or heading 1e308 is refused by name rather than used or silently ignored
-GEOTAG_RANGES = {"lat": (-90.0, 90.0), "lon": (-180.0, 180.0), "alt": (-1_000.0, 100_000.0), "heading": (-360.0, 360.0)}
+def _description(path: Path, desc) -> dict:
+    """The Mapillary JSON of an EXIF ImageDescription ({} when it holds none), parsed through the JSON
+    door (:func:`flatlandia.plumbing.validate.parse_json`: depth and number length bounded): a
+    description nested 20,000 deep or holding a 5,000-digit number raises :class:`InputError`, and
+    the photo is dropped with that reason (the scene's other photos are kept)."""
+    if not (isinstance(desc, str) and desc.strip().startswith("{")):
+        return {}
+    try:
+        mp = validate.parse_json(desc, path)
+    except InputError as e:
+        raise InputError(path, f"its EXIF ImageDescription is not usable JSON ({e.problem})") from None
+    return mp if isinstance(mp, dict) else {}
+
+
+def _json_number(v) -> float | None:
+    """A geotag number of the description's JSON: None when absent or not a number, inf kept as inf
+    (a 400-digit latitude is impossible, refused by :func:`_impossible_geotag`, not silently unset)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return _float(v)
+    return float(v)
 
 
 def _impossible_geotag(rec: dict) -> dict:

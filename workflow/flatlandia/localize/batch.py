@@ -17,6 +17,7 @@ readers of the two sources; the one-query path stays the one place a pose is com
 
 from __future__ import annotations
 
+import re
 import sys
 import time
 from collections.abc import Callable, Iterable
@@ -32,6 +33,7 @@ from flatlandia.classes import CLASSES
 from flatlandia.localize import gps_fixes, maps, query_files, solve
 from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
+from flatlandia.plumbing.names import plain_name
 
 #: the poses file's columns: what ``flatlandia score`` reads (scene, token, the metric pose, the
 #: setting and the query time), then what the answer adds (ignored by score): found, the answer's
@@ -79,7 +81,7 @@ class Source:
         strategy = None
         if proposal in vocabulary.COARSE_PROPOSALS:
             table = paths.within(self.root, paths.table("fine_localization")) if self.kind == "results" else None
-            builtin = pd.read_parquet(table) if table is not None and table.is_file() else None
+            builtin = _results_table(table) if table is not None and table.is_file() else None
             strategy = score.builtin_setting(builtin, proposal) or score.default_strategy(proposal)
         if self.kind == "results":
             return _results_proposals(self.root, scene, split, map_type, proposal, strategy), strategy
@@ -95,11 +97,8 @@ class Source:
                 path, f"no {proposal} proposals ({strategy}, {map_type}): the export was written without them"
             )
         out: dict[str, list[int]] = {}
-        try:
-            for t, o in zip(props["token"], props["obj_idx"].astype(np.int64), strict=True):
-                out.setdefault(t, []).append(int(o))
-        except ValueError as e:
-            raise InputError(path, f"obj_idx must be integers ({e})") from None
+        for t, o in zip(props["token"], _cells(props, "obj_idx", path, integer=True), strict=True):
+            out.setdefault(t, []).append(int(o))
         return out, strategy
 
     def scene_map(self, scene: str, learned, settings=None, proposal: str = PROPOSAL) -> maps.ObjectMap:
@@ -114,7 +113,9 @@ class Source:
             return maps.load_map(paths.within(self.root, paths.reference_map(scene)), settings, learned)
         folder = self.root / scene
         m = maps.load_map(folder / "reference_map.geojson", settings, None if learned == "auto" else learned)
-        maps.set_training_priors(m, _export_training(folder / "ground_truth.csv"), folder / "ground_truth.csv")
+        maps.set_training_priors(
+            m, _export_training(folder / "ground_truth.csv", m.obj_idx), folder / "ground_truth.csv"
+        )
         m.scene, m.cities = scene, dict(self.cities)
         return m
 
@@ -132,7 +133,8 @@ def open_source(path: str | Path) -> Source:
         return Source("export", root, scenes["scene"].tolist(), dict(zip(scenes["scene"], scenes["city"], strict=True)))
     record = root / score.BENCHMARK_RECORD
     if record.is_file():
-        ids = [str(s) for s in pd.read_parquet(record, columns=["scene"])["scene"]]
+        table = validate.read_table(record, validate.MAX_SCENES, validate.MAX_MAP_BYTES, columns=["scene"])
+        ids = [plain_name(str(s), record, "scene id") for s in table["scene"]]  # ids become paths
         return Source("results", root, ids, maps.scene_cities(root))
     raise InputError(
         root,
@@ -156,18 +158,54 @@ def _read_csv(path: Path, columns: list[str]) -> pd.DataFrame:
     return df
 
 
+#: a number in an export's cell: ASCII digits, a point, an exponent (nan and inf read, then refused
+#: as not finite); pandas' float() would also take ``1_000`` and full-width or Arabic-Indic digits
+FLOAT_CELL = re.compile(
+    r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[+-]?(?:nan|inf|infinity)", re.ASCII | re.IGNORECASE
+)
+#: an id or a count in an export's cell: an int64 (a 20-digit id was an OverflowError)
+INT_CELL = re.compile(r"-?\d{1,18}", re.ASCII)
+
+
+def _cells(df: pd.DataFrame, column: str, path: Path, integer: bool = False) -> np.ndarray:
+    """A column of an export's CSV (text cells) as numbers; InputError naming the file, the row
+    (the first after the header is row 1) and the column of the first cell that is not one."""
+    pattern = INT_CELL if integer else FLOAT_CELL
+    values = [str(v).strip() for v in df[column]]
+    for i, v in enumerate(values):
+        if not pattern.fullmatch(v):
+            kind = "an integer of at most 18 digits" if integer else "a number"
+            raise InputError(path, f"row {i + 1}, column {column}: {validate.shown(v)} is not {kind}")
+    return np.array([int(v) for v in values] if integer else [float(v) for v in values], np.int64 if integer else float)
+
+
+def _results_table(
+    path: Path, max_rows: int = validate.MAX_POSES_ROWS, max_bytes: int = validate.MAX_POSES_BYTES
+) -> pd.DataFrame:
+    """A table of a results folder given to --batch (a user's, as --map is), through the Parquet door."""
+    return validate.read_table(path, max_rows, max_bytes)
+
+
 def _results_queries(results: Path, scene: str, split: str, map_type: str) -> list[query_files.Query]:
     from flatlandia.data import localmaps
 
     path = paths.within(results, paths.queries(scene))
     if not path.is_file():
         raise InputError(path, "missing: run the workflow first (`snakemake --cores 2 benchmark`)")
-    q = pd.read_parquet(path)
+    q = _results_table(path, validate.MAX_QUERIES, validate.MAX_QUERY_TABLE_BYTES)
+    validate.columns(q, ("token", "split", "classes"), path)
     q = q[q["split"] == split]
-    return [
-        query_files.Query(str(r.token), localmaps.local_map(r, map_type), np.asarray(r.classes, np.int64), str(path))
-        for r in q.itertuples(index=False)
-    ]
+    out = []
+    for r in q.itertuples(index=False):
+        try:
+            xy, cls = localmaps.local_map(r, map_type), np.asarray(r.classes, np.int64)
+        except (AttributeError, TypeError, ValueError, OverflowError):
+            raise InputError(
+                path, f"query {validate.shown(r.token)}: its local map or classes are not numbers"
+            ) from None
+        validate.local_map(np.asarray(xy, float), cls, path, f"query {validate.shown(r.token)}", len(CLASSES))
+        out.append(query_files.Query(str(r.token), xy, cls, str(path)))
+    return out
 
 
 def _results_proposals(
@@ -175,14 +213,18 @@ def _results_proposals(
 ) -> dict[str, list[int]]:
     from flatlandia import proposals
 
-    ref = pd.read_parquet(paths.within(results, paths.reference_map(scene)))
-    q = pd.read_parquet(paths.within(results, paths.queries(scene)))
+    ref = _results_table(
+        paths.within(results, paths.reference_map(scene)), validate.MAX_MAP_OBJECTS, validate.MAX_MAP_BYTES
+    )
+    q = _results_table(
+        paths.within(results, paths.queries(scene)), validate.MAX_QUERIES, validate.MAX_QUERY_TABLE_BYTES
+    )
     coarse = None
     if vocabulary.coarse_source(proposal):
         path = paths.within(results, paths.proposal_table(proposal))
         if not path.is_file():
             raise InputError(path, f"missing: the {proposal} proposals (`snakemake --cores 2 {path}`)")
-        coarse = pd.read_parquet(path)
+        coarse = _results_table(path)
     props = proposals.for_queries(ref, q[q["split"] == split], proposal, map_type, coarse, strategy)
     return {str(t): [int(o) for o in p] for t, p in zip(props["token"], props["proposal"])}
 
@@ -192,12 +234,10 @@ def _export_queries(export: Path, scene: str, split: str, map_type: str) -> list
     tokens = _read_csv(export / scene / "queries.csv", ["token", "split"])
     tokens = tokens.loc[tokens["split"] == split, "token"].tolist()
     lm = _read_csv(path, ["token", "map_type", "k", "class_id", "x", "y"])
-    lm = lm[lm["map_type"] == map_type]
-    try:
-        k, cls = lm["k"].astype(np.int64).to_numpy(), lm["class_id"].astype(np.int64).to_numpy()
-        xy = lm[["x", "y"]].astype(float).to_numpy()
-    except ValueError as e:
-        raise InputError(path, f"k, class_id, x, y must be numbers ({e})") from None
+    k, cls = _cells(lm, "k", path, integer=True), _cells(lm, "class_id", path, integer=True)
+    xy = np.column_stack([_cells(lm, "x", path), _cells(lm, "y", path)]).reshape(-1, 2)
+    mine = (lm["map_type"] == map_type).to_numpy()
+    lm, k, cls, xy = lm[mine], k[mine], cls[mine], xy[mine]
     rows = {}
     for i, t in enumerate(lm["token"]):
         rows.setdefault(t, []).append(i)
@@ -212,23 +252,35 @@ def _export_queries(export: Path, scene: str, split: str, map_type: str) -> list
     return out
 
 
-def _export_training(path: Path) -> pd.DataFrame:
+def _export_training(path: Path, obj_idx: np.ndarray) -> pd.DataFrame:
     """An export's ground_truth.csv as the solver's priors read a queries table: the train split's
-    cameras (``x_m``, ``y_m``, ``theta_deg``) and the reference objects each saw (``ref_idx``)."""
+    cameras (``x_m``, ``y_m``, ``theta_deg``) and the reference objects each saw (``ref_idx``),
+    through the door of a queries table (:func:`flatlandia.plumbing.validate.ground_truth`: every
+    row's camera finite and within its bounds, every id one of the map's ``obj_idx``)."""
     gt = _read_csv(path, ["token", "split", "x_m", "y_m", "theta_deg", "matched_obj_idx"])
-    gt = gt[gt["split"] == "train"]
-    try:
-        return pd.DataFrame(
-            {
-                "split": gt["split"].to_numpy(),
-                "x_m": gt["x_m"].astype(float).to_numpy(),
-                "y_m": gt["y_m"].astype(float).to_numpy(),
-                "theta_deg": gt["theta_deg"].astype(float).to_numpy(),
-                "ref_idx": [np.array(s.split(), np.int64) for s in gt["matched_obj_idx"]],
-            }
+    table = pd.DataFrame(
+        {
+            "token": gt["token"].to_numpy(),
+            "split": gt["split"].to_numpy(),
+            **{c: _cells(gt, c, path) for c in ("x_m", "y_m", "theta_deg")},
+            "ref_idx": [_ids(cell, path, i) for i, cell in enumerate(gt["matched_obj_idx"])],
+        }
+    )
+    validate.ground_truth(
+        table, path, lambda i: f"row {i + 1} (token {validate.shown(table['token'].iat[i])})", obj_idx
+    )
+    return table[table["split"] == "train"].drop(columns="token").reset_index(drop=True)
+
+
+def _ids(cell: str, path: Path, i: int) -> np.ndarray:
+    """The object ids of a ground_truth.csv cell (``matched_obj_idx``: integers apart by spaces)."""
+    ids = str(cell).split()
+    bad = next((v for v in ids if not INT_CELL.fullmatch(v)), None)
+    if bad is not None:
+        raise InputError(
+            path, f"row {i + 1}, column matched_obj_idx: {validate.shown(bad)} is not an integer of at most 18 digits"
         )
-    except ValueError as e:
-        raise InputError(path, f"x_m, y_m, theta_deg and matched_obj_idx must be numbers ({e})") from None
+    return np.array([int(v) for v in ids], np.int64)
 
 
 # ----------------------------------------------------------------------------- fixes
@@ -396,9 +448,10 @@ def _row(m: maps.ObjectMap, scene: str, token: str, map_type: str, answer: dict,
     }
 
 
-def write_poses(batch: Batch, path: str | Path) -> Path:
+def write_poses(batch: Batch, path: str | Path, *, reads=(), artifacts=()) -> Path:
     """The poses file (``.csv``: floats exact, scene and token as text; or ``.parquet``), written
-    atomically: the shape ``flatlandia score`` reads."""
+    atomically through the write door (``reads``, ``artifacts``: what it must not replace,
+    :func:`flatlandia.plumbing.files.check_target`): the shape ``flatlandia score`` reads."""
     from flatlandia.data import export
     from flatlandia.plumbing import files
 
@@ -407,15 +460,16 @@ def write_poses(batch: Batch, path: str | Path) -> Path:
     for c in ("x_m", "y_m", "theta_deg"):
         df[c] = df[c].astype(float)
     if path.suffix.lower() == ".parquet":
-        files.write_parquet(df, path, {"written_by": "flatlandia localize --batch"})
+        files.write_parquet(df, path, {"written_by": "flatlandia localize --batch"}, reads=reads, artifacts=artifacts)
     elif path.suffix.lower() == ".csv":
-        files.write_text(export.csv_text(df), path)
+        files.write_text(export.csv_text(df), path, reads=reads, artifacts=artifacts)
     else:
         raise InputError(path, "a poses file is .csv or .parquet")
     return path
 
 
 def check_out(path: str | Path) -> None:
-    """The poses file's name, checked before any work: ``.csv`` or ``.parquet``."""
+    """The poses file's name, checked before any work: ``.csv`` or ``.parquet`` (where it may be
+    written is the write door's: the command checks it with the inputs it reads)."""
     if Path(path).suffix.lower() not in (".csv", ".parquet"):
         raise InputError(path, "a poses file is .csv or .parquet (--out POSES.csv)")

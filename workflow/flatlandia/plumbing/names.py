@@ -5,12 +5,17 @@ and scene ids end up in output paths (``masks/<name>.png``, ``queries/figures/<t
 A name that is not one plain path component (``../../x``, ``/x``, ``a/b``) would point outside the
 folder it is joined to, so every reader checks the names it returns with :func:`plain_name`, and
 writers that join a name to a folder go through :func:`child` (a second check where it matters).
+A name is also refused when it holds a character nobody sees as itself (C0 and C1 controls, bidi
+overrides and isolates, zero-width characters: :data:`flatlandia.plumbing.escape.HIDDEN_CATEGORIES`):
+``photo\u202egpj.exe`` would be listed as ``photoexe.jpg``. The published tokens are ``[A-Za-z0-9_-]``.
 """
 
 from __future__ import annotations
 
+import unicodedata
 from pathlib import Path
 
+from flatlandia.plumbing import escape
 from flatlandia.plumbing.errors import InputError
 
 #: longest name accepted, in UTF-8 bytes (file systems allow 255; room for a suffix)
@@ -27,8 +32,12 @@ def name_problem(name) -> str | None:
         return "'.' or '..'"
     if "/" in name or "\\" in name:
         return "holds '/' or '\\' (a folder)"
-    if any(ord(c) < 32 or ord(c) == 127 for c in name):
-        return "holds a control character"
+    if len(name) > MAX_NAME_BYTES:  # each character is at least one byte; a long text is never scanned
+        return f"longer than {MAX_NAME_BYTES} bytes"
+    c = escape.hidden(name)
+    if c is not None:  # before encode(): a lone surrogate has no UTF-8
+        label = unicodedata.name(c, "")
+        return f"holds a control or invisible character ({escape.codepoint(c)}{': ' + label if label else ''})"
     if len(name.encode()) > MAX_NAME_BYTES:
         return f"longer than {MAX_NAME_BYTES} bytes"
     return None
@@ -42,7 +51,7 @@ def plain_name(name, source: str | Path, what: str = "name") -> str:
         raise InputError(
             source,
             f"{what} {_shown(name)} is refused: {why}; a name must be one plain file name "
-            f"(no folders, no '..', no '/' or '\\', no control characters, at most {MAX_NAME_BYTES} bytes)",
+            f"(no folders, no '..', no '/' or '\\', no control or invisible characters, at most {MAX_NAME_BYTES} bytes)",
         )
     return name
 

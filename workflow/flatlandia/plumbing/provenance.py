@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import re
 import resource
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from datetime import UTC, datetime
 from functools import cache
 from pathlib import Path
@@ -34,6 +36,11 @@ from flatlandia.plumbing.files import sha256, write_json
 
 PROVENANCE_DIR = Path("logs/provenance")
 CONFIGS_DIR = PROVENANCE_DIR / "configs"
+
+#: levels of inputs ``flatlandia audit PATH --tree`` follows (the workflow has 53 rules: a run's
+#: chains are shorter unless a rule reads its own rule's outputs); deeper ones are one line saying so:
+#: a chain of 100,000 tampered records would otherwise print 10^10 characters of indentation
+MAX_TREE_DEPTH = 100
 
 #: packages whose versions a record lists when the rule's process imported them
 SOFTWARE = [
@@ -227,10 +234,10 @@ def in_run(path: str | Path, root: str | Path | None = None) -> bool:
     p = Path(path)
     if p.is_absolute() or ".." in p.parts or not str(path).strip():
         return False
-    base = Path(root or Path.cwd()).resolve()
     try:
-        return (base / p).resolve().is_relative_to(base)
-    except (OSError, RuntimeError):
+        base = os.path.realpath(root or os.getcwd())
+        return Path(os.path.realpath(os.path.join(base, p))).is_relative_to(base)
+    except (OSError, RuntimeError, ValueError):  # ValueError: a NUL in the name
         return False
 
 
@@ -269,9 +276,26 @@ def record_problem(rec) -> str | None:
     for key in ("wall_seconds", "cpu_seconds"):
         if key in rec and (isinstance(rec[key], bool) or not isinstance(rec[key], (int, float))):
             return f"'{key}' must be a number"
-    if not re.fullmatch(r"[0-9a-f]{0,64}", str(rec.get("config_id", ""))):
+    if not isinstance(rec.get("started_at", ""), str):
+        return "'started_at' must be text"
+    if not _hex_id(rec.get("config_id", "")):
         return "'config_id' must be a hex digest (it names a file of the stored configs)"
     return None
+
+
+def _hex_id(value) -> bool:
+    return isinstance(value, str) and re.fullmatch(r"[0-9a-f]{0,64}", value) is not None
+
+
+def record_files(folder: str | Path = PROVENANCE_DIR) -> list[Path]:
+    """The ``.json`` files under ``folder`` that may be records (the stored configs excluded), sorted;
+    links to other folders are not followed."""
+    folder = Path(folder)
+    files = []
+    for dirpath, dirnames, filenames in os.walk(folder):
+        dirnames[:] = [d for d in dirnames if not (Path(dirpath) == folder and d == CONFIGS_DIR.name)]
+        files += [Path(dirpath, n) for n in filenames if n.endswith(".json")]
+    return sorted(files)
 
 
 def records(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = None) -> list[dict]:
@@ -281,13 +305,8 @@ def records(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = Non
     from flatlandia.plumbing import validate
     from flatlandia.plumbing.errors import InputError
 
-    folder = Path(folder)
     out = []
-    files = []
-    for dirpath, dirnames, filenames in os.walk(folder):  # links to other folders are not followed
-        dirnames[:] = [d for d in dirnames if not (Path(dirpath) == folder and d == CONFIGS_DIR.name)]
-        files += [Path(dirpath, n) for n in filenames if n.endswith(".json")]
-    for f in sorted(files):
+    for f in record_files(folder):
         try:
             rec = validate.read_json(f, validate.MAX_RECORD_BYTES, "MAX_RECORD_BYTES")
         except InputError as e:
@@ -339,7 +358,7 @@ def manifest(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = No
                 {
                     "artifact": path,
                     "rule": rec["rule"],
-                    "scene": rec["wildcards"].get("scene", ""),
+                    "scene": str(rec["wildcards"].get("scene", "")),  # one type: the rows are sorted by it
                     "wildcards": json.dumps(rec["wildcards"], sort_keys=True),
                     "sha256": out["sha256"],
                     "bytes": int(out["bytes"]),
@@ -361,6 +380,139 @@ def manifest(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = No
     return pd.DataFrame(rows, columns=MANIFEST_COLUMNS).sort_values(["scene", "rule", "artifact"], ignore_index=True)
 
 
+#: a manifest read back (``flatlandia audit``'s fallback for a results folder copied without its
+#: logs): on disk and what its columns decode to, and its rows, one per artifact (a run's: a few
+#: thousand rows of under 1 kB each, the inputs' lists aside)
+MAX_MANIFEST_BYTES = 256 * 1_000_000
+MAX_MANIFEST_ROWS = 1_000_000
+#: rows of a manifest each said on a WARNING line when left out (the others counted on one line)
+SKIPPED_SHOWN = 20
+#: the manifest's columns the audit needs (:data:`MANIFEST_REQUIRED`) and the others' values where a
+#: manifest written by an older version lacks them
+MANIFEST_REQUIRED = ("artifact", "rule", "sha256", "inputs")
+_MANIFEST_DEFAULTS = {
+    "scene": "",
+    "wildcards": "{}",
+    "bytes": 0,
+    "settings": "{}",
+    "config_hash": "",
+    "config_id": "",
+    "package_version": "",
+    "git_commit": "",
+    "dirty": None,
+    "scene_sheet": "{}",
+    "software": "{}",
+    "started_at": "",
+    "finished_at": "",
+    "wall_seconds": math.nan,
+    "cpu_seconds": math.nan,
+}
+_MANIFEST_TEXT = ("artifact", "rule", "sha256", "config_hash", "package_version", "git_commit")
+_MANIFEST_TEXT += ("started_at", "finished_at")
+_MANIFEST_JSON = ("wildcards", "inputs", "settings", "scene_sheet", "software")
+
+
+def read_manifest(path: str | Path, skipped: list[str]) -> pd.DataFrame:
+    """The rows of a manifest Parquet (``results/manifest.parquet``) as :func:`manifest` makes them,
+    each checked: a file that is not a manifest (not Parquet, over the bounds, no ``artifact`` column)
+    is one InputError; a row whose cells are not what :func:`manifest` writes (bad JSON, a number
+    where text is needed) is left out and said in ``skipped`` (:data:`SKIPPED_SHOWN` of them, the
+    others counted). Why: the file is as easily edited as a record, and the audit reads its cells."""
+    from flatlandia.plumbing.errors import InputError
+
+    table, present = _manifest_table(path)
+    missing = [c for c in MANIFEST_REQUIRED if c not in present]
+    if missing:
+        raise InputError(path, f"not a manifest of flatlandia: no {', '.join(repr(c) for c in missing)} column")
+    rows, bad = [], 0
+    for i, row in enumerate(table.to_pylist()):
+        row = {c: row.get(c) if c in present else _MANIFEST_DEFAULTS[c] for c in MANIFEST_COLUMNS}
+        why = manifest_row_problem(row)
+        if why is None:
+            rows.append(row)
+            continue
+        bad += 1
+        if bad <= SKIPPED_SHOWN:
+            skipped.append(f"{path}: row {i}: {why}, left out")
+    if bad > SKIPPED_SHOWN:
+        skipped.append(f"{path}: {bad - SKIPPED_SHOWN:,} more rows left out as not a manifest's")
+    return pd.DataFrame(rows, columns=MANIFEST_COLUMNS)
+
+
+def _manifest_table(path: str | Path):
+    """(the manifest's pyarrow table, the names of :data:`MANIFEST_COLUMNS` it has), read through the
+    Parquet door (:func:`flatlandia.plumbing.validate.read_parquet`: what it decodes to bounded by
+    :data:`MAX_MANIFEST_BYTES`): only the manifest's own columns, so no other column is decoded; a
+    column of nulls only (pyarrow's null type: ``dirty`` when no record knew) is not read, its cells
+    are empty. A file that is not Parquet is InputError."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from flatlandia.plumbing import validate
+    from flatlandia.plumbing.errors import InputError
+
+    bounds = (path, MAX_MANIFEST_ROWS, MAX_MANIFEST_BYTES, "rows", ("MAX_MANIFEST_ROWS", ""))
+    try:
+        validate.parquet_size(*bounds)  # the footer bounded before its schema is parsed
+        schema = pq.read_schema(path)
+        present = [c for c in MANIFEST_COLUMNS if c in schema.names]
+        read = [c for c in present if not pa.types.is_null(schema.field(c).type)]
+        return validate.read_parquet(*bounds, columns=read), present
+    except InputError:
+        raise
+    except (pa.ArrowException, OSError, ValueError, KeyError) as e:  # KeyError: a column named twice
+        raise InputError(path, f"not a Parquet manifest ({type(e).__name__}: {str(e)[:200]})") from None
+
+
+def manifest_row_problem(row: dict) -> str | None:
+    """Why a manifest row (every column of :data:`MANIFEST_COLUMNS`) is not one :func:`manifest`
+    writes (None: it is one); ``scene`` is made text and ``bytes`` an int (a column of floats)."""
+    for key in _MANIFEST_TEXT:
+        if not isinstance(row[key], str):
+            return f"{key!r} must be text, not {type(row[key]).__name__}"
+    if not row["artifact"].strip():
+        return "'artifact' is empty"
+    if not isinstance(row["scene"], (str, int)) or isinstance(row["scene"], bool):
+        return "'scene' must be text"
+    row["scene"] = str(row["scene"])
+    if not _hex_id(row["config_id"]):
+        return "'config_id' must be a hex digest (it names a file of the stored configs)"
+    size = row["bytes"]
+    whole = isinstance(size, int) or (isinstance(size, float) and size.is_integer())
+    if isinstance(size, bool) or not whole or not 0 <= size < 2**63:
+        return "'bytes' must be a count of bytes"
+    row["bytes"] = int(size)
+    for key in ("wall_seconds", "cpu_seconds"):
+        row[key] = math.nan if row[key] is None else row[key]  # an empty cell: not measured
+        if isinstance(row[key], bool) or not isinstance(row[key], (int, float)):
+            return f"{key!r} must be a number"
+    if not isinstance(row["dirty"], (bool, type(None))):
+        return "'dirty' must be true, false or empty"
+    return _json_cells_problem(row)
+
+
+def _json_cells_problem(row: dict) -> str | None:
+    """Why a manifest row's JSON cells (:data:`_MANIFEST_JSON`) are not objects as :func:`manifest`
+    writes them (None: they are), read through :func:`flatlandia.plumbing.validate.parse_json`; each is
+    written again as :func:`manifest` writes it, so the audit's own ``json.loads`` of it cannot fail
+    (a 5,000-digit number is a float by then)."""
+    from flatlandia.plumbing import validate
+    from flatlandia.plumbing.errors import InputError
+
+    values = {}
+    for key in _MANIFEST_JSON:
+        try:
+            values[key] = validate.parse_json(row[key], key) if isinstance(row[key], str) else None
+        except InputError as e:
+            return f"{key!r}: {e.problem}"
+        if not isinstance(values[key], dict):
+            return f"{key!r} must be a JSON object as text"
+    if not all(isinstance(v, str) for v in values["inputs"].values()):
+        return "'inputs' must map paths to sha256 digests"
+    row.update({key: json.dumps(v, sort_keys=True) for key, v in values.items()})
+    return None
+
+
 # ----------------------------------------------------------------------------- audit
 
 
@@ -371,16 +523,15 @@ def producers(df: pd.DataFrame) -> dict[str, dict]:
 
 def lineage(artifact: str, df: pd.DataFrame, tree: bool = False) -> list[dict]:
     """The inputs of ``artifact`` (one level, or with ``tree`` every level back to files no rule
-    produced: the published data, the user's photos): per input its path, sha256 recorded by the
-    consumer, the rule that produced it (empty for a source) and its depth."""
+    produced: the published data, the user's photos; at most :data:`MAX_TREE_DEPTH` levels): per
+    input its path, sha256 recorded by the consumer, the rule that produced it (empty for a source)
+    and its depth. Walked with a stack of its own, not recursion: a chain of 1,500 records is no
+    RecursionError."""
     rows = producers(df)
     out, seen = [], set()
 
-    def walk(path: str, depth: int) -> None:
-        rec = rows.get(path)
-        if rec is None:
-            return
-        for inp, digest in sorted(json.loads(rec["inputs"]).items()):
+    def walk(path: str, depth: int) -> Iterator[tuple[str, int]]:
+        for inp, digest in sorted(json.loads(rows[path]["inputs"]).items()):
             prod = rows.get(inp)
             out.append(
                 {
@@ -392,12 +543,26 @@ def lineage(artifact: str, df: pd.DataFrame, tree: bool = False) -> list[dict]:
                     "changed": bool(prod and digest and prod["sha256"] != digest),
                 }
             )
-            if tree and prod is not None and inp not in seen:
+            if tree and prod is not None and inp not in seen and depth < MAX_TREE_DEPTH:
                 seen.add(inp)
-                walk(inp, depth + 1)
+                yield inp, depth + 1
 
-    walk(artifact, 1)
+    if artifact in rows:
+        _depth_first(walk(artifact, 1), walk)
     return out
+
+
+def _depth_first(first: Iterator[tuple[str, int]], walk) -> None:
+    """Run a depth-first walk without recursion: ``walk(path, depth)`` is a generator that does one
+    node's work and yields each child to visit (``(path, depth)``) where the recursive walk would
+    have called itself; the child is walked whole before its parent goes on, as in the recursion."""
+    stack = [first]
+    while stack:
+        child = next(stack[-1], None)
+        if child is None:
+            stack.pop()
+        else:
+            stack.append(walk(*child))
 
 
 def _job(rec: dict) -> tuple[str, str]:
@@ -427,14 +592,15 @@ def lineage_tree(artifact: str, df: pd.DataFrame) -> list[tuple[int, str]]:
     listed is not listed again but counted on one line per kind (``results/{scene}/...``, how many,
     "listed above"); a job whose inputs are those of a job listed before says so. Why: shared
     subtrees (every run of the fine table reads the same 20 maps and queries) made the full tree of
-    ``fine_localization.parquet`` 3,100 lines; this way it stays a few hundred."""
+    ``fine_localization.parquet`` 3,100 lines; this way it stays a few hundred. At most
+    :data:`MAX_TREE_DEPTH` levels, walked without recursion (:func:`_depth_first`)."""
     rows = producers(df)
     shown: set[tuple] = set()  # jobs whose subtree is listed (or being listed)
     sources: set[str] = set()  # sources listed
     input_sets: dict[frozenset, str] = {}
     out: list[tuple[int, str]] = []
 
-    def walk(path: str, depth: int) -> None:
+    def walk(path: str, depth: int) -> Iterator[tuple[str, int]]:
         rec = rows.get(path)
         if rec is None:
             return
@@ -442,6 +608,9 @@ def lineage_tree(artifact: str, df: pd.DataFrame) -> list[tuple[int, str]]:
         key = frozenset(inputs)
         if len(key) > 1 and key in input_sets:
             out.append((depth, f"(its {len(key)} inputs are those of {input_sets[key]}, listed above)"))
+            return
+        if depth > MAX_TREE_DEPTH:
+            out.append((depth, f"(its inputs left out: the tree stops at {MAX_TREE_DEPTH} levels, MAX_TREE_DEPTH)"))
             return
         input_sets.setdefault(key, path)
         groups: dict[tuple, list[str]] = {}
@@ -464,7 +633,7 @@ def lineage_tree(artifact: str, df: pd.DataFrame) -> list[tuple[int, str]]:
                 sources.add(paths[0])
             elif not seen:
                 shown.add(job)
-                walk(paths[0], depth + 1)
+                yield paths[0], depth + 1
         if again:
             listed = ", ".join(f"{len(ps)} x {p}" if len(ps) > 1 else ps[0] for p, ps in again.items())
             out.append((depth, f"listed above: {listed}"))
@@ -472,7 +641,7 @@ def lineage_tree(artifact: str, df: pd.DataFrame) -> list[tuple[int, str]]:
     start = rows.get(artifact)
     if start is not None:
         shown.add(_job(start))
-    walk(artifact, 1)
+    _depth_first(walk(artifact, 1), walk)
     return out
 
 

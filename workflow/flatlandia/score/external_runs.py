@@ -7,6 +7,7 @@ score``); the method's name checked (:func:`check_name`).
 from __future__ import annotations
 
 import math
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,11 +18,11 @@ import pandas as pd
 from flatlandia import geo, paths, vocabulary
 from flatlandia import proposals as proposals_module
 from flatlandia.fine import evaluation
-from flatlandia.plumbing import files
+from flatlandia.plumbing import files, validate
 from flatlandia.plumbing.errors import InputError
 from flatlandia.score.plausibility import plausibility
 from flatlandia.score.poses import DEFAULT_MAP_TYPE, DEFAULT_PROPOSAL, Poses, read_poses
-from flatlandia.score.scenes import BenchmarkScene, results_scenes
+from flatlandia.score.scenes import BenchmarkScene, read_table, results_scenes
 
 #: an external method's name: a plain lowercase id that is no built-in method's slug
 #: (vocabulary.METHODS; it becomes results/external/{name}_{map_type}_{proposal}/, paths.external_run)
@@ -270,6 +271,14 @@ class Scores:
     notes: list[str]
 
 
+def _results_table(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
+    """A table of the results folder (the fine table, a proposal table) with ``columns``, read within
+    the bounds of a table of per-query rows (a poses file's: :func:`flatlandia.score.scenes.read_table`)."""
+    t = read_table(path, validate.MAX_POSES_ROWS, validate.MAX_POSES_BYTES, ("MAX_POSES_ROWS", "MAX_POSES_BYTES"))
+    validate.columns(t, columns, path)
+    return t
+
+
 def score_file(path: str | Path, name: str, results: str | Path, split: str = "test") -> Scores:
     """Every setting of a poses file scored against a results folder's benchmark (nothing written)."""
     check_name(name)
@@ -277,7 +286,7 @@ def score_file(path: str | Path, name: str, results: str | Path, split: str = "t
     scenes = results_scenes(results)
     poses = read_poses(path, scenes, split)
     table_path = paths.within(results, paths.table("fine_localization"))
-    builtin = pd.read_parquet(table_path) if table_path.exists() else None
+    builtin = _results_table(table_path, ("proposal", "strategy")) if os.path.lexists(table_path) else None
     notes = list(poses.notes)
     if builtin is None:
         notes.append(f"no built-in table at {table_path}: scores.md lists only {name}'s rows")
@@ -286,11 +295,11 @@ def score_file(path: str | Path, name: str, results: str | Path, split: str = "t
         coarse = strategy = None
         if vocabulary.coarse_source(proposal):
             coarse_path = paths.within(results, paths.proposal_table(proposal))
-            if not coarse_path.exists():
+            if not os.path.lexists(coarse_path):
                 raise InputError(
                     coarse_path, f"missing: the {proposal} proposals are needed to score {map_type}/{proposal}"
                 )
-            coarse = pd.read_parquet(coarse_path)
+            coarse = _results_table(coarse_path, tuple(proposals_module.PROPOSAL_COLUMNS))
             strategy = builtin_setting(builtin, proposal) or default_strategy(proposal)
         runs.append(score_run(poses, scenes, name, map_type, proposal, coarse, strategy))
     return Scores(runs, plausibility(poses, scenes), builtin, notes)

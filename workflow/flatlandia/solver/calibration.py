@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -160,7 +161,12 @@ class MapSize:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> MapSize:
+    def from_dict(cls, d: dict, source: str | Path = "map-size correction", where: str = "map_size") -> MapSize:
+        """The correction as :meth:`to_dict` writes it, checked field by field
+        (:func:`flatlandia.plumbing.validate.map_size`); one InputError naming ``source`` and the field."""
+        from flatlandia.plumbing import validate
+
+        validate.map_size(d, source, MAX_SHIFT, MAX_PER_LOG_ODDS, where)
         terms = [MapTerm(float(d[k]["shift"]), float(d[k]["per_log_odds"])) for k in ("frame", "sequence")]
         return cls(float(d["reference_objects"]), *terms, int(d["answers"]))
 
@@ -197,19 +203,36 @@ class Calibration:
         return out
 
     @classmethod
-    def from_dict(cls, d: dict) -> Calibration:
+    def from_dict(cls, d: dict, source: str | Path = "calibration") -> Calibration:
+        """The calibration as :meth:`to_dict` writes it, checked field by field: an object of
+        ``features``, ``frame`` and ``sequence`` (each null or an object of an ``intercept`` and
+        ``weights`` within :data:`~flatlandia.plumbing.validate.MAX_LOGIT_WEIGHT` and a count of
+        ``answers``) and an optional ``map_size``; one InputError naming ``source`` and the field."""
+        from flatlandia.plumbing import validate
+        from flatlandia.plumbing.errors import InputError
+
+        d = validate.json_object(d, source, "calibration", ("features", *KINDS, "map_size"))
         if d.get("features") != list(FEATURES):
-            raise ValueError(f"the calibration's features {d.get('features')} are not {list(FEATURES)}")
+            raise InputError(
+                source, f"calibration features {validate.shown(d.get('features'))} are not {list(FEATURES)}"
+            )
         parts = {}
         for k in KINDS:
-            v = d.get(k)
-            parts[k] = (
-                None
-                if v is None
-                else Logistic(float(v["intercept"]), tuple(float(w) for w in v["weights"]), int(v["answers"]))
-            )
+            v, where = d.get(k), f"calibration {k}"
+            if v is None:
+                parts[k] = None
+                continue
+            v = validate.json_object(v, source, where, ("intercept", "weights", "answers"))
+            bound = validate.MAX_LOGIT_WEIGHT
+            intercept = validate.finite(v.get("intercept"), source, f"{where} intercept", -bound, bound)
+            weights = validate.numbers(v.get("weights"), source, f"{where} weights", None, -bound, bound)
+            answers = validate.whole(v.get("answers"), source, f"{where} answers")
+            try:
+                parts[k] = Logistic(intercept, weights, answers)
+            except ValueError as e:  # the number of weights
+                raise InputError(source, f"{where}: {e}") from None
         if d.get("map_size") is not None:
-            parts["map_size"] = MapSize.from_dict(d["map_size"])
+            parts["map_size"] = MapSize.from_dict(d["map_size"], source, "calibration map_size")
         return cls(**parts)
 
 

@@ -52,18 +52,25 @@ class LearnedPriors:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> LearnedPriors:
-        scale = tuple(float(x) for x in d["scale_prior"]) if d.get("scale_prior") else None
-        v = d.get("verifier")
-        verifier = None
-        if v:
-            if d.get("features", list(verify.FEATURES)) != list(verify.FEATURES):
-                raise ValueError(f"the verifier's features {d.get('features')} are not this solver's {verify.FEATURES}")
+    def from_dict(cls, d: dict, source: str | Path = "learned priors") -> LearnedPriors:
+        """The priors as :meth:`to_dict` writes them, checked field by field
+        (:func:`flatlandia.plumbing.validate.learned_priors`, then the likelihood model's and the
+        calibration's own ``from_dict``); one InputError naming ``source`` and the field."""
+        from flatlandia.plumbing import validate
+        from flatlandia.plumbing.errors import InputError
+
+        validate.learned_priors(d, source, len(verify.FEATURES))
+        scale = tuple(float(x) for x in d["scale_prior"]) if d["scale_prior"] is not None else None
+        v, verifier = d["verifier"], None
+        if v is not None:
+            if d["features"] != list(verify.FEATURES):
+                raise InputError(
+                    source,
+                    f"the verifier's features {validate.shown(d['features'])} are not this solver's {verify.FEATURES}",
+                )
             verifier = verify.Verifier(*(np.asarray(v[k], float) for k in ("weights", "mean", "scale")))
-            if not all(np.isfinite(getattr(verifier, k)).all() for k in ("weights", "mean", "scale")):
-                raise ValueError("the verifier's weights are not all finite")
-        lik = LikelihoodModel.from_dict(d["likelihood"]) if d.get("likelihood") else None
-        cal = Calibration.from_dict(d["calibration"]) if d.get("calibration") else None
+        lik = LikelihoodModel.from_dict(d["likelihood"], source) if d["likelihood"] is not None else None
+        cal = Calibration.from_dict(d["calibration"], source) if d["calibration"] is not None else None
         return cls(scale, verifier, lik, cal)
 
     def write(self, path: str | Path) -> None:
@@ -76,14 +83,15 @@ class LearnedPriors:
 
     @classmethod
     def read(cls, path: str | Path) -> LearnedPriors:
-        from flatlandia.plumbing import validate
+        """A priors JSON, checked field by field as it is read (:meth:`from_dict`)."""
         from flatlandia.plumbing.errors import InputError
 
         d = files.read_json(path)
-        validate.learned_priors(d, path, len(verify.FEATURES))  # finite, positive spreads, one weight per feature
         try:
-            return cls.from_dict(d)
-        except (KeyError, TypeError, ValueError) as e:
+            return cls.from_dict(d, path)
+        except InputError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError) as e:  # a shape the checks above let through
             raise InputError(path, f"not the solver's learned priors ({e}); delete it to have it refitted") from None
 
 
@@ -115,7 +123,7 @@ def read_map_size(path: str | Path) -> MapSize:
 
     d = files.read_json(path)
     validate.map_size_calibration(d, path, calibration.MAX_SHIFT, calibration.MAX_PER_LOG_ODDS)
-    return MapSize.from_dict(d["map_size"])
+    return MapSize.from_dict(d["map_size"], path)
 
 
 def fit(

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -106,12 +107,51 @@ class LikelihoodModel:
         return {f.name: list(v) if isinstance(v := getattr(self, f.name), tuple) else v for f in fields(self)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> LikelihoodModel:
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"unknown keys {sorted(unknown)}")
-        return cls(**{k: tuple(float(x) for x in v) if isinstance(v, list) else v for k, v in d.items()})
+    def from_dict(cls, d: dict, source: str | Path = "likelihood model") -> LikelihoodModel:
+        """The model as :meth:`to_dict` writes it, checked field by field (each a number or a list
+        of its size, finite within its bound: a text is no list of digits, 1e308 no logit); one
+        InputError naming ``source`` and the field."""
+        from flatlandia.plumbing import validate
+        from flatlandia.plumbing.errors import InputError
+
+        nb, na, nk = len(RANGE_EDGES_M) - 1, len(BEARING_EDGES_DEG) - 1, classes.N_CLASSES
+        w = validate.MAX_LOGIT_WEIGHT
+        specs = {  # field: (values: None for one number, largest magnitude: None for a count)
+            "bearing_sigma_deg": (nb, 180.0),
+            "log_range_sigma": (nb, 10.0),  # e^10: a range known to a factor of 22,000 is none
+            "fov_half_deg": (None, 180.0),
+            "max_range_m": (None, validate.MAX_LOCAL_COORD),
+            "intercept": (None, w),
+            "cls_logit": (nk, w),
+            "range_logit": (nb, w),
+            "bear_logit": (na, w),
+            "share_w": (None, w),
+            "nocam_w": (None, w),
+            "intercept0": (None, w),
+            "cls_logit0": (nk, w),
+            "range_logit0": (nb, w),
+            "bear_logit0": (na, w),
+            "detections": (None, None),
+            "in_view": (None, None),
+        }
+        d = validate.json_object(d, source, "likelihood", tuple(specs))
+        values = {}
+        for name, (size, bound) in specs.items():
+            where = f"likelihood {name}"
+            if name not in d:
+                if name in ("detections", "in_view"):
+                    continue  # counts of the fit, kept for the record (0 when absent)
+                raise InputError(source, f"{where} is missing")
+            if bound is None:
+                values[name] = validate.whole(d[name], source, where)
+            elif size is None:
+                values[name] = validate.finite(d[name], source, where, -bound, bound)
+            else:
+                values[name] = validate.numbers(d[name], source, where, size, -bound, bound)
+        try:
+            return cls(**values)
+        except ValueError as e:  # the signs and ranges __post_init__ checks
+            raise InputError(source, f"likelihood: {e}") from None
 
     def terms(self, metric: bool, position_sigma_m: float) -> LikelihoodTerms:
         """The model as the kernel reads it, for a GT (``metric``, residuals in metres of sigma
