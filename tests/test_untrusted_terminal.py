@@ -116,9 +116,9 @@ def test_audit_tree_over_1500_chained_records_is_no_recursion_error(tmp_path, mo
     out = capsys.readouterr().out
     assert time.monotonic() - t0 < 30
     assert "<- step1498" in out and "<- step1398" not in out
-    assert f"the tree stops at {provenance.MAX_TREE_DEPTH} levels" in out
+    assert f"the tree stops at {validate.MAX_TREE_DEPTH} levels" in out
     df = provenance.manifest()
-    assert len(provenance.lineage(f"results/chain/{n - 1}.txt", df, tree=True)) == provenance.MAX_TREE_DEPTH
+    assert len(provenance.lineage(f"results/chain/{n - 1}.txt", df, tree=True)) == validate.MAX_TREE_DEPTH
 
 
 def _manifest_rows() -> pd.DataFrame:

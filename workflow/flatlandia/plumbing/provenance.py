@@ -37,10 +37,6 @@ from flatlandia.plumbing.files import sha256, write_json
 PROVENANCE_DIR = Path("logs/provenance")
 CONFIGS_DIR = PROVENANCE_DIR / "configs"
 
-#: levels of inputs ``flatlandia audit PATH --tree`` follows (the workflow has 53 rules: a run's
-#: chains are shorter unless a rule reads its own rule's outputs); deeper ones are one line saying so:
-#: a chain of 100,000 tampered records would otherwise print 10^10 characters of indentation
-MAX_TREE_DEPTH = 100
 
 #: packages whose versions a record lists when the rule's process imported them
 SOFTWARE = [
@@ -300,7 +296,7 @@ def record_files(folder: str | Path = PROVENANCE_DIR) -> list[Path]:
 
 def records(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = None) -> list[dict]:
     """Every rule record under ``folder`` (the stored configs excluded). A file that is not one
-    (not a regular file, over :data:`flatlandia.plumbing.validate.MAX_RECORD_BYTES`, invalid JSON, a record
+    (not a regular file, over :data:data:`flatlandia.plumbing.validate.MAX_RECORD_BYTES`, invalid JSON, a record
     lacking a key or naming an output outside the run) is left out, and said in ``skipped``."""
     from flatlandia.plumbing import validate
     from flatlandia.plumbing.errors import InputError
@@ -380,11 +376,6 @@ def manifest(folder: str | Path = PROVENANCE_DIR, skipped: list[str] | None = No
     return pd.DataFrame(rows, columns=MANIFEST_COLUMNS).sort_values(["scene", "rule", "artifact"], ignore_index=True)
 
 
-#: a manifest read back (``flatlandia audit``'s fallback for a results folder copied without its
-#: logs): on disk and what its columns decode to, and its rows, one per artifact (a run's: a few
-#: thousand rows of under 1 kB each, the inputs' lists aside)
-MAX_MANIFEST_BYTES = 256 * 1_000_000
-MAX_MANIFEST_ROWS = 1_000_000
 #: rows of a manifest each said on a WARNING line when left out (the others counted on one line)
 SKIPPED_SHOWN = 20
 #: the manifest's columns the audit needs (:data:`MANIFEST_REQUIRED`) and the others' values where a
@@ -442,7 +433,7 @@ def read_manifest(path: str | Path, skipped: list[str]) -> pd.DataFrame:
 def _manifest_table(path: str | Path):
     """(the manifest's pyarrow table, the names of :data:`MANIFEST_COLUMNS` it has), read through the
     Parquet door (:func:`flatlandia.plumbing.validate.read_parquet`: what it decodes to bounded by
-    :data:`MAX_MANIFEST_BYTES`): only the manifest's own columns, so no other column is decoded; a
+    :data:`flatlandia.plumbing.validate.MAX_MANIFEST_BYTES`): only the manifest's own columns, so no other column is decoded; a
     column of nulls only (pyarrow's null type: ``dirty`` when no record knew) is not read, its cells
     are empty. A file that is not Parquet is InputError."""
     import pyarrow as pa
@@ -451,7 +442,7 @@ def _manifest_table(path: str | Path):
     from flatlandia.plumbing import validate
     from flatlandia.plumbing.errors import InputError
 
-    bounds = (path, MAX_MANIFEST_ROWS, MAX_MANIFEST_BYTES, "rows", ("MAX_MANIFEST_ROWS", ""))
+    bounds = (path, validate.MAX_MANIFEST_ROWS, validate.MAX_MANIFEST_BYTES, "rows", ("MAX_MANIFEST_ROWS", ""))
     try:
         validate.parquet_size(*bounds)  # the footer bounded before its schema is parsed
         schema = pq.read_schema(path)
@@ -523,10 +514,12 @@ def producers(df: pd.DataFrame) -> dict[str, dict]:
 
 def lineage(artifact: str, df: pd.DataFrame, tree: bool = False) -> list[dict]:
     """The inputs of ``artifact`` (one level, or with ``tree`` every level back to files no rule
-    produced: the published data, the user's photos; at most :data:`MAX_TREE_DEPTH` levels): per
+    produced: the published data, the user's photos; at most :data:`flatlandia.plumbing.validate.MAX_TREE_DEPTH` levels): per
     input its path, sha256 recorded by the consumer, the rule that produced it (empty for a source)
     and its depth. Walked with a stack of its own, not recursion: a chain of 1,500 records is no
     RecursionError."""
+    from flatlandia.plumbing import validate
+
     rows = producers(df)
     out, seen = [], set()
 
@@ -543,7 +536,7 @@ def lineage(artifact: str, df: pd.DataFrame, tree: bool = False) -> list[dict]:
                     "changed": bool(prod and digest and prod["sha256"] != digest),
                 }
             )
-            if tree and prod is not None and inp not in seen and depth < MAX_TREE_DEPTH:
+            if tree and prod is not None and inp not in seen and depth < validate.MAX_TREE_DEPTH:
                 seen.add(inp)
                 yield inp, depth + 1
 
@@ -593,7 +586,9 @@ def lineage_tree(artifact: str, df: pd.DataFrame) -> list[tuple[int, str]]:
     "listed above"); a job whose inputs are those of a job listed before says so. Why: shared
     subtrees (every run of the fine table reads the same 20 maps and queries) made the full tree of
     ``fine_localization.parquet`` 3,100 lines; this way it stays a few hundred. At most
-    :data:`MAX_TREE_DEPTH` levels, walked without recursion (:func:`_depth_first`)."""
+    :data:`flatlandia.plumbing.validate.MAX_TREE_DEPTH` levels, walked without recursion (:func:`_depth_first`)."""
+    from flatlandia.plumbing import validate
+
     rows = producers(df)
     shown: set[tuple] = set()  # jobs whose subtree is listed (or being listed)
     sources: set[str] = set()  # sources listed
@@ -609,8 +604,13 @@ def lineage_tree(artifact: str, df: pd.DataFrame) -> list[tuple[int, str]]:
         if len(key) > 1 and key in input_sets:
             out.append((depth, f"(its {len(key)} inputs are those of {input_sets[key]}, listed above)"))
             return
-        if depth > MAX_TREE_DEPTH:
-            out.append((depth, f"(its inputs left out: the tree stops at {MAX_TREE_DEPTH} levels, MAX_TREE_DEPTH)"))
+        if depth > validate.MAX_TREE_DEPTH:
+            out.append(
+                (
+                    depth,
+                    f"(its inputs left out: the tree stops at {validate.MAX_TREE_DEPTH} levels, validate.MAX_TREE_DEPTH)",
+                )
+            )
             return
         input_sets.setdefault(key, path)
         groups: dict[tuple, list[str]] = {}

@@ -1107,6 +1107,15 @@ def learned_priors(d: Any, source: str | Path, n_features: int) -> None:
 
 # ----------------------------------------------------------------------------- typed records
 
+#: levels of inputs ``flatlandia audit PATH --tree`` follows (the workflow has 53 rules: a run's
+#: chains are shorter unless a rule reads its own rule's outputs); deeper ones are one line saying so:
+#: a chain of 100,000 tampered records would otherwise print 10^10 characters of indentation
+MAX_TREE_DEPTH = 100
+#: a manifest read back (``flatlandia audit``'s fallback for a results folder copied without its
+#: logs): on disk and what its columns decode to, and its rows, one per artifact (a run's: a few
+#: thousand rows of under 1 kB each, the inputs' lists aside)
+MAX_MANIFEST_BYTES = 256 * MB
+MAX_MANIFEST_ROWS = 1_000_000
 #: largest |weight| or |intercept| of a fitted logistic map (the answers' calibration, the likelihood
 #: model's detection probability, the verifier's linear score): their features are bounded (log-odds
 #: within 20, log counts within 10, shares within 1), so 1,000 already makes every answer 0 or 1
