@@ -100,6 +100,17 @@ def test_audit_write_refuses_an_artifact_reached_through_dot_dot_or_a_link(tmp_p
     assert "rule: reference_map" in got.out and "the file matches its record" in got.out and not got.err
 
 
+def test_audit_finds_the_record_of_an_artifact_named_through_dot_dot_or_a_link(tmp_path, monkeypatch, capsys):
+    """The guard resolves `results/../results/...` and a link to results/: so does the look-up (it
+    said "no audit record" for the very file the guard had just named an artifact)."""
+    monkeypatch.chdir(tmp_path)
+    _write_record(_record("reference_map", [_file(MAP, "map")]), "reference_map/scene-12")
+    Path("r").symlink_to("results", target_is_directory=True)
+    for given in ("results/../results/12/maps/reference_map.parquet", "r/12/maps/reference_map.parquet"):
+        assert cli.main(["audit", given]) == 0
+        assert f"artifact: {MAP}" in capsys.readouterr().out
+
+
 # ----------------------------------------------------------------------------- 8. tree and manifest
 
 

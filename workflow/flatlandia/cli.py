@@ -122,8 +122,8 @@ def _run_relative(artifact: str) -> str:
     """An artifact as the records name it: relative to the run's folder (the working folder), also
     when given as an absolute path inside it (a shell's completion, a file manager's copy)."""
     path = Path(artifact)
-    if path.is_absolute():
-        try:
+    if path.is_absolute() or ".." in path.parts or path.is_symlink() or any(p.is_symlink() for p in path.parents):
+        try:  # resolved: results/../results/x and a link into results/ name the record's artifact
             path = path.resolve().relative_to(Path.cwd().resolve())
         except (OSError, ValueError):  # outside the run's folder: no record names it
             pass
