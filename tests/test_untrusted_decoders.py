@@ -385,3 +385,20 @@ def test_a_footer_that_aborts_pyarrow_is_refused_before_pyarrow_reads_it(crasher
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr[-500:]
     assert "refused:" in done.stdout and said in done.stdout
+
+
+def test_a_real_sized_queries_table_of_distinct_doubles_is_read(tmp_path):
+    """Found in a new user's walk: scene 7's queries.parquet (257 queries, 0.1 MB in memory) was
+    refused by `score` and `--batch` as "may decode to 102 MB": pyarrow dictionary-encodes lists of
+    doubles, and each value was bounded by the whole dictionary page. A fixed-width leaf decodes to
+    its width per value, whatever its dictionary."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    rng = np.random.default_rng(0)
+    local = [[[float(x), float(y)] for x, y in rng.normal(size=(17, 2))] for _ in range(400)]
+    table = pa.table({"token": [f"t{i}" for i in range(400)], "depth_local_xy": local})
+    path = tmp_path / "queries.parquet"
+    pq.write_table(table, path)
+    got = validate.read_table(path, validate.MAX_QUERIES, 10 * table.nbytes)
+    assert len(got) == 400 and got["depth_local_xy"].iloc[3][5][1] == local[3][5][1]

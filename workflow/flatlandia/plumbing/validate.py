@@ -494,12 +494,28 @@ def _leaves(fields, parquet_schema) -> dict[str, list[int]]:
     return out
 
 
-def _planned_bytes(field, leaves: list[int], sizes: list[dict], rows: int) -> int:
+#: bytes per value of Parquet's fixed-width physical types (BYTE_ARRAY is of variable width; a
+#: FIXED_LEN_BYTE_ARRAY's width is its schema's type_length)
+_PHYSICAL_WIDTH = {"BOOLEAN": 1, "INT32": 4, "INT64": 8, "INT96": 12, "FLOAT": 4, "DOUBLE": 8}
+
+
+def _leaf_widths(schema) -> list[int | None]:
+    """Bytes per value of each leaf column (a ParquetSchema), None for a BYTE_ARRAY one."""
+    out: list[int | None] = []
+    for j in range(len(schema)):
+        column = schema.column(j)
+        kind = column.physical_type
+        out.append(column.length if kind == "FIXED_LEN_BYTE_ARRAY" else _PHYSICAL_WIDTH.get(kind))
+    return out
+
+
+def _planned_bytes(field, leaves: list[int], sizes: list[dict], rows: int, widths: list | None = None) -> int:
     """An upper bound on what ``field`` decodes to, from its pages' headers: a flat fixed-width
     column rows x width; a flat text column its 4-byte indices and its pages (its dictionary;
     decoded later only once measured, :func:`_decoded_bytes`); a list or struct, each leaf value
     declared by its pages at its width (a text leaf: at its largest dictionary page) and an 8-byte
-    offset."""
+    offset. A fixed-width leaf (``widths``, :func:`_leaf_widths`) decodes to its width per value,
+    whatever its dictionary (pyarrow dictionary-encodes doubles too)."""
     import pyarrow as pa
 
     width = _fixed_bytes(field.type)
@@ -508,7 +524,8 @@ def _planned_bytes(field, leaves: list[int], sizes: list[dict], rows: int) -> in
     total = 0
     for j in leaves:
         leaf = sizes[j]
-        total += leaf["values"] * (8 + max(8, leaf["dictionary"])) + leaf["pages"]
+        fixed = widths[j] if widths is not None and j < len(widths) else None
+        total += leaf["values"] * (8 + (fixed if fixed else max(8, leaf["dictionary"]))) + leaf["pages"]
     return total
 
 
@@ -545,7 +562,8 @@ def read_parquet(
     leaves = _leaves(fields, file.schema)
     if columns is not None:
         fields = [schema.field(c) for c in columns]
-    planned = sum(_planned_bytes(f, leaves.get(f.name, []), sizes, rows) for f in fields)
+    widths = _leaf_widths(file.schema)
+    planned = sum(_planned_bytes(f, leaves.get(f.name, []), sizes, rows, widths) for f in fields)
     _within(planned, max_bytes, path, names[1], "its columns may decode to")
     text = [  # all-null columns (pyarrow's null type) hold nothing to decode
         f.name
@@ -554,7 +572,7 @@ def read_parquet(
     ]
     reader = pq.ParquetFile(path, read_dictionary=text)
     table = reader.read(columns=[f.name for f in fields], use_pandas_metadata=columns is None)
-    decoded = planned - sum(_planned_bytes(schema.field(n), leaves.get(n, []), sizes, rows) for n in text)
+    decoded = planned - sum(_planned_bytes(schema.field(n), leaves.get(n, []), sizes, rows, widths) for n in text)
     for name in text:
         decoded += _decoded_bytes(table.column(name))
         _within(decoded, max_bytes, path, names[1], f"its columns (up to {shown(name)}) decode to")
