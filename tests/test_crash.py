@@ -54,7 +54,7 @@ _target = os.environ.get("CRASH_TEST_PAUSE_AT")
 if _target:
     _replace = os.replace
     def _paused_replace(src, dst, *args, **kwargs):
-        if os.fspath(dst) == _target:
+        if os.path.realpath(os.fspath(dst)) == os.path.realpath(_target):  # the writers rename resolved paths
             with open(os.environ["CRASH_TEST_PAUSED"], "w") as f:
                 f.write(os.fspath(src))
             time.sleep(600)

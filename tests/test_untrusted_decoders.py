@@ -200,7 +200,9 @@ try:
     print("READ")
 except InputError as e:
     print("ERROR:", e)
-print("MAXRSS_MB", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1000)
+# this image's own peak (VmHWM: a new image at exec); ru_maxrss keeps the forking worker's peak on Linux
+hwm = [line for line in open("/proc/self/status") if line.startswith("VmHWM:")]
+print("MAXRSS_MB", int(hwm[0].split()[1]) / 1000 if hwm else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1000)
 """
 
 

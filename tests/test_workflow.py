@@ -335,13 +335,13 @@ def test_missing_data_is_fetched_or_fails_fast_offline(repo, tmp_path):
     cfg = tmp_path / "offline.yaml"
     cfg.write_text(
         f"flatlandia_root: {tmp_path / 'nowhere'}\n"
-        f"fetch: {{url: 'https://127.0.0.1:9/x.zip', dest: '{tmp_path / 'fetched'}', timeout_s: 5}}\n"
-    )
+        f"fetch: {{url: 'https://127.0.0.1:9/x.zip', dest: '{tmp_path / 'resources' / 'fetched'}', timeout_s: 5}}\n"
+    )  # a fetch writes only below the working folder's resources/ (docs/security.md, the write rule)
     res = smk(repo, tmp_path, "--cores", "1", "results/12/ingest/ingest.json", "--configfile", str(cfg))
     assert res.returncode != 0
     log = (tmp_path / "logs/fetch_flatlandia/fetch.log").read_text()
     assert "could not download" in log and "FLATLANDIA_ROOT" in log
-    assert not (tmp_path / "fetched").exists()
+    assert not (tmp_path / "resources" / "fetched").exists()
 
 
 @pytest.mark.slow

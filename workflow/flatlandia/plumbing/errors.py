@@ -10,11 +10,16 @@ MAX_PROBLEM_CHARS = 4000
 
 
 class InputError(ValueError):
-    """Raised when an input file is missing, unreadable or semantically wrong."""
+    """Raised when an input file is missing, unreadable or semantically wrong. Its text is one line
+    without control or invisible characters (escaped as ``escape.terminal`` writes them), whatever
+    a message quotes: a library's own words about a hostile file (pyarrow's hold its bytes) included."""
 
     def __init__(self, path: str | Path, problem: str):
-        self.path = str(path)[:MAX_PROBLEM_CHARS]
+        from flatlandia.plumbing.escape import terminal  # light: the standard library only
+
+        self.path = terminal(str(path)[:MAX_PROBLEM_CHARS])
+        problem = str(problem)
         if len(problem) > MAX_PROBLEM_CHARS:
             problem = f"{problem[:MAX_PROBLEM_CHARS]}... (cut: {len(problem):,} characters)"
-        self.problem = problem
-        super().__init__(f"{self.path}: {problem}")
+        self.problem = terminal(problem)
+        super().__init__(f"{self.path}: {self.problem}")

@@ -92,6 +92,9 @@ MAX_CHECKPOINT_MEMBERS = 10_000
 MAX_PARQUET_FOOTER_BYTES = 4 * MB
 #: columns of a Parquet file read from outside (a scene map: 9; a poses file: 5-8)
 MAX_PARQUET_COLUMNS = 1000
+#: row groups of any Parquet (the workflow writes one per file; pyarrow's default holds 1M rows): each
+#: costs a pass of the page-header check, and 2,000 one-row groups took 3 s (the fuzz suite's find)
+MAX_PARQUET_ROW_GROUPS = 1000
 #: pages of a Parquet file read from outside, each header read before pyarrow reads it (a scene
 #: map's: 20; pyarrow writes a page per MB of a column)
 MAX_PARQUET_PAGES = 100_000
@@ -209,6 +212,7 @@ def parquet_size(
     _parquet_footer(path)
     meta = pq.ParquetFile(path).metadata  # a file that is not Parquet: pyarrow's error, the caller's message
     count(meta.num_rows, max_rows, path, what, names[0] or "a bound")
+    count(meta.num_row_groups, MAX_PARQUET_ROW_GROUPS, path, "row groups", "MAX_PARQUET_ROW_GROUPS")
     count(
         sum(meta.row_group(i).num_rows for i in range(meta.num_row_groups)), max_rows, path, what, names[0] or "a bound"
     )
@@ -581,6 +585,10 @@ def read_parquet(
         if not pa.types.is_dictionary(want):  # a column written as a dictionary (pandas' categorical) stays one
             i = table.schema.get_field_index(name)
             table = table.set_column(i, schema.field(name), table.column(name).cast(want))
+    try:  # every value as its type says (a text column's UTF-8): pandas trips on what pyarrow let by
+        table.validate(full=True)
+    except Exception as e:
+        raise InputError(path, f"holds values that are not what its schema says ({one_line(e)})") from None
     return table
 
 
