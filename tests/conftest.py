@@ -17,7 +17,6 @@ import os
 import types
 from pathlib import Path
 
-import fuzz_strategies  # noqa: F401  (registers the fuzz profiles before pytest configures Hypothesis: --hypothesis-profile=long)
 import pytest
 from snakemake_runner import smk
 

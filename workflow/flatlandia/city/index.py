@@ -90,6 +90,9 @@ class ViewIndex:
         except Exception as e:  # numpy and zipfile raise several types for a file that is not an index
             raise InputError(path, f"not a city index ({type(e).__name__}: {str(e)[:200]})") from None
         validate.city_index(arrays, path, classes.N_CLASSES)
+        # unsigned ids and pointers (checked in range above) as int64: numpy will not cast uint64 to
+        # the signed counts np.repeat takes (the fuzz suite's long profile found it)
+        arrays = {f: a.astype(np.int64) if a.dtype.kind == "u" else a for f, a in arrays.items()}
         return cls(**arrays)
 
     def seen(self, view: int) -> np.ndarray:

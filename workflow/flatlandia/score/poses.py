@@ -122,9 +122,7 @@ def _csv_bytes(path: Path):
 def _natural(s: str) -> tuple:
     """Scene ids in natural order (2 before 10)."""
     # ASCII digits only: str.isdigit takes '²', which int() refuses (the fuzz suite's find)
-    return tuple(
-        (0, int(p), "") if p.isascii() and p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", str(s)) if p
-    )
+    return tuple((0, int(p), "") if p.isascii() and p.isdigit() else (1, 0, p) for p in re.split(r"(\d+)", str(s)) if p)
 
 
 def shortened(text: str) -> str:
