@@ -480,3 +480,26 @@ def pair_fits(ca, cb, co, use_co, rx, ry, qix, qiy, dqx, dqy, metric, len_tol, m
             sc[h] = s
             h += 1
     return t[:h], th[:h], sc[:h]
+
+
+@njit(cache=True)
+def distinct_in_order(order, tx, ty, theta, top_k, radius, turn):
+    """The first ``top_k`` of ``order`` skipping any within ``radius`` and ``turn`` (rad) of one
+    already chosen (:func:`flatlandia.solver.hypotheses.distinct_best`)."""
+    chosen = np.empty(min(top_k, len(order)), np.int64)
+    n = 0
+    two_pi = 2.0 * math.pi
+    for w in order:
+        if n >= top_k:
+            break
+        near = False
+        for a in range(n):
+            v = chosen[a]
+            dth = (theta[w] - theta[v] + math.pi) % two_pi - math.pi
+            if math.hypot(tx[w] - tx[v], ty[w] - ty[v]) < radius and abs(dth) < turn:
+                near = True
+                break
+        if not near:
+            chosen[n] = w
+            n += 1
+    return chosen[:n]

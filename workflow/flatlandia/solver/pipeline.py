@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flatlandia.solver import calibration, hypotheses, likelihood, scoring, verify
+from flatlandia.solver import calibration, hypotheses, likelihood, scoring, seeds, verify
 from flatlandia.solver.priors import Fix, Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
 from flatlandia.solver.settings import SolverConfig
@@ -181,7 +181,16 @@ def candidates(
     cost, t, theta, s = kept
     chosen = hypotheses.distinct_best(cost, t, theta, keep)
     t, theta, s = scoring.refine(problem, query_priors, t[chosen], theta[chosen], s[chosen])
-    return Pool(problem, query_priors, t, theta, s, scored.n_hypotheses, verified)
+    n_hyp = scored.n_hypotheses
+    seeded = seeds.seeds(problem, query_priors) if verified else None
+    if seeded is not None:  # the complete set: every camera's seed beside the cost-picked pool
+        n_hyp += len(seeded[0])
+        t, theta, s = (np.concatenate([a, b]) for a, b in zip((t, theta, s), seeded))
+        merged = scoring.score(problem, query_priors, t, theta, s)[0]
+        merged = np.where(np.isfinite(t).all(1), merged, np.inf)
+        chosen = hypotheses.distinct_best(merged, t, theta, len(merged))
+        t, theta, s = t[chosen], theta[chosen], s[chosen]
+    return Pool(problem, query_priors, t, theta, s, n_hyp, verified)
 
 
 def ranking_key(problem: Problem, priors: Priors, key: np.ndarray, t, theta, s) -> tuple[np.ndarray, np.ndarray]:
@@ -204,7 +213,10 @@ def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Loc
     calibrated); and up to ``alternatives`` next-best distinct poses (:func:`locate`)."""
     problem, priors, t, theta, s = pool.problem, pool.priors, pool.t, pool.theta, pool.s
     data, cost, inl, match = scoring.score_terms(problem, priors, t, theta, s)
-    ok = [k for k in range(len(t)) if np.all(np.isfinite(t[k])) and not priors.too_far(t[k])]
+    finite = np.isfinite(t).all(1)
+    far = np.ones(len(t), bool)
+    far[finite] = priors.drifted(t[finite])
+    ok = np.flatnonzero(finite & ~far).tolist()
     if not ok:
         return Localization(None)
     if pool.verified:

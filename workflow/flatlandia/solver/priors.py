@@ -294,7 +294,13 @@ class Priors:
 
     def too_far(self, t) -> bool:
         """A refined pose that drifted beyond twice the gate radius from every prior camera."""
-        return self.tree is not None and self.tree.query(t, k=1)[0] > 2 * self.cfg.prior_radius_m
+        return bool(self.drifted(np.asarray(t, float).reshape(1, 2))[0])
+
+    def drifted(self, t) -> np.ndarray:
+        """(C,) :meth:`too_far` of finite positions ``t`` (C, 2), in one tree query."""
+        if self.tree is None or not len(t):
+            return np.zeros(len(t), bool)
+        return self.tree.query(np.asarray(t, float).reshape(-1, 2), k=1)[0] > 2 * self.cfg.prior_radius_m
 
     # ------------------------------------------------------------------ costs
     def _heading_on(self) -> bool:

@@ -87,7 +87,15 @@ def padded_costs(problem: Problem, t: np.ndarray, theta: np.ndarray, s: np.ndarr
     return np.where(mask[None], cost, np.inf)
 
 
-def refine(problem: Problem, priors: Priors, t: np.ndarray, theta: np.ndarray, s: np.ndarray, iters: int = 15):
+def refine(
+    problem: Problem,
+    priors: Priors,
+    t: np.ndarray,
+    theta: np.ndarray,
+    s: np.ndarray,
+    iters: int = 15,
+    rounds: int | None = None,
+):
     """Robust Gauss-Newton with re-association for C hypotheses at once -> (t (C, 2), theta, s).
 
     Objective: bearing + weak log-range residuals (positions for metric maps) of the matched
@@ -95,7 +103,7 @@ def refine(problem: Problem, priors: Priors, t: np.ndarray, theta: np.ndarray, s
     Levenberg damping; matches re-associated ``refine_rounds`` times.
     """
     p = np.column_stack([t, theta, np.log(np.maximum(s, 1e-9))]).astype(float)
-    for _ in range(problem.cfg.refine_rounds):
+    for _ in range(problem.cfg.refine_rounds if rounds is None else int(rounds)):
         _, inl, match = data_cost(problem, p[:, :2], p[:, 2], np.exp(p[:, 3]))
         matched = np.ascontiguousarray(problem.r[match])  # (C, M, 2)
         kernels.refine_gauss_newton(p, matched, inl, problem.refine_terms, priors.refine_terms(p), iters)
