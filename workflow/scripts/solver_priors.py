@@ -34,7 +34,15 @@ def main(smk, log):
         fitted, answers = validation.calibrated(
             scenes, dict(smk.params["solver"]), fitted, region, dict(smk.params["beyond"]), int(smk.params["seed"])
         )
-        log.info("calibration on %d validation answers: %s", len(answers), fitted.calibration.to_dict())
+        fitted, evidence = validation.with_null(
+            scenes, dict(smk.params["solver"]), fitted, region, int(smk.params["seed"])
+        )
+        log.info(
+            "calibration on %d validation answers and %d nonsense queries: %s",
+            len(answers),
+            int((evidence["nonsense"] != "").sum()),
+            fitted.calibration.to_dict(),
+        )
     fitted.write(smk.output.priors)
 
 

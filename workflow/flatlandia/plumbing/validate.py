@@ -1091,7 +1091,7 @@ def learned_priors(d: Any, source: str | Path, n_features: int) -> None:
     ``LikelihoodModel.from_dict``, ``Calibration.from_dict``)."""
     if not isinstance(d, dict):
         raise InputError(source, "expected a JSON object with scale_prior and verifier")
-    json_object(d, source, "the learned priors", PRIORS_KEYS)
+    json_object(d, source, "the learned priors", PRIORS_KEYS + PRIORS_OPTIONAL_KEYS)
     absent = [k for k in PRIORS_KEYS if k not in d]
     if absent:
         raise InputError(
@@ -1156,6 +1156,8 @@ MAX_QUERY_TABLE_BYTES = 64 * MB
 MAX_SCENES = 1_000
 #: the keys of a learned priors JSON (``LearnedPriors.to_dict`` writes every one, null where not fitted)
 PRIORS_KEYS = ("scale_prior", "verifier", "features", "likelihood", "calibration")
+#: keys a priors file may hold beyond :data:`PRIORS_KEYS` (absent in files written before them)
+PRIORS_OPTIONAL_KEYS = ("distortion",)
 #: a count in a record (answers, detections a model was fitted on)
 MAX_RECORD_COUNT = 10**12
 #: the splits a queries table may name

@@ -8,12 +8,17 @@ errors (:func:`flatlandia.fine.evaluation.solver_errors`) and the sequences' err
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 
+from flatlandia import proposals, solver
+from flatlandia.data import localmaps
 from flatlandia.fine import evaluation
 from flatlandia.sequences import evaluation as sequence_evaluation
-from flatlandia.solver import calibration_fit, learned_priors
+from flatlandia.solver import calibration_fit, learned_priors, nonsense
+from flatlandia.solver.calibration import RIGHT_DEG, RIGHT_M
 from flatlandia.solver.learned_priors import LearnedPriors
 
 
@@ -31,7 +36,7 @@ def validation_answers(
     ``region`` and, given the protocol ``beyond`` (config section ``beyond``), the whole map's
     sequences. Columns ``frames`` (used), ``objects`` (the anchor's), ``pool_share``, ``agreement``
     (the share of a sequence's frames whose own answer is its place; 1 for one frame), ``right``."""
-    raw = learned if learned.calibration is None else LearnedPriors(learned.scale, learned.verifier, learned.likelihood)
+    raw = replace(learned, calibration=None)
     one = evaluation.solver_errors(scenes, "depth", region, settings, raw, split=split)
     parts = [calibration_fit.answers(one, np.ones(len(one), int))]
     if beyond is not None and region == "whole":
@@ -42,6 +47,88 @@ def validation_answers(
             if len(seq):
                 parts.append(calibration_fit.answers(seq, seq["frames_used"].to_numpy(int)))
     return pd.concat(parts, ignore_index=True)
+
+
+def frame_evidence(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
+    settings: dict,
+    learned: LearnedPriors,
+    region: str = "whole",
+    seed: int = 0,
+    split: str = "val",
+) -> pd.DataFrame:
+    """The evidence of every single-frame answer to the ``split`` queries of ``scenes`` on their
+    ``region`` and to as many nonsense queries of each kind (:func:`nonsense.draw`, seeded by
+    ``seed``) on the whole map, solved with ``learned`` without calibration: columns ``nonsense``
+    (the kind, "" for a real query), ``objects``, ``log_place``, ``log_pool``, ``right`` (what
+    :func:`calibration_fit.fit_null` fits)."""
+    raw = replace(learned, calibration=None)
+    cfg = solver.SolverConfig.of(settings)
+    solver.warm_up()
+    rows, real, priors = [], [], []
+    for ref, q in scenes:
+        part = q[q["split"] == split]
+        props = proposals.for_queries(ref, part, region, "depth")
+        pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}
+        regions = dict(zip(props["token"].astype(str), props["proposal"]))
+        priors.append(solver.scene_priors(ref, q, settings, raw))
+        real.append([(localmaps.local_map(r, "depth"), np.asarray(r["classes"])) for _, r in part.iterrows()])
+        for (xy, cls), (_, r) in zip(real[-1], part.iterrows()):
+            idx = np.array([pos[int(o)] for o in regions.get(str(r["token"]), []) if int(o) in pos], int)
+            sol = _solve(ref, idx, xy, cls, cfg, priors[-1])
+            right = sol is not None and _right(sol, r)
+            rows.append(_evidence_row("", len(cls), sol, right))
+    for n in nonsense.draw(real, [ref["class_id"].to_numpy() for ref, _ in scenes], seed):
+        ref = scenes[n.scene][0]
+        sol = _solve(ref, np.arange(len(ref)), n.xy, n.classes, cfg, priors[n.scene])
+        rows.append(_evidence_row(n.kind, len(n.classes), sol, False))
+    return pd.DataFrame(rows)
+
+
+def _solve(ref, idx, xy, cls, cfg, priors):
+    if len(idx) < 2:
+        return None
+    r = ref.iloc[idx]
+    return solver.locate(
+        xy, cls, r[["x_m", "y_m"]].to_numpy(), r["class_id"].to_numpy(), False, cfg, priors.rows(idx)
+    ).best
+
+
+def _right(sol, r) -> bool:
+    from flatlandia import geo
+
+    e_m, e_deg = geo.pose_errors(sol.x, sol.y, sol.theta, r["x_m"], r["y_m"], np.radians(r["theta_deg"]))
+    return bool(e_m < RIGHT_M and e_deg < RIGHT_DEG)
+
+
+def _evidence_row(kind: str, objects: int, sol, right: bool) -> dict:
+    none = sol is None or sol.log_place is None
+    return {
+        "nonsense": kind,
+        "objects": int(objects),
+        "log_place": -np.inf if none else float(sol.log_place),
+        "log_pool": -np.inf if none else float(sol.log_pool),
+        "llr": np.nan if sol is None or sol.llr is None else float(sol.llr),
+        "right": bool(right),
+    }
+
+
+def with_null(
+    scenes: list[tuple[pd.DataFrame, pd.DataFrame]],
+    settings: dict,
+    learned: LearnedPriors,
+    region: str = "whole",
+    seed: int = 0,
+    split: str = "val",
+) -> tuple[LearnedPriors, pd.DataFrame]:
+    """(``learned`` with the single frames' null hypothesis and their logistic map refitted on the
+    validation and nonsense answers, the evidence): :func:`frame_evidence`, then
+    :func:`calibration_fit.fit_null`; unchanged where no null hypothesis fits better."""
+    evidence = frame_evidence(scenes, settings, learned, region, seed, split)
+    null_key, frame = calibration_fit.fit_null(evidence)
+    if null_key is None or learned.calibration is None:
+        return learned, evidence
+    return replace(learned, calibration=replace(learned.calibration, frame=frame, null_key=null_key)), evidence
 
 
 def calibrated(

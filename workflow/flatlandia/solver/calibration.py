@@ -37,24 +37,45 @@ MAX_LOG_ODDS = 20.0
 KINDS = ("frame", "sequence")
 
 
-def pose_masses(t, theta, key, ok=None) -> np.ndarray:
-    """(C,) each pose's share of the pool's evidence: the softmax of ``-key`` (C,) over the poses
-    where ``ok``, summed over the poses within (:data:`RIGHT_M`, :data:`RIGHT_DEG`) of it; 0 where
-    not ``ok``."""
+def log_evidence(t, theta, key, ok=None) -> tuple[np.ndarray, float]:
+    """(log_place (C,), log_pool): per pose the log of the evidence ``exp(-key)`` summed over the
+    poses within (:data:`RIGHT_M`, :data:`RIGHT_DEG`) of it, and over the whole pool (poses where
+    ``ok`` and ``key`` is finite; -inf where not ``ok``)."""
     t = np.asarray(t, float).reshape(-1, 2)
     theta = np.asarray(theta, float).ravel()
     key = np.asarray(key, float).ravel()
     ok = np.isfinite(key) if ok is None else np.asarray(ok, bool) & np.isfinite(key)
-    out = np.zeros(len(key))
+    out = np.full(len(key), -np.inf)
     if not ok.any():
-        return out
-    w = np.where(ok, np.exp(-(key - key[ok].min())), 0.0)
-    w /= w.sum()
+        return out, -np.inf
+    k0 = key[ok].min()
+    w = np.where(ok, np.exp(-(key - k0)), 0.0)
     dist = np.hypot(t[:, None, 0] - t[None, :, 0], t[:, None, 1] - t[None, :, 1])
     turn = np.abs((theta[:, None] - theta[None, :] + np.pi) % (2 * np.pi) - np.pi)
     near = (dist < RIGHT_M) & (turn < math.radians(RIGHT_DEG))
-    out[ok] = (near[ok] * w[None]).sum(1)
-    return np.clip(out, 0.0, 1.0)
+    with np.errstate(divide="ignore"):
+        out[ok] = np.log((near[ok] * w[None]).sum(1)) - k0
+    return out, float(np.log(w.sum()) - k0)
+
+
+def null_share(log_place, log_pool, null_key: float | None = None) -> np.ndarray:
+    """Each place's share of the evidence: ``exp(log_place)`` over the pool's, together with the
+    null hypothesis' ``exp(-null_key)`` (None: no null hypothesis) when one is fitted."""
+    log_place = np.asarray(log_place, float)
+    total = np.asarray(log_pool, float) if null_key is None else np.logaddexp(log_pool, -float(null_key))
+    with np.errstate(invalid="ignore"):
+        out = np.exp(log_place - total)
+    return np.clip(np.nan_to_num(out, nan=0.0), 0.0, 1.0)
+
+
+def pose_masses(t, theta, key, ok=None, null_key: float | None = None) -> np.ndarray:
+    """(C,) each pose's share of the pool's evidence: the softmax of ``-key`` (C,) over the poses
+    where ``ok``, summed over the poses within (:data:`RIGHT_M`, :data:`RIGHT_DEG`) of it; 0 where
+    not ``ok``. With a ``null_key`` the null hypothesis ("the query fits none of these places":
+    every detection chance, or a place no hypothesis reached) holds ``exp(-null_key)`` of the
+    evidence beside the poses (:func:`null_share`)."""
+    log_place, log_pool = log_evidence(t, theta, key, ok)
+    return null_share(log_place, log_pool, null_key)
 
 
 def features(mass, objects, frames=1, agreement=1.0) -> np.ndarray:
@@ -179,6 +200,8 @@ class Calibration:
     frame: Logistic | None = None
     sequence: Logistic | None = None
     map_size: MapSize | None = None
+    #: the null hypothesis' key in a single frame's pool (:func:`pose_masses`; None: none)
+    null_key: float | None = None
 
     def probability(self, mass, objects, frames: int = 1, agreement=1.0) -> np.ndarray:
         """(N,) P(within (5 m, 5 deg)) of answers with pool shares ``mass`` and ``objects`` seen, of
@@ -200,6 +223,8 @@ class Calibration:
             out[k] = None if f is None else {"intercept": f.intercept, "weights": list(f.weights), "answers": f.answers}
         if self.map_size is not None:
             out["map_size"] = self.map_size.to_dict()
+        if self.null_key is not None:
+            out["null_key"] = self.null_key
         return out
 
     @classmethod
@@ -211,7 +236,7 @@ class Calibration:
         from flatlandia.plumbing import validate
         from flatlandia.plumbing.errors import InputError
 
-        d = validate.json_object(d, source, "calibration", ("features", *KINDS, "map_size"))
+        d = validate.json_object(d, source, "calibration", ("features", *KINDS, "map_size", "null_key"))
         if d.get("features") != list(FEATURES):
             raise InputError(
                 source, f"calibration features {validate.shown(d.get('features'))} are not {list(FEATURES)}"
@@ -233,6 +258,9 @@ class Calibration:
                 raise InputError(source, f"{where}: {e}") from None
         if d.get("map_size") is not None:
             parts["map_size"] = MapSize.from_dict(d["map_size"], source, "calibration map_size")
+        if d.get("null_key") is not None:
+            bound = validate.MAX_LOGIT_WEIGHT
+            parts["null_key"] = validate.finite(d["null_key"], source, "calibration null_key", -bound, bound)
         return cls(**parts)
 
 

@@ -41,8 +41,8 @@ import pandas as pd
 
 from flatlandia import classes, geo
 from flatlandia.data import localmaps
+from flatlandia.solver import distortion, verify
 from flatlandia.solver import likelihood_kernels as lk
-from flatlandia.solver import verify
 from flatlandia.solver.likelihood_kernels import LikelihoodTerms
 
 #: range bins (metres) of the noise model and of p_d
@@ -250,13 +250,14 @@ def _mixture_sigma(e: np.ndarray, span: float, floor: float, iters: int = 50) ->
     return sigma
 
 
-def detection_residuals(queries: list[pd.DataFrame]) -> pd.DataFrame:
+def detection_residuals(queries: list[pd.DataFrame], bearing_k=None) -> pd.DataFrame:
     """Per training detection: its true range (m), bearing error (rad) and log-range error of the
-    depth map (after the query's scale: its log ranges' mean, with the m/(m-1) correction)."""
+    depth map (after the query's scale: its log ranges' mean, with the m/(m-1) correction), each
+    scene's depth maps corrected by its ``bearing_k`` (one per table; None: none)."""
     rows = []
-    for q in queries:
+    for q, k in zip(queries, bearing_k if bearing_k is not None else [0.0] * len(queries)):
         for r in q[q["split"] == "train"].itertuples(index=False):
-            gt, d = localmaps.local_map(r, "gt"), localmaps.local_map(r, "depth")
+            gt, d = localmaps.local_map(r, "gt"), distortion.undistort(localmaps.local_map(r, "depth"), k)
             m = len(gt)
             if m < 2:
                 continue
@@ -381,12 +382,14 @@ def _logistic(rows: pd.DataFrame, views: bool) -> tuple[float, np.ndarray, np.nd
     return float(fit.intercept_[0]), w[:nk], w[nk : nk + nb], w[nk + nb : nk + nb + na], *extra
 
 
-def fit(scenes: list[tuple[pd.DataFrame, pd.DataFrame]]) -> LikelihoodModel:
+def fit(scenes: list[tuple[pd.DataFrame, pd.DataFrame]], bearing: dict[str, float] | None = None) -> LikelihoodModel:
     """The model from the training split of ``scenes`` (reference map, queries): the depth maps'
-    noise per range bin (:func:`noise_model`), the field of view and range
-    (:func:`field_of_view`) and p_d with and without the views (:func:`visibility_rows`)."""
+    noise per range bin (:func:`noise_model`, after each scene's radial bearing correction
+    ``bearing``: scene id -> coefficient), the field of view and range (:func:`field_of_view`) and
+    p_d with and without the views (:func:`visibility_rows`)."""
     queries = [q for _, q in scenes]
-    res = detection_residuals(queries)
+    ks = [distortion.coefficient(bearing, ref) for ref, _ in scenes]
+    res = detection_residuals(queries, ks)
     sb, sr = noise_model(res)
     fov, max_range = field_of_view(queries)
     rows = visibility_rows(scenes, fov, max_range)

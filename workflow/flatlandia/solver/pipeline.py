@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flatlandia.solver import calibration, hypotheses, likelihood, scoring, seeds, verify
+from flatlandia.solver import calibration, distortion, hypotheses, likelihood, scoring, seeds, verify
 from flatlandia.solver.priors import Fix, Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
 from flatlandia.solver.settings import SolverConfig
@@ -70,6 +70,10 @@ class Solution:
     probability: float = float("nan")  # P(within (5 m, 5 deg)): the pool's share of this place, calibrated
     llr: float | None = None  # the likelihood ratio against chance (None: no model)
     share: float | None = None  # the pool's share of its place, before the calibration
+    #: log of the evidence of this place and of the whole pool (:func:`calibration.log_evidence`):
+    #: what the null hypothesis' key is fitted on
+    log_place: float | None = None
+    log_pool: float | None = None
     agreement: float | None = None  # a sequence's: the share of frames whose own answer is this place
 
 
@@ -168,6 +172,8 @@ def candidates(
     """The refined distinct best hypotheses (arguments as :func:`solve`): ``verify_top_k`` of them
     when a verifier will choose (``use_verifier``) and can, else ``top_k``."""
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
+    if not metric and priors is not None and priors.bearing_k:  # the scene's lens, undone before matching
+        query_xy = distortion.undistort(query_xy, priors.bearing_k)
     problem = Problem(query_xy, query_cls, ref_xy, ref_cls, metric, cfg)
     query_priors = Priors(cfg, metric, priors, n_ref=len(problem.r), fix=fix)
     if not problem.solvable():
@@ -228,7 +234,9 @@ def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Loc
     key, llr = ranking_key(problem, priors, key, t, theta, s)
     ok_mask = np.zeros(len(t), bool)
     ok_mask[ok] = True
-    share = calibration.pose_masses(t, theta, key, ok_mask)
+    log_place, log_pool = calibration.log_evidence(t, theta, key, ok_mask)
+    null_key = priors.calibration.null_key if priors.calibration is not None else None
+    share = calibration.null_share(log_place, log_pool, null_key)
     prob = calibration.probability(priors.calibration, share, problem.m, 1)
     ok.sort(key=lambda k: float(key[k]))
     best = ok[0]
@@ -250,6 +258,8 @@ def _ranked(pool: Pool, verifier: Verifier | None, alternatives: int = 0) -> Loc
             float(prob[k]),
             float(llr[k]) if np.isfinite(llr[k]) else None,
             float(share[k]),
+            log_place=float(log_place[k]),
+            log_pool=float(log_pool),
         )
 
     conf = len(inliers(best)) / problem.m

@@ -37,8 +37,9 @@ class TrainingPriors:
     unit) of depth maps; ``verifier``: picks among the best hypotheses of a depth map;
     ``likelihood``: the noise model and detection probability of the likelihood ratio against
     chance (:mod:`flatlandia.solver.likelihood`); ``calibration``: maps a pool's log-odds to the
-    probability of an answer (:mod:`flatlandia.solver.calibration`). Metric (GT) local maps use the
-    cameras and co-visibility only."""
+    probability of an answer (:mod:`flatlandia.solver.calibration`); ``bearing_k``: the scene's
+    radial bearing correction of depth maps (:mod:`flatlandia.solver.distortion`). Metric (GT)
+    local maps use the cameras and co-visibility only."""
 
     cameras: np.ndarray | None = None
     seen: np.ndarray | None = None
@@ -48,6 +49,8 @@ class TrainingPriors:
     verifier: Any = None
     likelihood: Any = None  # a :class:`flatlandia.solver.likelihood.LikelihoodModel`
     calibration: Calibration | None = None
+    #: the scene's radial bearing coefficient of depth maps (:mod:`flatlandia.solver.distortion`; 0: none)
+    bearing_k: float = 0.0
 
     def rows(self, idx) -> TrainingPriors:
         """The same priors for the candidate rows ``idx`` of the map (a proposal's objects)."""

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from flatlandia import config, geo
-from flatlandia.solver import calibration, hypotheses, likelihood, pipeline, scoring, verify
+from flatlandia.solver import calibration, distortion, hypotheses, likelihood, pipeline, scoring, verify
 from flatlandia.solver import sequence_kernels as sk
 from flatlandia.solver.pipeline import DISTINCT_DEG, DISTINCT_M, Solution
 from flatlandia.solver.priors import Fix, Priors, TrainingPriors
@@ -101,6 +101,8 @@ class _Sequence:
 
     def __init__(self, frames, rel_poses, ref_xy, ref_cls, cfg, seq, priors, odometry_sigma, fix):
         self.cfg, self.seq, self.fix = cfg, seq, fix
+        k = priors.bearing_k if priors is not None else 0.0
+        frames = [(distortion.undistort(xy, k), cls) for xy, cls in frames]  # the scene's lens, undone
         self.frames, self.ref_xy, self.ref_cls = list(frames), ref_xy, ref_cls
         self.problems = [Problem(xy, cls, ref_xy, ref_cls, False, cfg) for xy, cls in frames]
         #: the joint cost's view of the frames: ranges weighed by ``seq.log_range_sigma``
@@ -451,7 +453,7 @@ def locate_sequence(
             float(prob[k]),
             float(llr[k]) if np.isfinite(llr[k]) else None,
             float(share[k]),
-            float(agree[k]) if np.isfinite(agree[k]) else None,
+            agreement=float(agree[k]) if np.isfinite(agree[k]) else None,
         )
 
     chosen = [best]
