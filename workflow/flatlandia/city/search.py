@@ -27,6 +27,7 @@ import numpy as np
 from flatlandia import config, solver
 from flatlandia.city import view_kernels
 from flatlandia.city.index import ViewIndex
+from flatlandia.solver import regions
 
 
 @config.settings("city.search")
@@ -181,6 +182,8 @@ def search_city(
         views, _ = view_scores(ix, q_xy, q_cls, cfg, exclude)
         centres = region_centres(ix, views, cfg)
     centres = np.asarray(centres, float).reshape(-1, 2)
+    if ranked and cfg.by_region and len(centres) > 1:
+        return _by_region(ix, q_xy, q_cls, centres, cfg, settings, learned, metric, alternatives, exclude)
     rows, cams, seen = region_priors(ix, centres, cfg, settings.prior_radius_m, exclude, radius)
     found = solver.Localization(None)
     if len(rows) >= 2:
@@ -199,6 +202,49 @@ def search_city(
     if ranked and not metric:
         best, *alts = in_city([best, *alts], learned, ix)
     return Located(best, rows, centres, alts)
+
+
+def _by_region(ix, q_xy, q_cls, centres, cfg, settings, learned, metric, alternatives, exclude) -> Located:
+    """:func:`search_city` on each of the index's regions alone, the answers combined by their
+    share of the regions' evidence (:func:`flatlandia.solver.regions.combine`), then the map-size
+    correction."""
+    found, searched = [], []
+    for c in centres:
+        rows, cams, seen = region_priors(ix, c[None], cfg, settings.prior_radius_m, exclude)
+        if len(rows) < 2:
+            continue
+        searched.append(rows)
+        loc = solver.locate(
+            q_xy,
+            q_cls,
+            ix.obj_xy[rows],
+            ix.obj_cls[rows],
+            metric=metric,
+            config=settings,
+            priors=region_training_priors(ix, cams, seen, None if metric else learned),
+            alternatives=max(alternatives, 2),
+        )
+        found.append(loc)
+    union = _union(searched)
+    found = [_in_union(loc, rows, union) for loc, rows in zip(found, searched)]
+    cal = learned.calibration if learned is not None and not metric else None
+    best, alts, _ = regions.combine(found, cal, len(q_cls), 1, alternatives)
+    if not metric:
+        best, *alts = in_city([best, *alts], learned, ix)
+    return Located(best, union, centres, alts)
+
+
+def _in_union(loc, rows: np.ndarray, union: np.ndarray):
+    """``loc`` (solved on a region's ``rows``) with its inliers' candidate indices into ``union``
+    (the rows every region searched, sorted), as :class:`Located` holds them."""
+
+    def moved(s):
+        if s is None:
+            return s
+        at = np.searchsorted(union, rows[[c for _, c in s.inliers]]) if s.inliers else []
+        return dataclasses.replace(s, inliers=[(q, int(a)) for (q, _), a in zip(s.inliers, at)])
+
+    return dataclasses.replace(loc, best=moved(loc.best), alternatives=[moved(s) for s in loc.alternatives])
 
 
 def sequence_centres(ix: ViewIndex, frames, cfg: SearchConfig, exclude: np.ndarray | None = None) -> np.ndarray:
@@ -247,6 +293,20 @@ def search_city_sequence(
         centres, radius = fix.xy[None], fix.crop_m
     else:
         centres = sequence_centres(ix, frames, cfg, exclude)
+    if fix is None and cfg.by_region and len(centres) > 1:
+        return _sequence_by_region(
+            ix,
+            frames,
+            rel_poses,
+            centres,
+            cfg,
+            settings,
+            sequence_settings,
+            learned,
+            odometry_sigma,
+            exclude,
+            alternatives,
+        )
     rows, cams, seen = region_priors(ix, centres, cfg, settings.prior_radius_m, exclude, radius)
     located = Located(None, rows, centres)
     if len(rows) < 2:
@@ -268,3 +328,36 @@ def search_city_sequence(
         found = dataclasses.replace(found, best=best, alternatives=alts)
     located.solution, located.alternatives = found.best, found.alternatives
     return found, located
+
+
+def _sequence_by_region(
+    ix, frames, rel_poses, centres, cfg, settings, sequence_settings, learned, odometry_sigma, exclude, alternatives
+):
+    """:func:`search_city_sequence` on each region alone, combined as :func:`_by_region` does."""
+    found, searched = [], []
+    for c in centres:
+        rows, cams, seen = region_priors(ix, c[None], cfg, settings.prior_radius_m, exclude)
+        if len(rows) < 2:
+            continue
+        searched.append(rows)
+        found.append(
+            solver.locate_sequence(
+                frames,
+                rel_poses,
+                ix.obj_xy[rows],
+                ix.obj_cls[rows],
+                settings,
+                region_training_priors(ix, cams, seen, learned),
+                sequence_settings,
+                odometry_sigma,
+                None,
+                max(alternatives, 2),
+            )
+        )
+    union = _union(searched)
+    found = [_in_union(loc, rows, union) for loc, rows in zip(found, searched)]
+    cal = learned.calibration if learned is not None else None
+    best, alts, winner = regions.combine(found, cal, len(frames[0][1]), len(frames), alternatives)
+    best, *alts = in_city([best, *alts], learned, ix, len(frames))
+    answer = solver.SequenceLocalization(best, alts, found[winner].frames if winner >= 0 else [])
+    return answer, Located(best, union, centres, alts)

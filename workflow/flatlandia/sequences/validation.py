@@ -41,12 +41,22 @@ def validation_answers(
     parts = [calibration_fit.answers(one, np.ones(len(one), int))]
     if beyond is not None and region == "whole":
         grid = [sequence_evaluation.Setting(int(k)) for k in beyond["frames"] if int(k) > 1]
-        if grid:
-            seq = sequence_evaluation.scene_errors(scenes, grid, settings, beyond, raw, seed, split)
+        for level in beyond.get("calibration_noise", [1.0]) if grid else []:
+            seq = sequence_evaluation.scene_errors(scenes, grid, settings, noisier(beyond, level), raw, seed, split)
             seq = seq[seq["frames_used"] > 1] if len(seq) else seq
             if len(seq):
                 parts.append(calibration_fit.answers(seq, seq["frames_used"].to_numpy(int)))
     return pd.concat(parts, ignore_index=True)
+
+
+def noisier(beyond: dict, level: float) -> dict:
+    """The protocol ``beyond`` with its odometry noise (``odometry_distance_pct``,
+    ``odometry_heading_deg``) times ``level``."""
+    return {
+        **beyond,
+        "odometry_distance_pct": float(beyond["odometry_distance_pct"]) * float(level),
+        "odometry_heading_deg": float(beyond["odometry_heading_deg"]) * float(level),
+    }
 
 
 def frame_evidence(

@@ -182,13 +182,15 @@ def candidates(
     keep = cfg.verify_top_k if verified else cfg.top_k
     scored = hypotheses.score_hypotheses(problem, query_priors, keep)
     kept = scored.arrays()
-    if kept is None:
-        return None
-    cost, t, theta, s = kept
-    chosen = hypotheses.distinct_best(cost, t, theta, keep)
-    t, theta, s = scoring.refine(problem, query_priors, t[chosen], theta[chosen], s[chosen])
-    n_hyp = scored.n_hypotheses
     seeded = seeds.seeds(problem, query_priors) if verified else None
+    if kept is None and seeded is None:
+        return None
+    n_hyp = scored.n_hypotheses
+    t, theta, s = np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    if kept is not None:
+        cost, t, theta, s = kept
+        chosen = hypotheses.distinct_best(cost, t, theta, keep)
+        t, theta, s = scoring.refine(problem, query_priors, t[chosen], theta[chosen], s[chosen])
     if seeded is not None:  # the complete set: every camera's seed beside the cost-picked pool
         n_hyp += len(seeded[0])
         t, theta, s = (np.concatenate([a, b]) for a, b in zip((t, theta, s), seeded))

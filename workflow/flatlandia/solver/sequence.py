@@ -431,7 +431,8 @@ def locate_sequence(
     order = [int(k) for k in np.argsort(np.where(ok, key, np.inf), kind="stable") if ok[k]]
     best = order[0]
     m_total = sum(pb.m for pb in sq.problems)
-    share = calibration.pose_masses(anchor[:, :2], anchor[:, 2], key, ok)
+    log_place, log_pool = calibration.log_evidence(anchor[:, :2], anchor[:, 2], key, ok)
+    share = calibration.null_share(log_place, log_pool)
     prob = calibration.probability(
         sq.priors.calibration, share, sq.problems[0].m, sq.n, np.where(np.isfinite(agree), agree, 1.0)
     )
@@ -453,6 +454,8 @@ def locate_sequence(
             float(prob[k]),
             float(llr[k]) if np.isfinite(llr[k]) else None,
             float(share[k]),
+            log_place=float(log_place[k]),
+            log_pool=float(log_pool),
             agreement=float(agree[k]) if np.isfinite(agree[k]) else None,
         )
 
