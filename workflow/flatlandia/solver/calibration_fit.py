@@ -57,10 +57,10 @@ def city_answers(errors: pd.DataFrame, map_objects: float) -> pd.DataFrame:
     )[posed].reset_index(drop=True)
 
 
-#: the nonsense answers' total weight in the choice of the null key, as a share of the real
-#: answers' (on the validation split 0.25 left 1.6 % of the nonsense queries `ok`, 0.5 1.6 %, 1.0
-#: 1.2 %, with the logistic map refitted on the real answers alone: docs/results.md)
-NONSENSE_WEIGHT = 1.0
+#: the nonsense answers' total weight in the null hypothesis' fit, as a share of the real answers'
+#: (on the validation split 0.25 left 1.6 % of the nonsense queries `ok`, 0.5 0.8 %, 1.0 0.7 %, the
+#: real answers' calibration error rising with it: 6.2, 7.9, 11.1 points; docs/results.md)
+NONSENSE_WEIGHT = 0.5
 #: the null keys tried (:func:`fit_null`): this many, evenly over the pools' evidence and beyond
 NULL_GRID = 61
 
@@ -70,40 +70,36 @@ def fit_null(evidence: pd.DataFrame) -> tuple[float | None, calibration.Logistic
     validation query (``nonsense`` empty) or of a nonsense query (:mod:`flatlandia.solver.nonsense`,
     ``nonsense`` its kind, never right), columns ``log_place``, ``log_pool``, ``objects``, ``right``.
 
-    The null key: each key of a grid over the pools' evidence gives each answer its share with the
-    null hypothesis (:func:`calibration.null_share`) and a logistic fit on real and nonsense answers
-    together (the nonsense weighing :data:`NONSENSE_WEIGHT` of the real ones); the key of the highest
-    weighted likelihood wins (None where none fits better than no null hypothesis). The logistic
-    map is then refitted on the real answers alone at that key, so that the probability is
-    calibrated for real queries while the null hypothesis keeps nonsense from being sure. (None,
-    None) with too few answers."""
+    Each null key of a grid over the pools' evidence gives each answer its share with the null
+    hypothesis (:func:`calibration.null_share`) and a logistic fit on the real and nonsense answers
+    together (the nonsense weighing :data:`NONSENSE_WEIGHT` of the real ones: a user's queries are
+    mostly real, and the probability must learn what a share that fits nowhere looks like, which no
+    real validation query shows); the key and fit of the highest weighted likelihood win (no key
+    where none fits better than no null hypothesis). (None, None) with too few answers."""
     from sklearn.linear_model import LogisticRegression
 
     e = evidence[np.isfinite(evidence["log_place"].to_numpy(float))]
     y = e["right"].to_numpy(bool)
     fake = e["nonsense"].fillna("").astype(str).to_numpy() != ""
     real = ~fake
-    if real.sum() < 20 or y[real].all() or not y[real].any():
-        return None, None
+    if real.sum() < 20 or not y[real].any() or (y[real].all() and not fake.any()):
+        return None, None  # the nonsense answers are wrong answers too: with them, all-right real ones fit
     w = np.where(fake, NONSENSE_WEIGHT * real.sum() / max(fake.sum(), 1), 1.0)
     lp, lq = e["log_place"].to_numpy(float), e["log_pool"].to_numpy(float)
     objects = e["objects"].to_numpy(float)
 
-    def x(null_key):
-        return calibration.features(calibration.null_share(lp, lq, null_key), objects)
+    def fitted(null_key):
+        x = calibration.features(calibration.null_share(lp, lq, null_key), objects)
+        lr = LogisticRegression(C=1.0, max_iter=5000).fit(x, y, sample_weight=w)
+        p = np.clip(lr.predict_proba(x)[:, 1], 1e-12, 1 - 1e-12)
+        loss = -float(np.sum(w * np.where(y, np.log(p), np.log1p(-p))))
+        fit = calibration.Logistic(float(lr.intercept_[0]), tuple(float(v) for v in lr.coef_.ravel()), int(real.sum()))
+        return loss, fit
 
-    def loss(null_key):
-        lr = LogisticRegression(C=1.0, max_iter=5000).fit(x(null_key), y, sample_weight=w)
-        p = np.clip(lr.predict_proba(x(null_key))[:, 1], 1e-12, 1 - 1e-12)
-        return -float(np.sum(w * np.where(y, np.log(p), np.log1p(-p))))
-
-    best_key, best_loss = None, loss(None)
+    best_key, (best_loss, best_fit) = None, fitted(None)
     lo, hi = float(np.min(-lq)) - 5.0, float(np.max(-lq)) + 5.0
     for key in np.linspace(lo, hi, NULL_GRID):
-        value = loss(float(key))
-        if value < best_loss - 1e-9:
-            best_key, best_loss = float(key), value
-    lr = LogisticRegression(C=1.0, max_iter=5000).fit(x(best_key)[real], y[real])
-    return best_key, calibration.Logistic(
-        float(lr.intercept_[0]), tuple(float(v) for v in lr.coef_.ravel()), int(real.sum())
-    )
+        loss, fit = fitted(float(key))
+        if loss < best_loss - 1e-9:
+            best_key, best_loss, best_fit = float(key), loss, fit
+    return best_key, best_fit
