@@ -196,7 +196,7 @@ def candidates(
         t, theta, s = (np.concatenate([a, b]) for a, b in zip((t, theta, s), seeded))
         merged = scoring.score(problem, query_priors, t, theta, s)[0]
         merged = np.where(np.isfinite(t).all(1), merged, np.inf)
-        chosen = hypotheses.distinct_best(merged, t, theta, len(merged))
+        chosen = hypotheses.distinct_best(merged, t, theta, cfg.pool_max or len(merged))
         t, theta, s = t[chosen], theta[chosen], s[chosen]
     return Pool(problem, query_priors, t, theta, s, n_hyp, verified)
 

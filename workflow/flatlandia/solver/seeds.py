@@ -132,7 +132,8 @@ def vote_headings(cams, rx, ry, ptr, idx, bear, q_range, max_range, tol, per_cam
 
 def seeds(problem: Problem, priors: Priors):
     """(t (S, 2), theta (S,), s (S,)) of the seeds at every prior camera (:func:`vote_headings`),
-    refined by one cheap round, deduplicated on a 1 m / 2 deg grid, then refined in full; None
+    refined by one cheap round, deduplicated on a 1 m / 2 deg grid (the ``seed_refine_max``
+    cheapest by the MSAC cost, 0: all), then refined in full; None
     without prior cameras, with seeding off (``seed_cameras``) or when no camera sees two objects
     the query's bearings agree on."""
     cfg = problem.cfg
@@ -162,5 +163,5 @@ def seeds(problem: Problem, priors: Priors):
     if not ok.any():
         return None
     t, theta, s, cost = t[ok], theta[ok], s[ok], cost[ok]
-    keep = hypotheses.distinct_best(cost, t, theta, len(cost))
+    keep = hypotheses.distinct_best(cost, t, theta, cfg.seed_refine_max or len(cost))
     return scoring.refine(problem, priors, t[keep], theta[keep], s[keep])
