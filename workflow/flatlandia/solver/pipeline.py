@@ -192,8 +192,8 @@ def candidates(
         chosen = hypotheses.distinct_best(cost, t, theta, keep)
         t, theta, s = scoring.refine(problem, query_priors, t[chosen], theta[chosen], s[chosen])
     if seeded is not None:  # the complete set: every camera's seed beside the cost-picked pool
-        n_hyp += len(seeded[0])
-        t, theta, s = (np.concatenate([a, b]) for a, b in zip((t, theta, s), seeded))
+        n_hyp += seeded[3]
+        t, theta, s = (np.concatenate([a, b]) for a, b in zip((t, theta, s), seeded[:3]))
         merged = scoring.score(problem, query_priors, t, theta, s)[0]
         merged = np.where(np.isfinite(t).all(1), merged, np.inf)
         chosen = hypotheses.distinct_best(merged, t, theta, cfg.pool_max or len(merged))

@@ -131,7 +131,7 @@ def vote_headings(cams, rx, ry, ptr, idx, bear, q_range, max_range, tol, per_cam
 
 
 def seeds(problem: Problem, priors: Priors):
-    """(t (S, 2), theta (S,), s (S,)) of the seeds at every prior camera (:func:`vote_headings`),
+    """(t (S, 2), theta (S,), s (S,), how many were voted) of the seeds at every prior camera (:func:`vote_headings`),
     refined by one cheap round, deduplicated on a 1 m / 2 deg grid (the ``seed_refine_max``
     cheapest by the MSAC cost, 0: all), then refined in full; None
     without prior cameras, with seeding off (``seed_cameras``) or when no camera sees two objects
@@ -164,4 +164,4 @@ def seeds(problem: Problem, priors: Priors):
         return None
     t, theta, s, cost = t[ok], theta[ok], s[ok], cost[ok]
     keep = hypotheses.distinct_best(cost, t, theta, cfg.seed_refine_max or len(cost))
-    return scoring.refine(problem, priors, t[keep], theta[keep], s[keep])
+    return (*scoring.refine(problem, priors, t[keep], theta[keep], s[keep]), len(raw))
