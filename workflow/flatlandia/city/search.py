@@ -71,15 +71,17 @@ def view_scores(
     return top[order], score[order]
 
 
-def region_centres(ix: ViewIndex, views: np.ndarray, cfg: SearchConfig) -> np.ndarray:
-    """(K, 2) positions of the ``regions`` best views (in the given order) at least ``nms_m`` apart."""
+def region_centres(ix: ViewIndex, views: np.ndarray, cfg: SearchConfig, regions: int | None = None) -> np.ndarray:
+    """(K, 2) positions of the ``regions`` (default ``cfg.regions``) best views (in the given order)
+    at least ``nms_m`` apart."""
+    regions = int(cfg.regions if regions is None else regions)
     centres = np.zeros((0, 2))
     for v in views:
         p = ix.cam[v, :2]
         if len(centres) and np.min(np.hypot(*(centres - p).T)) < cfg.nms_m:
             continue
         centres = np.vstack([centres, p])
-        if len(centres) == cfg.regions:
+        if len(centres) == regions:
             break
     return centres
 
@@ -250,8 +252,8 @@ def _in_union(loc, rows: np.ndarray, union: np.ndarray):
 def sequence_centres(ix: ViewIndex, frames, cfg: SearchConfig, exclude: np.ndarray | None = None) -> np.ndarray:
     """(K, 2) region centres of a sequence: every frame ranks the views (:func:`view_scores`), a
     view's score is the sum over the frames that ranked it (the frames stand metres apart, so the
-    right place's views gather every frame's vote), and the ``regions`` best distinct places follow
-    (:func:`region_centres`)."""
+    right place's views gather every frame's vote), and the ``sequence_regions`` best distinct
+    places follow (:func:`region_centres`)."""
     total: dict[int, float] = {}
     for xy, cls in frames:
         views, scores = view_scores(ix, np.asarray(xy, float).reshape(-1, 2), np.asarray(cls, np.int64), cfg, exclude)
@@ -261,7 +263,7 @@ def sequence_centres(ix: ViewIndex, frames, cfg: SearchConfig, exclude: np.ndarr
         return np.zeros((0, 2))
     views = np.array(list(total), np.int64)
     score = np.array([total[v] for v in views.tolist()])
-    return region_centres(ix, views[np.argsort(-score, kind="stable")], cfg)
+    return region_centres(ix, views[np.argsort(-score, kind="stable")], cfg, cfg.sequence_regions)
 
 
 def search_city_sequence(
@@ -293,7 +295,7 @@ def search_city_sequence(
         centres, radius = fix.xy[None], fix.crop_m
     else:
         centres = sequence_centres(ix, frames, cfg, exclude)
-    if fix is None and cfg.by_region and len(centres) > 1:
+    if fix is None and cfg.sequence_by_region and len(centres) > 1:
         return _sequence_by_region(
             ix,
             frames,
