@@ -104,7 +104,7 @@ def test_a_pose_at_a_seed_is_found_when_the_cost_picked_hypotheses_are_all_elsew
 
     monkeypatch.setattr(hypotheses, "hypothesis_batches", elsewhere)
     cfg = {"prior_radius_m": 200.0}
-    without = solver.locate(xy, cls, scene.xy, scene.cls, False, {**cfg, "seed_cameras": False}, scene.priors())
+    without = solver.locate(xy, cls, scene.xy, scene.cls, False, {**cfg, "camera_hypotheses": False}, scene.priors())
     assert without.best is None or error(without.best, truth)[0] > 20.0
     found = solver.locate(xy, cls, scene.xy, scene.cls, False, cfg, scene.priors())
     assert found.best is not None

@@ -5,13 +5,16 @@ proposals, rule coarse_solver), the city search and the images scenes' localizat
 are the config section ``solver``; its learned priors (the depth maps' scale prior, the verifier)
 are fitted once per benchmark by rule solver_priors.
 
-Modules, in the order a query meets them: ``problem`` (the query's derived arrays), ``priors``
-(what the training split tells about a pose), ``hypotheses`` (generation, gating, chunked
-scoring, the distinct best), ``scoring`` (MSAC cost, refinement), ``verify`` (the verifier's
+Modules, in the order a query meets them: ``distortion`` (the scene's radial bearing correction of
+depth maps), ``problem`` (the query's derived arrays), ``priors`` (what the training split tells
+about a pose), ``hypotheses`` (generation, gating, chunked scoring, the distinct best),
+``camera_hypotheses`` (a hypothesis seeded at every training camera: the complete pool),
+``scoring`` (MSAC cost, refinement), ``verify`` (the verifier's
 features and score) and ``verify_fit`` (learning it), ``likelihood`` (a pose scored against chance,
 missed objects counted; its compiled loop in ``likelihood_kernels``), ``calibration`` (a pool's
-log-odds as the probability of an answer) and ``calibration_fit`` (fitting it on the validation
-split), ``kernels`` (the compiled loops),
+log-odds as the probability of an answer, beside a null hypothesis) and ``calibration_fit``
+(fitting it on the validation split and on ``nonsense`` queries that fit no place), ``regions``
+(the answers of several regions of one map combined), ``kernels`` (the compiled loops),
 ``pipeline`` (the steps in order: :func:`locate`, the best pose and its alternatives, and
 :func:`solve`, the best alone), ``sequence`` (several frames tied by relative poses, localized
 together: :func:`locate_sequence`; its compiled loops in ``sequence_kernels``), ``learned_priors`` (the fitted priors as one value,

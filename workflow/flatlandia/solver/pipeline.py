@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from flatlandia.solver import calibration, distortion, hypotheses, likelihood, scoring, seeds, verify
+from flatlandia.solver import calibration, camera_hypotheses, distortion, hypotheses, likelihood, scoring, verify
 from flatlandia.solver.priors import Fix, Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
 from flatlandia.solver.settings import SolverConfig
@@ -182,7 +182,7 @@ def candidates(
     keep = cfg.verify_top_k if verified else cfg.top_k
     scored = hypotheses.score_hypotheses(problem, query_priors, keep)
     kept = scored.arrays()
-    seeded = seeds.seeds(problem, query_priors) if verified else None
+    seeded = camera_hypotheses.seeds(problem, query_priors) if verified else None
     if kept is None and seeded is None:
         return None
     n_hyp = scored.n_hypotheses

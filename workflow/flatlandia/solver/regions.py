@@ -3,7 +3,7 @@
 Why: a city's index proposes a handful of places; solved as one union, the pool the probability is
 normalised over is whatever the union's cost liked best, so a place whose region held few objects
 hardly appears in it. Solved one by one, each region gets a complete pool of its own (seeded at
-its own views: :mod:`flatlandia.solver.seeds`), and the regions' evidence adds up: an answer's
+its own views: :mod:`flatlandia.solver.camera_hypotheses`), and the regions' evidence adds up: an answer's
 share is its place's evidence over the evidence of every distinct place any region found, plus
 what the regions' pools held beyond those places, plus the null hypothesis' for a single frame
 (:func:`combine`). Two identical places in two regions then split the evidence, as two identical

@@ -9,9 +9,9 @@ camera would see, covers the places the gate allows; refined by the solver's own
 seeds and the cost-picked pool together are the set the answer's probability is normalised over.
 
 The vote (:func:`vote_headings`, compiled): for camera ``c`` and query object ``i`` of bearing
-``b_i``, every same-class candidate ``n`` within ``seed_range_m`` of ``c`` at world bearing ``phi``
+``b_i``, every same-class candidate ``n`` within ``camera_vote_range_m`` of ``c`` at world bearing ``phi``
 votes heading ``phi - b_i``; a vote's support is the number of query objects with a vote within
-``seed_heading_tol_deg`` of it, and each camera keeps its ``seed_headings`` best supported (at least
+``camera_vote_tol_deg`` of it, and each camera keeps its ``camera_headings`` best supported (at least
 two objects) distinct headings, each with the median range ratio of its supporters as its scale.
 """
 
@@ -132,12 +132,12 @@ def vote_headings(cams, rx, ry, ptr, idx, bear, q_range, max_range, tol, per_cam
 
 def seeds(problem: Problem, priors: Priors):
     """(t (S, 2), theta (S,), s (S,), how many were voted) of the seeds at every prior camera (:func:`vote_headings`),
-    refined by one cheap round, deduplicated on a 1 m / 2 deg grid (the ``seed_refine_max``
+    refined by one cheap round, deduplicated on a 1 m / 2 deg grid (the ``camera_refine_max``
     cheapest by the MSAC cost, 0: all), then refined in full; None
-    without prior cameras, with seeding off (``seed_cameras``) or when no camera sees two objects
+    without prior cameras, with seeding off (``camera_hypotheses``) or when no camera sees two objects
     the query's bearings agree on."""
     cfg = problem.cfg
-    if not cfg.seed_cameras or priors.tree is None or problem.m < 2:
+    if not cfg.camera_hypotheses or priors.tree is None or problem.m < 2:
         return None
     cams = np.ascontiguousarray(priors.tree.data, dtype=float)
     cand = problem.candidates
@@ -149,19 +149,19 @@ def seeds(problem: Problem, priors: Priors):
         cand.idx,
         np.ascontiguousarray(problem.q_bear),
         np.ascontiguousarray(problem.q_range),
-        float(cfg.seed_range_m),
-        math.radians(cfg.seed_heading_tol_deg),
-        int(cfg.seed_headings),
+        float(cfg.camera_vote_range_m),
+        math.radians(cfg.camera_vote_tol_deg),
+        int(cfg.camera_headings),
         bool(problem.metric),
     )
     if not len(raw):
         return None
     s = np.clip(raw[:, 3], cfg.min_scale, cfg.max_scale)
-    t, theta, s = scoring.refine(problem, priors, raw[:, :2], raw[:, 2], s, rounds=1, iters=cfg.seed_cheap_iters)
+    t, theta, s = scoring.refine(problem, priors, raw[:, :2], raw[:, 2], s, rounds=1, iters=cfg.camera_cheap_iters)
     cost = scoring.score(problem, priors, t, theta, s)[0]
     ok = np.isfinite(cost) & np.isfinite(t).all(1)
     if not ok.any():
         return None
     t, theta, s, cost = t[ok], theta[ok], s[ok], cost[ok]
-    keep = hypotheses.distinct_best(cost, t, theta, cfg.seed_refine_max or len(cost))
+    keep = hypotheses.distinct_best(cost, t, theta, cfg.camera_refine_max or len(cost))
     return (*scoring.refine(problem, priors, t[keep], theta[keep], s[keep]), len(raw))
