@@ -310,3 +310,16 @@ def test_the_city_by_region_is_ambiguous_between_identical_tiles_and_sure_betwee
         if identical:
             assert found.solution.probability == pytest.approx(0.5, abs=0.1)
     assert set(statuses) == ({"ambiguous"} if identical else {"ok"})
+
+
+def test_the_localizer_applies_its_scenes_bearing_correction():
+    """`flatlandia localize` builds a scene map's priors from the map's scene id, so its depth maps
+    get the same bearing correction as rule fine_eval's; a map of another scene gets none."""
+    from flatlandia.localize import maps
+
+    queries = pd.DataFrame({"split": ["train"], "x_m": [0.0], "y_m": [0.0], "theta_deg": [0.0], "ref_idx": [[1, 2]]})
+    learned = solver.LearnedPriors(scale=(2.0, 0.5), distortion={"0": 0.2})
+    on = solver.scene_priors(maps.pd_frame([1, 2, 3], "0"), queries, None, learned)
+    off = solver.scene_priors(maps.pd_frame([1, 2, 3], "7"), queries, None, learned)
+    assert on.bearing_k == pytest.approx(0.2) and off.bearing_k == 0.0
+    assert solver.scene_priors(maps.pd_frame([1, 2, 3]), queries, None, learned).bearing_k == 0.0

@@ -311,7 +311,7 @@ def set_training_priors(m: ObjectMap, training: pd.DataFrame | None, source: Pat
     the map's learned priors; None: the learned scale prior alone. ``source``: where they came from."""
     from flatlandia import solver
 
-    ref = pd_frame(m.obj_idx)
+    ref = pd_frame(m.obj_idx, m.scene)  # the scene names its depth maps' bearing correction
     for map_type in MAP_TYPES:  # as rule fine_eval: cameras and co-visibility; depth maps the learned priors
         lp = m.learned if map_type == "depth" else None
         if training is not None:
@@ -323,10 +323,11 @@ def set_training_priors(m: ObjectMap, training: pd.DataFrame | None, source: Pat
     m.queries_path = source if training is not None else None
 
 
-def pd_frame(obj_idx) -> pd.DataFrame:
+def pd_frame(obj_idx, scene: str | None = None) -> pd.DataFrame:
     import pandas as pd
 
-    return pd.DataFrame({"obj_idx": np.asarray(obj_idx, np.int64)})
+    df = pd.DataFrame({"obj_idx": np.asarray(obj_idx, np.int64)})
+    return df if scene is None else df.assign(scene=str(scene))
 
 
 def _city_map(path: Path, settings, learned, search) -> ObjectMap:
