@@ -189,17 +189,7 @@ def search_city(
     rows, cams, seen = region_priors(ix, centres, cfg, settings.prior_radius_m, exclude, radius)
     found = solver.Localization(None)
     if len(rows) >= 2:
-        found = solver.locate(
-            q_xy,
-            q_cls,
-            ix.obj_xy[rows],
-            ix.obj_cls[rows],
-            metric=metric,
-            config=settings,
-            priors=region_training_priors(ix, cams, seen, None if metric else learned),
-            alternatives=alternatives,
-            fix=fix,
-        )
+        found = _locate_rows(ix, q_xy, q_cls, rows, cams, seen, settings, learned, metric, alternatives, fix)
     best, alts = found.best, found.alternatives
     if ranked and not metric:
         best, *alts = in_city([best, *alts], learned, ix)
@@ -210,30 +200,71 @@ def _by_region(ix, q_xy, q_cls, centres, cfg, settings, learned, metric, alterna
     """:func:`search_city` on each of the index's regions alone, the answers combined by their
     share of the regions' evidence (:func:`flatlandia.solver.regions.combine`), then the map-size
     correction."""
+    found, union = _each_region(
+        ix,
+        centres,
+        cfg,
+        settings,
+        exclude,
+        lambda rows, cams, seen: _locate_rows(
+            ix, q_xy, q_cls, rows, cams, seen, settings, learned, metric, max(alternatives, 2)
+        ),
+    )
+    cal = learned.calibration if learned is not None and not metric else None
+    best, alts, _ = regions.combine(found, cal, len(q_cls), 1, alternatives)
+    if not metric:
+        best, *alts = in_city([best, *alts], learned, ix)
+    return Located(best, union, centres, alts)
+
+
+def _locate_rows(ix, q_xy, q_cls, rows, cams, seen, settings, learned, metric, alternatives, fix=None):
+    """:func:`flatlandia.solver.locate` on the index's map ``rows`` with the views ``cams`` (what
+    they saw: ``seen``) as priors, and for depth maps the ``learned`` ones."""
+    return solver.locate(
+        q_xy,
+        q_cls,
+        ix.obj_xy[rows],
+        ix.obj_cls[rows],
+        metric=metric,
+        config=settings,
+        priors=region_training_priors(ix, cams, seen, None if metric else learned),
+        alternatives=alternatives,
+        fix=fix,
+    )
+
+
+def _locate_sequence_rows(
+    ix, frames, rel_poses, rows, cams, seen, settings, seq, learned, odometry_sigma, fix, alternatives
+):
+    """:func:`flatlandia.solver.locate_sequence` on the index's map ``rows`` with the views ``cams``
+    (what they saw: ``seen``) and the ``learned`` priors."""
+    return solver.locate_sequence(
+        frames,
+        rel_poses,
+        ix.obj_xy[rows],
+        ix.obj_cls[rows],
+        settings,
+        region_training_priors(ix, cams, seen, learned),
+        seq,
+        odometry_sigma,
+        fix,
+        alternatives,
+    )
+
+
+def _each_region(ix, centres, cfg, settings, exclude, solve):
+    """(answers, searched rows) of ``solve(rows, cams, seen)`` on each region of ``centres`` alone
+    (those with two objects at least), each answer's inliers indexed into the sorted union of the
+    rows every region searched (:func:`_in_union`)."""
     found, searched = [], []
     for c in centres:
         rows, cams, seen = region_priors(ix, c[None], cfg, settings.prior_radius_m, exclude)
         if len(rows) < 2:
             continue
         searched.append(rows)
-        loc = solver.locate(
-            q_xy,
-            q_cls,
-            ix.obj_xy[rows],
-            ix.obj_cls[rows],
-            metric=metric,
-            config=settings,
-            priors=region_training_priors(ix, cams, seen, None if metric else learned),
-            alternatives=max(alternatives, 2),
-        )
-        found.append(loc)
+        found.append(solve(rows, cams, seen))
     union = _union(searched)
-    found = [_in_union(loc, rows, union) for loc, rows in zip(found, searched)]
-    cal = learned.calibration if learned is not None and not metric else None
-    best, alts, _ = regions.combine(found, cal, len(q_cls), 1, alternatives)
-    if not metric:
-        best, *alts = in_city([best, *alts], learned, ix)
-    return Located(best, union, centres, alts)
+    return [_in_union(loc, rows, union) for loc, rows in zip(found, searched)], union
 
 
 def _in_union(loc, rows: np.ndarray, union: np.ndarray):
@@ -313,17 +344,8 @@ def search_city_sequence(
     located = Located(None, rows, centres)
     if len(rows) < 2:
         return solver.SequenceLocalization(None), located
-    found = solver.locate_sequence(
-        frames,
-        rel_poses,
-        ix.obj_xy[rows],
-        ix.obj_cls[rows],
-        settings,
-        region_training_priors(ix, cams, seen, learned),
-        sequence_settings,
-        odometry_sigma,
-        fix,
-        alternatives,
+    found = _locate_sequence_rows(
+        ix, frames, rel_poses, rows, cams, seen, settings, sequence_settings, learned, odometry_sigma, fix, alternatives
     )
     if fix is None:
         best, *alts = in_city([found.best, *found.alternatives], learned, ix, len(frames))
@@ -336,28 +358,27 @@ def _sequence_by_region(
     ix, frames, rel_poses, centres, cfg, settings, sequence_settings, learned, odometry_sigma, exclude, alternatives
 ):
     """:func:`search_city_sequence` on each region alone, combined as :func:`_by_region` does."""
-    found, searched = [], []
-    for c in centres:
-        rows, cams, seen = region_priors(ix, c[None], cfg, settings.prior_radius_m, exclude)
-        if len(rows) < 2:
-            continue
-        searched.append(rows)
-        found.append(
-            solver.locate_sequence(
-                frames,
-                rel_poses,
-                ix.obj_xy[rows],
-                ix.obj_cls[rows],
-                settings,
-                region_training_priors(ix, cams, seen, learned),
-                sequence_settings,
-                odometry_sigma,
-                None,
-                max(alternatives, 2),
-            )
-        )
-    union = _union(searched)
-    found = [_in_union(loc, rows, union) for loc, rows in zip(found, searched)]
+    found, union = _each_region(
+        ix,
+        centres,
+        cfg,
+        settings,
+        exclude,
+        lambda rows, cams, seen: _locate_sequence_rows(
+            ix,
+            frames,
+            rel_poses,
+            rows,
+            cams,
+            seen,
+            settings,
+            sequence_settings,
+            learned,
+            odometry_sigma,
+            None,
+            max(alternatives, 2),
+        ),
+    )
     cal = learned.calibration if learned is not None else None
     best, alts, winner = regions.combine(found, cal, len(frames[0][1]), len(frames), alternatives)
     best, *alts = in_city([best, *alts], learned, ix, len(frames))

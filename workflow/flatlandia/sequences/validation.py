@@ -82,8 +82,9 @@ def frame_evidence(
         pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}
         regions = dict(zip(props["token"].astype(str), props["proposal"]))
         priors.append(solver.scene_priors(ref, q, settings, raw))
-        real.append([(localmaps.local_map(r, "depth"), np.asarray(r["classes"])) for _, r in part.iterrows()])
-        for (xy, cls), (_, r) in zip(real[-1], part.iterrows()):
+        records = [r for _, r in part.iterrows()]
+        real.append([(localmaps.local_map(r, "depth"), np.asarray(r["classes"])) for r in records])
+        for (xy, cls), r in zip(real[-1], records):
             idx = np.array([pos[int(o)] for o in regions.get(str(r["token"]), []) if int(o) in pos], int)
             sol = _solve(ref, idx, xy, cls, cfg, priors[-1])
             right = sol is not None and _right(sol, r)
@@ -118,7 +119,6 @@ def _evidence_row(kind: str, objects: int, sol, right: bool) -> dict:
         "objects": int(objects),
         "log_place": -np.inf if none else float(sol.log_place),
         "log_pool": -np.inf if none else float(sol.log_pool),
-        "llr": np.nan if sol is None or sol.llr is None else float(sol.llr),
         "right": bool(right),
     }
 
