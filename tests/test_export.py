@@ -333,8 +333,9 @@ def test_dry_run_exports_without_training(repo, tmp_path):
         "queries": 1,
         "export_scene": 1,
         "export_index": 1,
+        "export_original": 1,
         "export": 1,
-        "total": 7,
+        "total": 8,
     }
 
 

@@ -251,6 +251,12 @@ def export(name: str, scene=None) -> str:
     return _r("export", name) if scene is None else _r("export", scene, name)
 
 
+def export_original(name: str) -> str:
+    """A file of the export in the authors' form (rule ``export_original``): ``data/flatlandia.json``,
+    ``data/region_proposal.json``, ``data/local_maps.json``, ``README.md``."""
+    return _r("export", "original", name)
+
+
 def locate(path: str | Path, artifact, **kwargs) -> tuple[Path, dict[str, str]] | None:
     """Where a file ``path`` sits as the artifact ``artifact`` (a function of this module, called with
     ``kwargs`` but its wildcards) of a results folder: (that folder, the wildcards' values), or None

@@ -48,6 +48,25 @@ def export_index_inputs(wildcards):
     }
 
 
+def export_original_sources(wildcards=None):
+    """The coarse proposal sources present that the authors' schema has a key for: the coarse models'
+    (flatlandia.data.original.SOURCES), not the solver's."""
+    return [s for s in export_present_sources() if vocabulary.coarse_source(s) in vocabulary.COARSE_LOSSES]
+
+
+def export_original_inputs(wildcards):
+    """Every benchmark scene's reference map, recovered poses (their theta is the lon/lat one) and
+    queries, the coarse proposal tables present that their schema names, and the published local maps."""
+    tables = export_coarse_tables()
+    return {
+        "reference_maps": per_scene(paths.reference_map(), benchmark_scenes()),
+        "recovered": per_scene(paths.recovered(), benchmark_scenes()),
+        "queries": per_scene(paths.queries(), benchmark_scenes()),
+        "proposals": [tables[s] for s in export_original_sources()],
+        "local_maps": flatlandia_file("local_maps.json"),
+    }
+
+
 EXPORT_SCENE_FILES = [
     "reference_map.csv",
     "reference_map.geojson",
@@ -58,12 +77,17 @@ EXPORT_SCENE_FILES = [
     "ground_truth.csv",
 ]
 EXPORT_INDEX_FILES = ["README.md", "classes.csv", "scenes.csv", "poses_template.csv"]
+#: the export in the authors' form (flatlandia.data.original.FILES)
+EXPORT_ORIGINAL_FILES = ["data/flatlandia.json", "data/region_proposal.json", "data/local_maps.json", "README.md"]
 
 
 def export_products():
-    """The `export` target (not in `all`): results/export/ for every benchmark scene."""
+    """The `export` target (not in `all`): results/export/ for every benchmark scene, and the
+    benchmark in the authors' form (results/export/original/)."""
     if not benchmark_scenes():
         return []
-    return [paths.export(f) for f in EXPORT_INDEX_FILES] + [
-        paths.export(f, scene) for scene in benchmark_scenes() for f in EXPORT_SCENE_FILES
-    ]
+    return (
+        [paths.export(f) for f in EXPORT_INDEX_FILES]
+        + [paths.export(f, scene) for scene in benchmark_scenes() for f in EXPORT_SCENE_FILES]
+        + [paths.export_original(f) for f in EXPORT_ORIGINAL_FILES]
+    )
