@@ -46,7 +46,7 @@ from flatlandia.images import image_audit
 from flatlandia.localize import batch
 from flatlandia.plumbing import escape, names, provenance, validate
 from flatlandia.plumbing.errors import InputError
-from flatlandia.solver import calibration, likelihood, verify
+from flatlandia.solver import calibration, likelihood, noise, verify
 
 N_CLASSES = len(CLASSES)
 #: characters no name and no terminal line may hold (escape.HIDDEN_CATEGORIES, written out here)
@@ -144,12 +144,11 @@ def scenes(tmp_path_factory):
 
 def _priors_doc() -> dict:
     """A learned priors file with every part the solver reads: scale prior, verifier, likelihood
-    model, calibration (single frames and sequences) and a city's map-size correction."""
+    model, calibration (single frames and sequences), a city's map-size correction and the noise
+    model (with a scene's bearing correction)."""
     nf, nb = len(verify.FEATURES), len(likelihood.RANGE_EDGES_M) - 1
     na = len(likelihood.BEARING_EDGES_DEG) - 1
     lik = likelihood.LikelihoodModel(
-        bearing_sigma_deg=(2.0,) * nb,
-        log_range_sigma=(0.3,) * nb,
         fov_half_deg=60.0,
         max_range_m=80.0,
         intercept=-1.0,
@@ -162,16 +161,16 @@ def _priors_doc() -> dict:
         cls_logit0=(0.0,) * N_CLASSES,
         range_logit0=(0.0,) * nb,
         bear_logit0=(0.0,) * na,
-        detections=100,
         in_view=300,
     )
+    model = noise.NoiseModel((2.0,) * nb, (0.3,) * nb, {"3": 0.2}, 100)
     cal = calibration.Calibration(
         calibration.Logistic(-1.0, (1.0, 0.5, 0.2, 0.3), 120),
         calibration.Logistic(-0.5, (0.8, 0.4, 0.1, 1.0), 60),
         calibration.MapSize(100.0, calibration.MapTerm(0.5, 0.1), calibration.MapTerm(0.4, 0.2), 50),
     )
     v = verify.Verifier(np.linspace(-1, 1, nf), np.zeros(nf), np.ones(nf))
-    return solver.LearnedPriors((3.0, 0.4), v, lik, cal).to_dict()
+    return solver.LearnedPriors((3.0, 0.4), v, lik, cal, model).to_dict()
 
 
 PRIORS = _priors_doc()

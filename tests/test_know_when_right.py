@@ -7,6 +7,7 @@ constellation repeated at two or three places; a synthetic lens; two tiles of a 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -19,6 +20,7 @@ from flatlandia.city import index, search
 from flatlandia.classes import CLASSES
 from flatlandia.solver import calibration, calibration_fit, distortion, hypotheses, nonsense, verify
 from flatlandia.solver.calibration import Calibration
+from flatlandia.solver.noise import NoiseModel
 
 CLASS_IDS = np.array([CLASSES.index(c) for c in CLASSES[1:21]])
 #: a hand-set verifier: a pose is likelier right the lower its costs and the better the nearby
@@ -318,7 +320,8 @@ def test_the_localizer_applies_its_scenes_bearing_correction():
     from flatlandia.localize import maps
 
     queries = pd.DataFrame({"split": ["train"], "x_m": [0.0], "y_m": [0.0], "theta_deg": [0.0], "ref_idx": [[1, 2]]})
-    learned = solver.LearnedPriors(scale=(2.0, 0.5), distortion={"0": 0.2})
+    lens = dataclasses.replace(NoiseModel.constant(1.0, 0.5), distortion={"0": 0.2})
+    learned = solver.LearnedPriors(scale=(2.0, 0.5), noise=lens)
     on = solver.scene_priors(maps.pd_frame([1, 2, 3], "0"), queries, None, learned)
     off = solver.scene_priors(maps.pd_frame([1, 2, 3], "7"), queries, None, learned)
     assert on.bearing_k == pytest.approx(0.2) and off.bearing_k == 0.0

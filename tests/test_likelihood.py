@@ -24,8 +24,9 @@ import pytest
 from flatlandia import classes, config, geo
 from flatlandia.classes import CLASSES
 from flatlandia.plumbing.errors import InputError
-from flatlandia.solver import calibration, learned_priors, likelihood
-from flatlandia.solver.likelihood import BEARING_EDGES_DEG, RANGE_EDGES_M, LikelihoodModel
+from flatlandia.solver import calibration, learned_priors, likelihood, noise
+from flatlandia.solver.likelihood import BEARING_EDGES_DEG, LikelihoodModel
+from flatlandia.solver.noise import RANGE_EDGES_M, NoiseModel
 from flatlandia.solver.priors import Priors, TrainingPriors
 from flatlandia.solver.problem import Problem
 from flatlandia.solver.settings import SolverConfig
@@ -33,16 +34,16 @@ from flatlandia.solver.settings import SolverConfig
 LIGHT, HYDRANT, BENCH = (CLASSES.index(c) for c in ("object--street-light", "object--fire-hydrant", "object--bench"))
 
 
-def flat_model(
-    p_d: float = 0.3, bearing_deg: float = 1.0, log_range: float = 0.3, fov_deg: float = 50.0
-) -> LikelihoodModel:
-    """A model with one detection probability for every class, range and bearing, and one noise."""
+#: one noise for every range: what the hand-made maps below are scored with
+FLAT_NOISE = NoiseModel.constant(1.0, 0.3)
+
+
+def flat_model(p_d: float = 0.3, fov_deg: float = 50.0) -> LikelihoodModel:
+    """A model with one detection probability for every class, range and bearing."""
     nb, na, nk = len(RANGE_EDGES_M) - 1, len(BEARING_EDGES_DEG) - 1, classes.N_CLASSES
     z = math.log(p_d / (1 - p_d))
     zeros = (0.0,) * nk, (0.0,) * nb, (0.0,) * na
-    return LikelihoodModel(
-        (bearing_deg,) * nb, (log_range,) * nb, fov_deg, 80.0, z, *zeros, 0.0, 0.0, z, *zeros
-    )  # fmt: skip
+    return LikelihoodModel(fov_deg, 80.0, z, *zeros, 0.0, 0.0, z, *zeros)
 
 
 def local(xy, pose) -> np.ndarray:
@@ -59,7 +60,7 @@ def depth_map(xy, pose) -> tuple[np.ndarray, float]:
 def llr_at(pose, q_xy, q_cls, ref_xy, ref_cls, scale, model=None, radius=25.0) -> tuple[float, np.ndarray]:
     """The likelihood ratio of one pose of a depth query on a map, and its parts."""
     cfg = SolverConfig.from_dict({})
-    problem = Problem(q_xy, q_cls, ref_xy, ref_cls, False, cfg)
+    problem = Problem(q_xy, q_cls, ref_xy, ref_cls, False, cfg, FLAT_NOISE)
     priors = Priors(cfg, False, TrainingPriors(), n_ref=len(problem.r))
     llr, _, parts = likelihood.pose_llr(
         problem, priors, model or flat_model(), radius, np.asarray([pose[:2]]), [pose[2]], [scale]
@@ -158,12 +159,13 @@ def fitted() -> LikelihoodModel:
     return likelihood.fit([synthetic_scene()])
 
 
-def test_the_noise_model_recovers_the_known_sigmas(fitted):
+def test_the_noise_model_recovers_the_known_sigmas():
+    model = noise.fit([synthetic_scene()], bearing_correction=False)
     edges = np.asarray(RANGE_EDGES_M)
     for k in range(len(edges) - 1):
         if edges[k] >= 5 and edges[k + 1] <= TRUE_RANGE_M:  # bins with enough detections
-            assert fitted.bearing_sigma_deg[k] == pytest.approx(TRUE_BEARING_DEG, rel=0.15), k
-            assert fitted.log_range_sigma[k] == pytest.approx(TRUE_LOG_RANGE, rel=0.15), k
+            assert model.bearing_sigma_deg[k] == pytest.approx(TRUE_BEARING_DEG, rel=0.15), k
+            assert model.log_range_sigma[k] == pytest.approx(TRUE_LOG_RANGE, rel=0.15), k
 
 
 def test_the_field_of_view_and_range_come_from_the_detections(fitted):
@@ -173,7 +175,7 @@ def test_the_field_of_view_and_range_come_from_the_detections(fitted):
 
 def test_the_detection_probability_recovers_each_class(fitted):
     """p_d0 (without views) at a typical range and bearing, per class, within 0.06 of the truth."""
-    t = fitted.terms(False, 0.25)
+    t = fitted.terms(False, 0.25, FLAT_NOISE)
     from flatlandia.solver.likelihood_kernels import _detection
 
     for k, p in TRUE_P_D.items():
@@ -231,19 +233,21 @@ def test_pool_shares_merge_poses_of_one_place():
 
 def test_the_learned_priors_carry_the_model_and_the_calibration(tmp_path, fitted):
     rng = np.random.default_rng(0)
+    model = NoiseModel((2.0, 1.5, 1.2, 1.0, 0.6, 0.5, 0.5), (0.5, 0.4, 0.3, 0.3, 0.4, 0.5, 0.8), {"3": 0.2}, 99)
     lp = learned_priors.with_calibration(
-        learned_priors.LearnedPriors((2.0, 0.5), None, fitted), synthetic_answers(rng, 500)
+        learned_priors.LearnedPriors((2.0, 0.5), None, fitted, noise=model), synthetic_answers(rng, 500)
     )
     path = tmp_path / "whole.json"
     lp.write(path)
     back = learned_priors.LearnedPriors.read(path)
-    assert back.likelihood == fitted and back.calibration == lp.calibration
+    assert back.likelihood == fitted and back.calibration == lp.calibration and back.noise == model
+    assert back.bearing_k(3) == 0.2 and back.bearing_k(4) == 0.0
     doc = json.loads(path.read_text())
-    doc["likelihood"]["bearing_sigma_deg"][0] = -1.0
+    doc["noise"]["bearing_sigma_deg"][0] = -1.0
     path.write_text(json.dumps(doc))
-    with pytest.raises(InputError, match="sigmas must be positive"):
+    with pytest.raises(InputError, match="noise bearing_sigma_deg"):
         learned_priors.LearnedPriors.read(path)
-    doc["likelihood"]["bearing_sigma_deg"][0] = 1.0
+    doc["noise"]["bearing_sigma_deg"][0] = 1.0
     doc["calibration"]["frame"]["weights"] = [1.0]
     path.write_text(json.dumps(doc))
     with pytest.raises(InputError, match="calibration needs 4 finite weights"):

@@ -113,7 +113,9 @@ def test_priors_and_calibration_are_checked_field_by_field(tmp_path):
             {**good, "verifier": {"weights": [1e308] * nf, "mean": [0.0] * nf, "scale": [1.0] * nf}},
             "verifier weights[0] must be a finite number in [-1000, 1000]",
         ),
-        "empty": ({}, "lack scale_prior"),
+        "empty": ({}, "format 1 (no 'format' key"),
+        "format": ({**good, "format": 99}, "a solver priors file of format 99, this solver reads format 2"),
+        "absent": ({"format": 2}, "lack scale_prior"),
     }
     for name, (value, says) in cases.items():
         path = tmp_path / f"{name}.json"
@@ -129,8 +131,8 @@ def test_a_likelihood_model_is_checked_field_by_field(tmp_path):
 
     nb, na, nk = 7, 6, 42
     model = LikelihoodModel(
-        (1.0,) * nb, (0.5,) * nb, 55.0, 95.0, -2.0, (0.1,) * nk, (0.2,) * nb, (0.3,) * na, 7.3, 0.1, -2.0,
-        (0.1,) * nk, (0.2,) * nb, (0.3,) * na, 10, 20,
+        55.0, 95.0, -2.0, (0.1,) * nk, (0.2,) * nb, (0.3,) * na, 7.3, 0.1, -2.0,
+        (0.1,) * nk, (0.2,) * nb, (0.3,) * na, 20,
     )  # fmt: skip
     doc = model.to_dict()
     assert LikelihoodModel.from_dict(json.loads(json.dumps(doc)), "p.json") == model
@@ -138,7 +140,7 @@ def test_a_likelihood_model_is_checked_field_by_field(tmp_path):
         ({"share_w": 1e308}, "likelihood share_w must be a finite number in [-1000, 1000]"),
         ({"cls_logit": "1234"}, "likelihood cls_logit must be a list of 42 numbers"),
         ({"max_range_m": [95.0]}, "likelihood max_range_m must be a finite number"),
-        ({"detections": "many"}, "likelihood detections must be an integer"),
+        ({"in_view": "many"}, "likelihood in_view must be an integer"),
     ):
         _raises("p.json", lambda change=change: LikelihoodModel.from_dict({**doc, **change}, "p.json"), says)
 

@@ -72,6 +72,13 @@ def _join(prefix: str, key) -> str:
 
 #: sections that moved: an old config naming them is told the new key (not only "did you mean")
 MOVED = {"fine.geo": "solver"}
+#: keys that are gone, and what took their place (an old config naming one stops with this)
+REPLACED = {
+    "solver.bearing_sigma_deg": "the fitted noise model in the solver's priors (without one: 'solver.default_bearing_sigma_deg')",
+    "solver.log_range_sigma": "the fitted noise model times 'solver.msac_range_inflation' (without one: 'solver.default_log_range_sigma')",
+    "solver.refine_log_range_sigma": "'solver.refine_range_inflation' (times the MSAC cost's range sigma)",
+    "beyond.sequence.log_range_sigma": "the solver's noise model, as for single frames ('solver.msac_range_inflation')",
+}
 
 
 def _moved(dotted: str, value) -> list[str]:
@@ -95,6 +102,8 @@ def unknown_keys(cfg, node: dict | None = None, prefix: str = "") -> list[str]:
     for key, value in cfg.items():
         if _join(prefix, key) in MOVED:
             out += _moved(_join(prefix, key), value)
+        elif _join(prefix, key) in REPLACED:
+            out.append(f"'{_join(prefix, key)}' (replaced by {REPLACED[_join(prefix, key)]})")
         elif key in props:
             out += unknown_keys(value, props[key], _join(prefix, key))
         elif node.get("additionalProperties", True) is False:

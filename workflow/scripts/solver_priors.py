@@ -19,13 +19,19 @@ def main(smk, log):
     if fitted.verifier is not None:
         weights = {f: round(float(w), 3) for f, w in zip(verify.FEATURES, fitted.verifier.weights)}
         log.info("verifier on %s, weights of the standardised features: %s", region, weights)
+    if fitted.noise is not None:
+        log.info(
+            "noise model: bearing sigma %s deg, log-range sigma %s per range bin, on %d detections; "
+            "bearing correction %s",
+            [round(v, 2) for v in fitted.noise.bearing_sigma_deg],
+            [round(v, 3) for v in fitted.noise.log_range_sigma],
+            fitted.noise.detections,
+            {k: round(v, 3) for k, v in fitted.noise.distortion.items()},
+        )
     if fitted.likelihood is not None:
         lik = fitted.likelihood
         log.info(
-            "likelihood model: bearing sigma %s deg, log-range sigma %s per range bin; field of view +-%.1f deg, "
-            "range %.1f m; p_d weight of the views' share %.2f",
-            [round(v, 2) for v in lik.bearing_sigma_deg],
-            [round(v, 2) for v in lik.log_range_sigma],
+            "likelihood model: field of view +-%.1f deg, range %.1f m; p_d weight of the views' share %.2f",
             lik.fov_half_deg,
             lik.max_range_m,
             lik.share_w,

@@ -1081,23 +1081,32 @@ def map_size(m: Any, source: str | Path, max_shift: float, max_per_log_odds: flo
         raise InputError(source, f"{where} answers must be a count of answers, got {shown(n)}")
 
 
-def learned_priors(d: Any, source: str | Path, n_features: int) -> None:
-    """A solver priors JSON (:class:`flatlandia.solver.learned_priors.LearnedPriors`): an object of
-    exactly :data:`PRIORS_KEYS` (each null where not fitted: ``{}`` is no "no priors");
+def learned_priors(d: Any, source: str | Path, n_features: int, version: int) -> None:
+    """A solver priors JSON (:class:`flatlandia.solver.learned_priors.LearnedPriors`) of format
+    ``version`` (an older one: one error naming its format and the rule that rewrites it): an
+    object of exactly :data:`PRIORS_KEYS` (each null where not fitted: ``{}`` is no "no priors");
     ``scale_prior`` null or (mean, std) finite with std > 0; ``verifier`` null or ``weights``
     (within :data:`MAX_LOGIT_WEIGHT`), ``mean``, ``scale`` (within :data:`MAX_LOCAL_COORD`) of
     ``n_features`` finite numbers each, every scale > 0; ``features`` a list of names;
-    ``likelihood`` and ``calibration`` null or objects (checked field by field where they are read:
-    ``LikelihoodModel.from_dict``, ``Calibration.from_dict``)."""
+    ``likelihood``, ``calibration`` and ``noise`` null or objects (checked field by field where they
+    are read: ``LikelihoodModel.from_dict``, ``Calibration.from_dict``, ``NoiseModel.from_dict``)."""
     if not isinstance(d, dict):
         raise InputError(source, "expected a JSON object with scale_prior and verifier")
-    json_object(d, source, "the learned priors", PRIORS_KEYS + PRIORS_OPTIONAL_KEYS)
+    found = d.get("format", 1)
+    if type(found) is not int or found != version:
+        said = shown(found) if "format" in d else "1 (no 'format' key: written before the one noise model)"
+        raise InputError(
+            source,
+            f"a solver priors file of format {said}, this solver reads format {version}: rule solver_priors "
+            "rewrites it (snakemake --forcerun solver_priors, or delete the file)",
+        )
+    json_object(d, source, "the learned priors", PRIORS_KEYS)
     absent = [k for k in PRIORS_KEYS if k not in d]
     if absent:
         raise InputError(
             source, f"the learned priors lack {', '.join(absent)} (null where not fitted): not a priors file"
         )
-    for key in ("likelihood", "calibration"):
+    for key in ("likelihood", "calibration", "noise"):
         if d[key] is not None:
             json_object(d[key], source, key)
     names = d["features"]
@@ -1155,9 +1164,7 @@ MAX_QUERY_TABLE_BYTES = 64 * MB
 #: scenes of a results folder's benchmark record (the benchmark: 20)
 MAX_SCENES = 1_000
 #: the keys of a learned priors JSON (``LearnedPriors.to_dict`` writes every one, null where not fitted)
-PRIORS_KEYS = ("scale_prior", "verifier", "features", "likelihood", "calibration")
-#: keys a priors file may hold beyond :data:`PRIORS_KEYS` (absent in files written before them)
-PRIORS_OPTIONAL_KEYS = ("distortion",)
+PRIORS_KEYS = ("format", "scale_prior", "verifier", "features", "likelihood", "calibration", "noise")
 #: a count in a record (answers, detections a model was fitted on)
 MAX_RECORD_COUNT = 10**12
 #: the splits a queries table may name

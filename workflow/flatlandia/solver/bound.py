@@ -39,10 +39,10 @@ def true_match_pose(
     and scale priors of ``given`` (its co-visibility is not used: the matches are given)."""
     cfg = config if isinstance(config, pipeline.SolverConfig) else pipeline.SolverConfig.from_dict(config)
     if not ranges:  # bearings only: a vanishing range weight
-        cfg = pipeline.SolverConfig(**{**cfg.to_dict(), "refine_log_range_sigma": 1e6})
+        cfg = pipeline.SolverConfig(**{**cfg.to_dict(), "refine_range_inflation": 1e6})
     m = len(depth_xy)
-    problem = Problem(depth_xy, np.zeros(m, int), matched_xy, np.zeros(m, int), False, cfg)
     given = given or TrainingPriors()
+    problem = Problem(depth_xy, np.zeros(m, int), matched_xy, np.zeros(m, int), False, cfg, given.noise)
     priors = Priors(cfg, False, TrainingPriors(given.cameras, None, given.scale))
     x, y, theta, scale = start
     p = np.array([[x, y, theta, np.log(scale)]], float)

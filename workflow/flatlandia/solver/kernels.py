@@ -18,6 +18,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from flatlandia.solver.noise import bearing_error, range_bin
+
+_QUARTER_PI = math.pi / 4.0
+
 
 class Candidates(NamedTuple):
     """Same-class candidates of every query object, flat: object ``k``'s are ``[ptr[k]:ptr[k+1]]``."""
@@ -37,8 +41,10 @@ class QueryTerms(NamedTuple):
     bear: np.ndarray  # (M,) bearings (rad)
     range_eps: np.ndarray  # (M,) range + eps (small-range guard)
     eps: float
-    bearing_sigma: float  # depth maps (rad)
-    log_range_sigma: float  # depth maps
+    #: depth maps: the noise model per range bin of the candidate (:class:`flatlandia.solver.noise.NoiseTerms`)
+    range_edges: np.ndarray  # (B + 1,) metres
+    bearing_sigma: np.ndarray  # (B,) rad
+    log_range_sigma: np.ndarray  # (B,)
     position_sigma: float  # metric maps (m)
 
 
@@ -68,10 +74,13 @@ def _record(c, k, best, bj, tau2, inl, match, cand_idx, ptr):
 
 @njit(cache=True, fastmath=False)
 def score_depth(tx, ty, theta, s, query, cands, tau2):
-    """Depth (unscaled) local maps: bearing error as a tangent (weight 1/sb) plus log-range error
-    (weight 1/sr) at scale ``s``. Returns the capped data cost (C,), inliers (C, M), matches (C, M)."""
+    """Depth (unscaled) local maps: the wrapped bearing error (:func:`~flatlandia.solver.noise.bearing_error`)
+    over its sigma plus the log-range error at scale ``s`` over its sigma, both of the candidate's
+    range bin (the noise model). Returns the capped data cost (C,), inliers (C, M), matches (C, M)."""
     q_bear, q_range_eps, eps_q = query.bear, query.range_eps, query.eps
-    sb, sr = query.bearing_sigma, query.log_range_sigma
+    edges, sb, sr = query.range_edges, query.bearing_sigma, query.log_range_sigma
+    edges2 = edges * edges
+    sb_max2 = sb.max() ** 2
     cand_x, cand_y, cand_idx, ptr = cands
     n_hyp, m = tx.shape[0], q_bear.shape[0]
     total = np.zeros(n_hyp)
@@ -91,12 +100,22 @@ def score_depth(tx, ty, theta, s, query, cands, tau2):
                 along = ux * rx + uy * ry
                 if along <= 0.0:
                     continue
-                tb = (ux * ry - uy * rx) / along / sb
+                across = ux * ry - uy * rx
+                # a lower bound of the angle, without an arctangent: atan(t) >= pi/4 min(t, 1); first
+                # at the loosest sigma, then at the sigma of the range's bin (squared edges: no root)
+                lb = _QUARTER_PI * min(abs(across) / along, 1.0)
+                if lb * lb >= lim * sb_max2:
+                    continue
+                r2 = rx * rx + ry * ry
+                b = range_bin(edges2, r2)
+                if lb * lb >= lim * sb[b] * sb[b]:
+                    continue
+                rr = math.sqrt(r2)
+                tb = bearing_error(along, across) / sb[b]
                 eb = tb * tb
                 if eb >= lim:
                     continue
-                rr = math.sqrt(rx * rx + ry * ry)
-                dr = math.log((rr + s[c] * eps_q) / (s[c] * q_range_eps[k])) / sr
+                dr = math.log((rr + s[c] * eps_q) / (s[c] * q_range_eps[k])) / sr[b]
                 cst = eb + dr * dr
                 if cst < best:
                     best = cst
@@ -177,10 +196,11 @@ def _wrap(a):
 @njit(cache=True)
 def _match_rows(H, g, J, p, c, R, inl, query, npar):
     """Add the soft-L1 weighted rows of hypothesis ``c``'s matches to the normal equations: bearing
-    and log-range rows (depth maps) or the two position rows in the camera frame (metric maps)."""
+    and log-range rows (depth maps, sigmas of the match's range bin) or the two position rows in
+    the camera frame (metric maps)."""
     cs, sn = math.cos(p[c, 2]), math.sin(p[c, 2])
     sc = math.exp(p[c, 3])
-    sp, sb, sr, eps = query.position_sigma, query.bearing_sigma, query.log_range_sigma, query.eps
+    sp, eps = query.position_sigma, query.eps
     for k in range(R.shape[1]):
         if not inl[c, k]:
             continue
@@ -201,6 +221,8 @@ def _match_rows(H, g, J, p, c, R, inl, query, npar):
             else:
                 rho2 = max(rx * rx + ry * ry, 1e-12)
                 rho = math.sqrt(rho2)
+                b = range_bin(query.range_edges, rho)
+                sb, sr = query.bearing_sigma[b], query.log_range_sigma[b]
                 if row == 0:
                     e = _wrap(math.atan2(ry, rx) - p[c, 2] - query.bear[k]) / sb
                     J[0], J[1], J[2] = ry / rho2 / sb, -rx / rho2 / sb, -1.0 / sb
@@ -256,7 +278,7 @@ def refine_gauss_newton(p, R, inl, query, priors, iters):
 
     ``p`` (C, 4): x, y, theta, log scale (updated in place); ``R`` (C, M, 2) matched candidates;
     ``inl`` (C, M) which matches count; ``query`` (:class:`QueryTerms`): bearing residuals (1/sb)
-    and log-range residuals (1/sr) for depth maps, positions in the camera frame (1/sp, 3
+    and log-range residuals (1/sr) of the match's range bin for depth maps, positions in the camera frame (1/sp, 3
     parameters) for metric maps; ``priors`` (:class:`PriorTerms`, depth maps only). Stops a
     hypothesis when its step is below 1e-10.
     """

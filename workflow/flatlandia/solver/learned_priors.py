@@ -17,15 +17,19 @@ import numpy as np
 import pandas as pd
 
 from flatlandia.plumbing import files
-from flatlandia.solver import calibration, distortion, likelihood, verify, verify_fit
+from flatlandia.solver import calibration, distortion, likelihood, noise, verify, verify_fit
 from flatlandia.solver.calibration import Calibration, MapSize
 from flatlandia.solver.likelihood import LikelihoodModel
+from flatlandia.solver.noise import NoiseModel
 from flatlandia.solver.priors import TrainingPriors, camera_priors, depth_scale_prior
 from flatlandia.solver.settings import SolverConfig
 
 #: the regions a verifier can be learned on (:data:`verify_fit.REGIONS`); on any other region
 #: (a coarse proposal) the depth maps get the scale prior alone
 REGIONS = tuple(verify_fit.REGIONS)
+#: the priors file's format: 2 since the solver's one noise model (``noise``: the sigmas per range
+#: bin and each scene's bearing correction, which format 1 kept in ``likelihood`` and ``distortion``)
+FORMAT = 2
 
 
 @dataclass(frozen=True)
@@ -38,16 +42,17 @@ class LearnedPriors:
     verifier: verify.Verifier | None = None
     likelihood: LikelihoodModel | None = None  # the likelihood ratio against chance (training split)
     calibration: Calibration | None = None  # the answers' probability (validation split)
-    #: per scene id, its depth maps' radial bearing coefficient (:mod:`flatlandia.solver.distortion`)
-    distortion: dict[str, float] | None = None
+    #: the depth maps' noise per range bin and each scene's bearing correction (:mod:`flatlandia.solver.noise`)
+    noise: NoiseModel | None = None
 
     def bearing_k(self, scene) -> float:
         """The radial bearing coefficient of ``scene``'s depth maps (0: none)."""
-        return float((self.distortion or {}).get(str(scene), 0.0))
+        return self.noise.bearing_k(scene) if self.noise is not None else 0.0
 
     def to_dict(self) -> dict:
         v = self.verifier
         return {
+            "format": FORMAT,
             "scale_prior": list(self.scale) if self.scale else None,
             "verifier": {"weights": v.weights.tolist(), "mean": v.mean.tolist(), "scale": v.scale.tolist()}
             if v is not None
@@ -55,7 +60,7 @@ class LearnedPriors:
             "features": list(verify.FEATURES),
             "likelihood": self.likelihood.to_dict() if self.likelihood is not None else None,
             "calibration": self.calibration.to_dict() if self.calibration is not None else None,
-            "distortion": dict(self.distortion) if self.distortion is not None else None,
+            "noise": self.noise.to_dict() if self.noise is not None else None,
         }
 
     @classmethod
@@ -66,7 +71,7 @@ class LearnedPriors:
         from flatlandia.plumbing import validate
         from flatlandia.plumbing.errors import InputError
 
-        validate.learned_priors(d, source, len(verify.FEATURES))
+        validate.learned_priors(d, source, len(verify.FEATURES), FORMAT)
         scale = tuple(float(x) for x in d["scale_prior"]) if d["scale_prior"] is not None else None
         v, verifier = d["verifier"], None
         if v is not None:
@@ -78,8 +83,8 @@ class LearnedPriors:
             verifier = verify.Verifier(*(np.asarray(v[k], float) for k in ("weights", "mean", "scale")))
         lik = LikelihoodModel.from_dict(d["likelihood"], source) if d["likelihood"] is not None else None
         cal = Calibration.from_dict(d["calibration"], source) if d["calibration"] is not None else None
-        dist = _distortion(d.get("distortion"), source)
-        return cls(scale, verifier, lik, cal, dist)
+        model = NoiseModel.from_dict(d["noise"], source) if d["noise"] is not None else None
+        return cls(scale, verifier, lik, cal, model)
 
     def write(self, path: str | Path) -> None:
         files.write_json(self.to_dict(), path)
@@ -103,38 +108,18 @@ class LearnedPriors:
             raise InputError(path, f"not the solver's learned priors ({e}); delete it to have it refitted") from None
 
 
-def _distortion(d, source) -> dict[str, float] | None:
-    """A priors file's ``distortion``: null/absent, or an object of at most
-    :data:`~flatlandia.plumbing.validate.MAX_SCENES` plain scene ids, each a coefficient within
-    :data:`distortion.MAX_K`; one InputError naming ``source`` and the field."""
-    from flatlandia.plumbing import names, validate
-    from flatlandia.plumbing.errors import InputError
-
-    if d is None:
-        return None
-    if not isinstance(d, dict):
-        raise InputError(source, f"distortion must be an object of scene id -> coefficient, got {validate.shown(d)}")
-    if len(d) > validate.MAX_SCENES:
-        raise InputError(source, f"distortion names {len(d)} scenes, at most {validate.MAX_SCENES}")
-    return {
-        names.plain_name(scene, source, "distortion scene id"): validate.finite(
-            k, source, f"distortion of scene {validate.shown(scene)}", -distortion.MAX_K, distortion.MAX_K
-        )
-        for scene, k in d.items()
-    }
-
-
 def with_learned(priors: TrainingPriors, learned: LearnedPriors | None) -> TrainingPriors:
-    """``priors`` with a benchmark's learned scale prior, verifier, likelihood model and calibration
-    (None: without)."""
+    """``priors`` with a benchmark's learned scale prior, verifier, likelihood model, calibration and
+    noise model (None: without)."""
     if learned is None:
-        return replace(priors, scale=None, verifier=None, likelihood=None, calibration=None, bearing_k=0.0)
+        return replace(priors, scale=None, verifier=None, likelihood=None, calibration=None, noise=None, bearing_k=0.0)
     return replace(
         priors,
         scale=learned.scale,
         verifier=learned.verifier,
         likelihood=learned.likelihood,
         calibration=learned.calibration,
+        noise=learned.noise,
     )
 
 
@@ -145,7 +130,7 @@ def scene_priors(
     saw (:func:`flatlandia.solver.priors.camera_priors`), with a benchmark's ``learned`` priors
     (and the scene's bearing correction among them)."""
     out = with_learned(camera_priors(ref, queries, settings), learned)
-    return out if learned is None else replace(out, bearing_k=distortion.coefficient(learned.distortion, ref))
+    return out if learned is None else replace(out, bearing_k=learned.bearing_k(distortion.scene_of(ref)))
 
 
 def read_map_size(path: str | Path) -> MapSize:
@@ -164,20 +149,22 @@ def fit(
     **fit_args,
 ) -> LearnedPriors:
     """The learned priors of depth maps from the training split of ``scenes`` (reference map,
-    queries): the log-scale prior, the likelihood ratio's model (:func:`likelihood.fit`, when
-    ``solver.likelihood_weight`` > 0) and, when ``solver.verify`` and ``camera_prior`` are on (unset
-    keys: the schema's defaults) and ``region`` is one of :data:`REGIONS`, the verifier learned on
-    that region; first, with ``solver.bearing_correction``, each scene's radial bearing correction
-    (:func:`distortion.fit`), which the likelihood model and the verifier are then fitted after. No calibration: :func:`with_calibration` adds it from validation answers.
-    ``fit_args``: ``fraction``, ``rng`` of :func:`verify_fit.fit_verifier`."""
+    queries): first the noise model (:func:`noise.fit`: with ``solver.bearing_correction`` each
+    scene's radial bearing correction, then the sigmas per range bin), which the MSAC cost, the
+    likelihood and the verifier's pools then read; the log-scale prior, the likelihood ratio's
+    model (:func:`likelihood.fit`, when ``solver.likelihood_weight`` > 0) and, when
+    ``solver.verify`` and ``camera_prior`` are on (unset keys: the schema's defaults) and
+    ``region`` is one of :data:`REGIONS`, the verifier learned on that region. No calibration:
+    :func:`with_calibration` adds it from validation answers. ``fit_args``: ``fraction``, ``rng`` of
+    :func:`verify_fit.fit_verifier`."""
     cfg = SolverConfig.of(settings)
-    bearing = distortion.fit(scenes) if cfg.bearing_correction else {}
+    model = noise.fit(scenes, cfg.bearing_correction)
     scale = depth_scale_prior([q for _, q in scenes], cfg)
-    lik = likelihood.fit(scenes, bearing) if cfg.likelihood_weight > 0 else None
+    lik = likelihood.fit(scenes) if cfg.likelihood_weight > 0 else None
     verifier = None
     if cfg.verify and cfg.camera_prior and region in REGIONS:
-        verifier = verify_fit.fit_verifier(scenes, cfg.to_dict(), scale, region, bearing=bearing, **fit_args)
-    return LearnedPriors(scale, verifier, lik, distortion=bearing)
+        verifier = verify_fit.fit_verifier(scenes, cfg.to_dict(), scale, region, noise=model, **fit_args)
+    return LearnedPriors(scale, verifier, lik, noise=model)
 
 
 def with_calibration(learned: LearnedPriors, answers: pd.DataFrame) -> LearnedPriors:

@@ -8,7 +8,8 @@ against the detections being chance (Lang et al. 2010, astrometry.net's verifica
 et al. 2016, semantic localization with missed detections):
 
 - each detection explained by a same-class map object gains log N(bearing) + log N(log range)
-  (noise fitted on the training split per range bin) minus the log density, in (bearing, log
+  (the solver's one noise model, fitted on the training split per range bin:
+  :mod:`flatlandia.solver.noise`) minus the log density, in (bearing, log
   range), of an object of its class lying there at random: the map's local density of that class
   times the range squared (area = range^2 d bearing d log range); a detection nothing explains is
   clutter and counts 0; each map object explains at most one detection;
@@ -41,12 +42,11 @@ import pandas as pd
 
 from flatlandia import classes, geo
 from flatlandia.data import localmaps
-from flatlandia.solver import distortion, verify
 from flatlandia.solver import likelihood_kernels as lk
+from flatlandia.solver import verify
 from flatlandia.solver.likelihood_kernels import LikelihoodTerms
+from flatlandia.solver.noise import RANGE_EDGES_M, NoiseModel, bins
 
-#: range bins (metres) of the noise model and of p_d
-RANGE_EDGES_M = (0.0, 5.0, 10.0, 20.0, 35.0, 60.0, 100.0, math.inf)
 #: |bearing| bins (degrees) of p_d
 BEARING_EDGES_DEG = (0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 180.0)
 #: the field of view and range: these quantiles of the training detections' |bearing| and range
@@ -54,16 +54,13 @@ FOV_QUANTILE = 0.99
 #: pseudo-weight of "no view" in the share of nearby views that saw an object (a lone far view
 #: says little)
 VIEW_FLOOR = 0.5
-#: outliers of the noise fit: a uniform over this many degrees of bearing / this span of log range
-OUTLIER_SPAN_DEG, OUTLIER_SPAN_LOG = 60.0, 6.0
 
 
 @dataclass(frozen=True)
 class LikelihoodModel:
-    """The noise model and the detection probability, fitted on a training split."""
+    """The field of view and the detection probability, fitted on a training split (the noise of
+    what is detected is the solver's one noise model, :mod:`flatlandia.solver.noise`)."""
 
-    bearing_sigma_deg: tuple[float, ...]  # per range bin (depth maps)
-    log_range_sigma: tuple[float, ...]  # per range bin (depth maps)
     fov_half_deg: float
     max_range_m: float
     intercept: float  # p_d given the views near the pose
@@ -76,14 +73,11 @@ class LikelihoodModel:
     cls_logit0: tuple[float, ...]
     range_logit0: tuple[float, ...]
     bear_logit0: tuple[float, ...]
-    detections: int = 0  # training detections the noise was fitted on
     in_view: int = 0  # training (pose, object in view) pairs p_d was fitted on
 
     def __post_init__(self):
         nb, na, nk = len(RANGE_EDGES_M) - 1, len(BEARING_EDGES_DEG) - 1, classes.N_CLASSES
         sizes = {
-            "bearing_sigma_deg": nb,
-            "log_range_sigma": nb,
             "range_logit": nb,
             "range_logit0": nb,
             "bear_logit": na,
@@ -98,8 +92,6 @@ class LikelihoodModel:
                 raise ValueError(f"{f.name}: every value must be a finite number, got {v!r}")
             if f.name in sizes and len(values) != sizes[f.name]:
                 raise ValueError(f"{f.name}: expected {sizes[f.name]} values, got {len(values)}")
-        if min(self.bearing_sigma_deg) <= 0 or min(self.log_range_sigma) <= 0:
-            raise ValueError("the noise sigmas must be positive")
         if not (0 < self.fov_half_deg <= 180 and self.max_range_m > 0):
             raise ValueError(f"field of view {self.fov_half_deg} deg and range {self.max_range_m} m out of range")
 
@@ -117,8 +109,6 @@ class LikelihoodModel:
         nb, na, nk = len(RANGE_EDGES_M) - 1, len(BEARING_EDGES_DEG) - 1, classes.N_CLASSES
         w = validate.MAX_LOGIT_WEIGHT
         specs = {  # field: (values: None for one number, largest magnitude: None for a count)
-            "bearing_sigma_deg": (nb, 180.0),
-            "log_range_sigma": (nb, 10.0),  # e^10: a range known to a factor of 22,000 is none
             "fov_half_deg": (None, 180.0),
             "max_range_m": (None, validate.MAX_LOCAL_COORD),
             "intercept": (None, w),
@@ -131,7 +121,6 @@ class LikelihoodModel:
             "cls_logit0": (nk, w),
             "range_logit0": (nb, w),
             "bear_logit0": (na, w),
-            "detections": (None, None),
             "in_view": (None, None),
         }
         d = validate.json_object(d, source, "likelihood", tuple(specs))
@@ -139,8 +128,8 @@ class LikelihoodModel:
         for name, (size, bound) in specs.items():
             where = f"likelihood {name}"
             if name not in d:
-                if name in ("detections", "in_view"):
-                    continue  # counts of the fit, kept for the record (0 when absent)
+                if name == "in_view":
+                    continue  # a count of the fit, kept for the record (0 when absent)
                 raise InputError(source, f"{where} is missing")
             if bound is None:
                 values[name] = validate.whole(d[name], source, where)
@@ -153,15 +142,14 @@ class LikelihoodModel:
         except ValueError as e:  # the signs and ranges __post_init__ checks
             raise InputError(source, f"likelihood: {e}") from None
 
-    def terms(self, metric: bool, position_sigma_m: float) -> LikelihoodTerms:
+    def terms(self, metric: bool, position_sigma_m: float, noise: NoiseModel) -> LikelihoodTerms:
         """The model as the kernel reads it, for a GT (``metric``, residuals in metres of sigma
-        ``position_sigma_m``: the published GT maps are exact copies, nothing to fit) or depth map."""
+        ``position_sigma_m``: the published GT maps are exact copies, nothing to fit) or depth map
+        (the residuals' sigmas of ``noise``, the solver's one noise model)."""
         a = np.asarray
         return LikelihoodTerms(
             bool(metric),
-            a(RANGE_EDGES_M, float),
-            np.radians(a(self.bearing_sigma_deg, float)),
-            a(self.log_range_sigma, float),
+            *noise.terms(),
             float(position_sigma_m),
             math.radians(self.fov_half_deg),
             float(self.max_range_m),
@@ -227,75 +215,6 @@ def seen_lists(priors) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ----------------------------------------------------------------------------- fitting
-
-
-def _bins(edges, v) -> np.ndarray:
-    return np.clip(np.searchsorted(np.asarray(edges, float), v, side="right") - 1, 0, len(edges) - 2)
-
-
-def _mixture_sigma(e: np.ndarray, span: float, floor: float, iters: int = 50) -> float:
-    """Sigma of the Gaussian part of residuals ``e`` drawn from a Gaussian and a uniform over
-    ``span`` (EM from the robust MAD estimate); ``floor`` without enough residuals."""
-    e = np.asarray(e, float)
-    if len(e) < 10:
-        return floor
-    sigma = max(1.4826 * float(np.median(np.abs(e))), floor)
-    share = 0.9
-    for _ in range(iters):
-        g = share * np.exp(-0.5 * (e / sigma) ** 2) / (math.sqrt(2 * math.pi) * sigma)
-        u = (1 - share) / span
-        r = g / (g + u)
-        share = float(np.clip(r.mean(), 1e-3, 1 - 1e-3))
-        sigma = max(math.sqrt(float((r * e * e).sum() / max(r.sum(), 1e-9))), floor)
-    return sigma
-
-
-def detection_residuals(queries: list[pd.DataFrame], bearing_k=None) -> pd.DataFrame:
-    """Per training detection: its true range (m), bearing error (rad) and log-range error of the
-    depth map (after the query's scale: its log ranges' mean, with the m/(m-1) correction), each
-    scene's depth maps corrected by its ``bearing_k`` (one per table; None: none)."""
-    rows = []
-    for q, k in zip(queries, bearing_k if bearing_k is not None else [0.0] * len(queries)):
-        for r in q[q["split"] == "train"].itertuples(index=False):
-            gt, d = localmaps.local_map(r, "gt"), distortion.undistort(localmaps.local_map(r, "depth"), k)
-            m = len(gt)
-            if m < 2:
-                continue
-            rg, rd = np.hypot(*gt.T), np.hypot(*d.T)
-            ok = (rg > 0) & (rd > 0)
-            eb = geo.wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - np.arctan2(gt[:, 1], gt[:, 0]))
-            lr = np.log(np.where(ok, rd, 1.0)) - np.log(np.where(ok, rg, 1.0))
-            lr = (lr - lr[ok].mean()) * math.sqrt(m / (m - 1))
-            rows.append(pd.DataFrame({"range_m": rg[ok], "bearing_err": eb[ok], "log_range_err": lr[ok]}))
-    return (
-        pd.concat(rows, ignore_index=True)
-        if rows
-        else pd.DataFrame(columns=["range_m", "bearing_err", "log_range_err"])
-    )
-
-
-def noise_model(res: pd.DataFrame) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """(bearing sigma in degrees, log-range sigma) per range bin of :data:`RANGE_EDGES_M`; a bin with
-    fewer than 10 detections takes its neighbour's."""
-    b = _bins(RANGE_EDGES_M, res["range_m"].to_numpy(float))
-    nb = len(RANGE_EDGES_M) - 1
-    sb, sr = [], []
-    for k in range(nb):
-        sel = b == k
-        sb.append(
-            math.degrees(
-                _mixture_sigma(
-                    res["bearing_err"].to_numpy(float)[sel], math.radians(OUTLIER_SPAN_DEG), math.radians(0.05)
-                )
-            )
-        )
-        sr.append(_mixture_sigma(res["log_range_err"].to_numpy(float)[sel], OUTLIER_SPAN_LOG, 0.02))
-        if sel.sum() < 10 and k > 0:
-            sb[-1], sr[-1] = sb[-2], sr[-2]
-    for k in range(nb - 2, -1, -1):  # leading empty bins take the next one's
-        if (b == k).sum() < 10:
-            sb[k], sr[k] = sb[k + 1], sr[k + 1]
-    return tuple(sb), tuple(sr)
 
 
 def field_of_view(queries: list[pd.DataFrame]) -> tuple[float, float]:
@@ -369,8 +288,8 @@ def _logistic(rows: pd.DataFrame, views: bool) -> tuple[float, np.ndarray, np.nd
     n = len(rows)
     cols = [
         rows["cls"].to_numpy(np.int64),
-        nk + _bins(RANGE_EDGES_M, rows["range_m"].to_numpy(float)),
-        nk + nb + _bins(BEARING_EDGES_DEG, rows["bearing_deg"].to_numpy(float)),
+        nk + bins(RANGE_EDGES_M, rows["range_m"].to_numpy(float)),
+        nk + nb + bins(BEARING_EDGES_DEG, rows["bearing_deg"].to_numpy(float)),
     ]
     x = sparse.csr_matrix((np.ones(3 * n), (np.tile(np.arange(n), 3), np.concatenate(cols))), shape=(n, nk + nb + na))
     if views:
@@ -382,23 +301,17 @@ def _logistic(rows: pd.DataFrame, views: bool) -> tuple[float, np.ndarray, np.nd
     return float(fit.intercept_[0]), w[:nk], w[nk : nk + nb], w[nk + nb : nk + nb + na], *extra
 
 
-def fit(scenes: list[tuple[pd.DataFrame, pd.DataFrame]], bearing: dict[str, float] | None = None) -> LikelihoodModel:
-    """The model from the training split of ``scenes`` (reference map, queries): the depth maps'
-    noise per range bin (:func:`noise_model`, after each scene's radial bearing correction
-    ``bearing``: scene id -> coefficient), the field of view and range (:func:`field_of_view`) and
-    p_d with and without the views (:func:`visibility_rows`)."""
-    queries = [q for _, q in scenes]
-    ks = [distortion.coefficient(bearing, ref) for ref, _ in scenes]
-    res = detection_residuals(queries, ks)
-    sb, sr = noise_model(res)
-    fov, max_range = field_of_view(queries)
+def fit(scenes: list[tuple[pd.DataFrame, pd.DataFrame]]) -> LikelihoodModel:
+    """The model from the training split of ``scenes`` (reference map, queries): the field of view
+    and range (:func:`field_of_view`) and p_d with and without the views (:func:`visibility_rows`)."""
+    fov, max_range = field_of_view([q for _, q in scenes])
     rows = visibility_rows(scenes, fov, max_range)
     i1, c1, r1, a1, ws, wn = _logistic(rows, True)
     i0, c0, r0, a0, _, _ = _logistic(rows, False)
     t = tuple
     return LikelihoodModel(
-        t(sb), t(sr), fov, max_range, i1, t(c1.tolist()), t(r1.tolist()), t(a1.tolist()), ws, wn,
-        i0, t(c0.tolist()), t(r0.tolist()), t(a0.tolist()), int(len(res)), int(len(rows)),
+        fov, max_range, i1, t(c1.tolist()), t(r1.tolist()), t(a1.tolist()), ws, wn,
+        i0, t(c0.tolist()), t(r0.tolist()), t(a0.tolist()), int(len(rows)),
     )  # fmt: skip
 
 
@@ -438,5 +351,5 @@ def pose_llr(problem, priors, model: LikelihoodModel, density_radius_m: float, t
         np.ascontiguousarray(j, dtype=np.int64),
         seen_ptr,
         seen_idx,
-        model.terms(problem.metric, problem.cfg.position_sigma_m),
+        model.terms(problem.metric, problem.cfg.position_sigma_m, problem.noise),
     )

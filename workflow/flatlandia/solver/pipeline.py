@@ -174,7 +174,7 @@ def candidates(
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
     if not metric and priors is not None and priors.bearing_k:  # the scene's lens, undone before matching
         query_xy = distortion.undistort(query_xy, priors.bearing_k)
-    problem = Problem(query_xy, query_cls, ref_xy, ref_cls, metric, cfg)
+    problem = Problem(query_xy, query_cls, ref_xy, ref_cls, metric, cfg, priors.noise if priors is not None else None)
     query_priors = Priors(cfg, metric, priors, n_ref=len(problem.r), fix=fix)
     if not problem.solvable():
         return None

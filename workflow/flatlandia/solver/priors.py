@@ -23,6 +23,7 @@ from flatlandia.data import localmaps
 from flatlandia.solver import kernels
 from flatlandia.solver.calibration import Calibration
 from flatlandia.solver.kernels import CoSeen, PriorTerms
+from flatlandia.solver.noise import NoiseModel
 from flatlandia.solver.settings import SolverConfig
 
 
@@ -35,11 +36,13 @@ class TrainingPriors:
     prior's gate and cost); ``seen``: (P, N) booleans, camera p saw candidate row n of the map the
     value is for (co-visibility cost and gate); ``scale``: (mean, std) of log(metres per local
     unit) of depth maps; ``verifier``: picks among the best hypotheses of a depth map;
-    ``likelihood``: the noise model and detection probability of the likelihood ratio against
+    ``likelihood``: the field of view and detection probability of the likelihood ratio against
     chance (:mod:`flatlandia.solver.likelihood`); ``calibration``: maps a pool's log-odds to the
-    probability of an answer (:mod:`flatlandia.solver.calibration`); ``bearing_k``: the scene's
-    radial bearing correction of depth maps (:mod:`flatlandia.solver.distortion`). Metric (GT)
-    local maps use the cameras and co-visibility only."""
+    probability of an answer (:mod:`flatlandia.solver.calibration`); ``noise``: the depth maps'
+    noise model that the MSAC cost and the likelihood read (:mod:`flatlandia.solver.noise`; None:
+    the settings' constant one); ``bearing_k``: the scene's radial bearing correction of depth maps
+    (of ``noise``, :mod:`flatlandia.solver.distortion`). Metric (GT) local maps use the cameras and
+    co-visibility only."""
 
     cameras: np.ndarray | None = None
     seen: np.ndarray | None = None
@@ -49,6 +52,7 @@ class TrainingPriors:
     verifier: Any = None
     likelihood: Any = None  # a :class:`flatlandia.solver.likelihood.LikelihoodModel`
     calibration: Calibration | None = None
+    noise: NoiseModel | None = None
     #: the scene's radial bearing coefficient of depth maps (:mod:`flatlandia.solver.distortion`; 0: none)
     bearing_k: float = 0.0
 

@@ -10,12 +10,23 @@ import numpy as np
 
 from flatlandia.solver import likelihood_kernels
 from flatlandia.solver.kernels import Candidates, QueryTerms
+from flatlandia.solver.noise import NoiseModel
+
+
+def msac_noise(cfg, noise: NoiseModel | None) -> NoiseModel:
+    """The noise model the MSAC cost reads: the fitted one, or without one (no learned priors)
+    the settings' constant model (``solver.default_bearing_sigma_deg``, ``default_log_range_sigma``)."""
+    return (
+        noise if noise is not None else NoiseModel.constant(cfg.default_bearing_sigma_deg, cfg.default_log_range_sigma)
+    )
 
 
 class Problem:
-    """Query objects (camera frame) and candidate reference objects (metric frame) of one query."""
+    """Query objects (camera frame) and candidate reference objects (metric frame) of one query;
+    ``noise``: the depth maps' noise model (:mod:`flatlandia.solver.noise`; None: the settings'
+    constant one)."""
 
-    def __init__(self, q, q_cls, r, r_cls, metric: bool, cfg):
+    def __init__(self, q, q_cls, r, r_cls, metric: bool, cfg, noise: NoiseModel | None = None):
         self.q = np.asarray(q, float).reshape(-1, 2)
         self.qc = np.asarray(q_cls).astype(int).ravel()
         self.r = np.asarray(r, float).reshape(-1, 2)
@@ -27,7 +38,9 @@ class Problem:
         self.q_range = np.linalg.norm(self.q, axis=1)
         #: per query object, the rows of ``r`` of its class
         self.same = [np.flatnonzero(self.rc == c) for c in self.qc]
-        self.sb = np.radians(cfg.bearing_sigma_deg)
+        self.noise = msac_noise(cfg, noise)
+        #: the MSAC cost's noise: the model's, ranges weighed ``msac_range_inflation`` times more loosely
+        self.msac_noise = self.noise.terms(cfg.msac_range_inflation)
         # small-range guard (objects at the camera): log of (range + eps)
         self.eps_q = 0.02 * max(float(np.median(self.q_range)), 1e-9)
         self.rx, self.ry = self.r[:, 0].copy(), self.r[:, 1].copy()
@@ -39,12 +52,14 @@ class Problem:
             self.q_bear,
             self.q_range + self.eps_q,
             float(self.eps_q),
-            float(self.sb),
-            float(cfg.log_range_sigma),
+            *self.msac_noise,
             float(cfg.position_sigma_m),
         )
-        #: the refinement weighs ranges more weakly than the scoring
-        self.refine_terms = self.terms._replace(log_range_sigma=float(cfg.refine_log_range_sigma))
+        #: the refinement weighs ranges ``refine_range_inflation`` times more weakly than the scoring
+        self.refine_noise = self.msac_noise._replace(
+            log_range_sigma=self.msac_noise.log_range_sigma * float(cfg.refine_range_inflation)
+        )
+        self.refine_terms = self.terms._replace(log_range_sigma=self.refine_noise.log_range_sigma)
         self._density: tuple[float, np.ndarray] | None = None
 
     def log_density(self, radius_m: float) -> np.ndarray:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from flatlandia import geo
-from flatlandia.solver import kernels
+from flatlandia.solver import kernels, noise
 from flatlandia.solver.priors import Priors
 from flatlandia.solver.problem import Problem
 
@@ -68,8 +68,8 @@ def padded_costs(problem: Problem, t: np.ndarray, theta: np.ndarray, s: np.ndarr
         ly = c * ry - sn * rx
         cost = ((lx - q[None, :, 0, None]) ** 2 + (ly - q[None, :, 1, None]) ** 2) / cfg.position_sigma_m**2
     else:
-        # float32 and a tangent for the bearing error; beyond the inlier cap costs are capped
-        # anyway, and objects behind the camera get inf
+        # float32; the wrapped bearing error and both sigmas of the candidate's range bin (the noise
+        # model); beyond the inlier cap costs are capped anyway, and objects behind the camera get inf
         f = np.float32
         rx = cand_xy[None, ..., 0].astype(f) - t[:, 0, None, None].astype(f)
         ry = cand_xy[None, ..., 1].astype(f) - t[:, 1, None, None].astype(f)
@@ -77,13 +77,14 @@ def padded_costs(problem: Problem, t: np.ndarray, theta: np.ndarray, s: np.ndarr
         ux, uy = np.cos(wb)[..., None], np.sin(wb)[..., None]
         along = ux * rx + uy * ry
         across = ux * ry - uy * rx
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tan_db = np.where(along > 0, across / along, f(np.inf))
+        db = np.where(along > 0, np.arctan2(across, along), f(np.inf))
         rr = np.sqrt(rx * rx + ry * ry)
+        edges, sb, sr = problem.msac_noise
+        b = noise.bins(edges, rr)
         sc = s.astype(f)[:, None, None]
         q_range = (problem.q_range + problem.eps_q).astype(f)[None, :, None]
         dr = np.log((rr + sc * f(problem.eps_q)) / (sc * q_range))
-        cost = (tan_db / f(problem.sb)) ** 2 + (dr / f(cfg.log_range_sigma)) ** 2
+        cost = (db / sb.astype(f)[b]) ** 2 + (dr / sr.astype(f)[b]) ** 2
     return np.where(mask[None], cost, np.inf)
 
 

@@ -104,18 +104,14 @@ class _Sequence:
         k = priors.bearing_k if priors is not None else 0.0
         frames = [(distortion.undistort(xy, k), cls) for xy, cls in frames]  # the scene's lens, undone
         self.frames, self.ref_xy, self.ref_cls = list(frames), ref_xy, ref_cls
-        self.problems = [Problem(xy, cls, ref_xy, ref_cls, False, cfg) for xy, cls in frames]
-        #: the joint cost's view of the frames: ranges weighed by ``seq.log_range_sigma``
-        self.joint = self.problems
-        if float(seq.log_range_sigma) != float(cfg.log_range_sigma):
-            joint_cfg = SolverConfig(**{**cfg.to_dict(), "log_range_sigma": float(seq.log_range_sigma)})
-            self.joint = [Problem(xy, cls, ref_xy, ref_cls, False, joint_cfg) for xy, cls in frames]
+        noise = priors.noise if priors is not None else None
+        self.problems = [Problem(xy, cls, ref_xy, ref_cls, False, cfg, noise) for xy, cls in frames]
         self.n = len(self.problems)
         #: the frames' own searches, at most ``seq.frame_max_hyp`` hypotheses each
         self.capped = self.problems
         if int(seq.frame_max_hyp) < int(cfg.max_hyp):
             capped_cfg = SolverConfig(**{**cfg.to_dict(), "max_hyp": int(seq.frame_max_hyp)})
-            self.capped = [Problem(xy, cls, ref_xy, ref_cls, False, capped_cfg) for xy, cls in frames]
+            self.capped = [Problem(xy, cls, ref_xy, ref_cls, False, capped_cfg, noise) for xy, cls in frames]
         self.rel = np.asarray(rel_poses, float).reshape(self.n, 3).copy()
         self.rel[0] = 0.0
         sig = np.asarray(odometry_sigma, float).reshape(self.n, 2) if odometry_sigma is not None else None
@@ -218,7 +214,8 @@ class _Sequence:
             pb.q_range + pb.eps_q,
             pb.candidates,
             float(self.cfg.tau**2),
-            float(pb.sb),
+            pb.msac_noise.range_edges,
+            pb.msac_noise.bearing_sigma,
             self.default_scale,
         )
         return np.clip(s, self.cfg.min_scale, self.cfg.max_scale)
@@ -229,7 +226,7 @@ class _Sequence:
         cameras near one are near all and their scales agree, so the priors (camera, co-visibility,
         scale) count ``prior_share`` in all, spread over the frames, while each frame's data counts
         in full."""
-        data, cost, inl, match = scoring.score_terms(self.joint[f], self.priors, poses[:, :2], poses[:, 2], s)
+        data, cost, inl, match = scoring.score_terms(self.problems[f], self.priors, poses[:, :2], poses[:, 2], s)
         return data, data + (cost - data) * (float(self.seq.prior_share) / self.n), inl, match
 
     def joint_cost(self, anchor: np.ndarray, frame_poses=None, scales=None):
@@ -248,6 +245,19 @@ class _Sequence:
             total += self.fix.cost(anchor[:, :2], anchor[:, 2])
         return total, terms
 
+    def terms(self) -> sk.SequenceTerms:
+        """Every frame's observations, the odometry and the refinement's noise, as the joint
+        refinement reads them."""
+        return sk.SequenceTerms(
+            np.concatenate([np.full(pb.m, f, np.int64) for f, pb in enumerate(self.problems)]),
+            np.concatenate([pb.q_bear for pb in self.problems]),
+            np.concatenate([pb.q_range + pb.eps_q for pb in self.problems]),
+            np.array([pb.eps_q for pb in self.problems], float),
+            np.ascontiguousarray(self.rel),
+            np.ascontiguousarray(np.maximum(self.odo_sigma, 1e-3)),
+            *self.problems[0].refine_noise,
+        )
+
     # ---------------------------------------------------------------- step 3
     def refine(self, anchor: np.ndarray, terms) -> tuple[np.ndarray, list[np.ndarray], np.ndarray, np.ndarray]:
         """Joint refinement of anchor poses (C, 3) from their per-frame terms: (anchor poses, per-frame
@@ -257,17 +267,7 @@ class _Sequence:
         p[:, :3] = anchor
         for f in range(n):
             p[:, 3 + f] = np.log(np.maximum(terms[f][1], 1e-9))
-        frame_of = np.concatenate([np.full(pb.m, f, np.int64) for f, pb in enumerate(self.problems)])
-        seq_terms = sk.SequenceTerms(
-            frame_of,
-            np.concatenate([pb.q_bear for pb in self.problems]),
-            np.concatenate([pb.q_range + pb.eps_q for pb in self.problems]),
-            np.array([pb.eps_q for pb in self.problems], float),
-            np.ascontiguousarray(self.rel),
-            np.ascontiguousarray(np.maximum(self.odo_sigma, 1e-3)),
-            float(self.problems[0].sb),
-            float(self.cfg.refine_log_range_sigma),
-        )
+        seq_terms = self.terms()
         ref = self.problems[0].r
         for _ in range(self.cfg.refine_rounds):
             poses = self._frame_poses_of(p)
@@ -491,7 +491,7 @@ def true_match_poses(
     by the relative poses and their noise, and to the anchor's ``fix`` when given; no training
     priors. ``matched_xy``: per frame (M_f, 2) the map positions of its objects. Anchor first."""
     cfg = config if isinstance(config, SolverConfig) else SolverConfig.from_dict(config)
-    cfg = SolverConfig(**{**cfg.to_dict(), "refine_log_range_sigma": 1e6})  # bearings only
+    cfg = SolverConfig(**{**cfg.to_dict(), "refine_range_inflation": 1e6})  # bearings only
     frames = list(frames)
     n = len(frames)
     zero = [np.zeros(len(xy), int) for xy, _ in frames]
@@ -510,16 +510,7 @@ def true_match_poses(
     p[0, :3] = start
     p[0, 3 : 3 + n] = np.log(np.asarray(scales, float))
     matched = np.ascontiguousarray(np.concatenate([np.asarray(m, float).reshape(-1, 2) for m in matched_xy])[None])
-    terms = sk.SequenceTerms(
-        np.concatenate([np.full(pb.m, f, np.int64) for f, pb in enumerate(sq.problems)]),
-        np.concatenate([pb.q_bear for pb in sq.problems]),
-        np.concatenate([pb.q_range + pb.eps_q for pb in sq.problems]),
-        np.array([pb.eps_q for pb in sq.problems], float),
-        np.ascontiguousarray(sq.rel),
-        np.ascontiguousarray(np.maximum(sq.odo_sigma, 1e-3)),
-        float(sq.problems[0].sb),
-        float(cfg.refine_log_range_sigma),
-    )
+    terms = sq.terms()
     inl = np.ones(matched.shape[:2], bool)
     sk.refine_sequence(p, matched, inl, terms, sq._prior_terms(sq._frame_poses_of(p)), iterations)
     poses = sq._frame_poses_of(p)

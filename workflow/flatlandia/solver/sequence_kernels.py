@@ -17,14 +17,15 @@ import numpy as np
 from numba import njit
 
 from flatlandia.solver.kernels import _solve_small, _wrap
+from flatlandia.solver.noise import bearing_error, range_bin
 
 
 @njit(cache=True)
-def fit_scales(tx, ty, theta, bear, range_eps, cands, tau2, sb, default):
+def fit_scales(tx, ty, theta, bear, range_eps, cands, tau2, edges, sb, default):
     """(C,) metres per local unit of one depth frame at poses (``tx``, ``ty``, ``theta``): for each
-    object the same-class candidate in front of the camera with the smallest bearing error (below
-    ``tau2`` in squared sigmas ``sb``) votes log(candidate range / object range); the median vote,
-    or ``default`` where no object votes."""
+    object the same-class candidate in front of the camera with the smallest bearing error (the
+    wrapped angle, below ``tau2`` in squared sigmas ``sb`` of its range bin of ``edges``) votes
+    log(candidate range / object range); the median vote, or ``default`` where no object votes."""
     cand_x, cand_y, _, ptr = cands
     n_hyp, m = tx.shape[0], bear.shape[0]
     out = np.empty(n_hyp)
@@ -42,11 +43,12 @@ def fit_scales(tx, ty, theta, bear, range_eps, cands, tau2, sb, default):
                 along = ux * rx + uy * ry
                 if along <= 0.0:
                     continue
-                tb = (ux * ry - uy * rx) / along / sb
+                rr = math.sqrt(rx * rx + ry * ry)
+                tb = bearing_error(along, ux * ry - uy * rx) / sb[range_bin(edges, rr)]
                 eb = tb * tb
                 if eb < best:
                     best = eb
-                    br = math.sqrt(rx * rx + ry * ry)
+                    br = rr
             if br > 0.0:
                 votes[nv] = math.log(br) - math.log(range_eps[k])
                 nv += 1
@@ -65,8 +67,10 @@ class SequenceTerms(NamedTuple):
     eps: np.ndarray  # (F,) each frame's small-range guard
     odo: np.ndarray  # (F, 3) each frame's pose in the anchor's camera frame (dx, dy, dtheta); row 0 zeros
     odo_sigma: np.ndarray  # (F, 2) its noise: position (m), heading (rad); row 0 unused
-    bearing_sigma: float
-    log_range_sigma: float
+    #: the noise model per range bin of the match (:class:`flatlandia.solver.noise.NoiseTerms`)
+    range_edges: np.ndarray
+    bearing_sigma: np.ndarray  # (B,) rad
+    log_range_sigma: np.ndarray  # (B,)
 
 
 class SequencePriorTerms(NamedTuple):
@@ -126,7 +130,6 @@ def refine_sequence(p, R, inl, terms, priors, iters):
     n_hyp, m = R.shape[0], R.shape[1]
     nf = terms.odo.shape[0]
     npar = 4 * nf
-    sb, sr = terms.bearing_sigma, terms.log_range_sigma
     J = np.zeros(8)
     idx = np.zeros(8, np.int64)
     for c in range(n_hyp):
@@ -150,6 +153,8 @@ def refine_sequence(p, R, inl, terms, priors, iters):
                 ry = R[c, k, 1] - y
                 rho2 = max(rx * rx + ry * ry, 1e-12)
                 rho = math.sqrt(rho2)
+                rb = range_bin(terms.range_edges, rho)
+                sb, sr = terms.bearing_sigma[rb], terms.log_range_sigma[rb]
                 base = 3 + nf + 3 * (f - 1)
                 for row in range(2):
                     if row == 0:

@@ -20,6 +20,7 @@ import pandas as pd
 from flatlandia import geo, proposals
 from flatlandia.data import localmaps
 from flatlandia.solver import distortion, pipeline, priors, scoring, verify
+from flatlandia.solver.noise import NoiseModel
 
 #: a hypothesis within this of the true pose is right (the target the verifier is tuned for)
 RIGHT_M, RIGHT_DEG = 5.0, 5.0
@@ -36,16 +37,17 @@ def scene_groups(
     scale_prior,
     region: str = "whole",
     chosen=None,
-    bearing_k: float = 0.0,
+    noise: NoiseModel | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """(features (C, F), right (C,)) of the training queries of one scene (those where ``chosen``,
     a boolean per training query, or all), each solved on its ``region`` with the priors of the
-    scene's other training queries."""
+    scene's other training queries and the ``noise`` model (its bearing correction of the scene)."""
     cfg = pipeline.SolverConfig.from_dict(settings)
     whole = priors.camera_priors(ref, queries, settings)
     if whole.cameras is None or whole.seen is None:
         return []
-    whole = replace(whole, scale=scale_prior, bearing_k=float(bearing_k))
+    k = noise.bearing_k(distortion.scene_of(ref)) if noise is not None else 0.0
+    whole = replace(whole, scale=scale_prior, noise=noise, bearing_k=k)
     ref_xy, ref_cls = ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy()
     pos = {int(o): k for k, o in enumerate(ref["obj_idx"].to_numpy())}
     train = queries[queries["split"] == "train"]
@@ -84,19 +86,18 @@ def fit_verifier(
     region: str = "whole",
     fraction: float = 1.0,
     rng: np.random.Generator | None = None,
-    bearing: dict[str, float] | None = None,
+    noise: NoiseModel | None = None,
 ) -> verify.Verifier | None:
     """The verifier learned from the training split of ``scenes`` (reference map, queries), each
     training query solved on its ``region`` (a key of :data:`REGIONS`): from every training query,
     or from a random ``fraction`` of them drawn with ``rng`` (to measure how much the verifier
     depends on its examples; the priors always hold every training query). None when nothing can
-    be learned (no co-visibility sets: ``covis_weight`` 0, or no right hypothesis). ``bearing``: per
-    scene id its depth maps' radial bearing coefficient (:mod:`flatlandia.solver.distortion`)."""
+    be learned (no co-visibility sets: ``covis_weight`` 0, or no right hypothesis). ``noise``: the
+    depth maps' noise model (:mod:`flatlandia.solver.noise`) the pools are solved with."""
     pipeline.warm_up()
     groups = []
     for ref, q in scenes:
         n = int((q["split"] == "train").sum())
         chosen = None if rng is None else rng.random(n) < fraction
-        k = distortion.coefficient(bearing, ref)
-        groups += scene_groups(ref, q, settings, scale_prior, region, chosen, k)
+        groups += scene_groups(ref, q, settings, scale_prior, region, chosen, noise)
     return verify.fit(groups) if any(np.any(right) for _, right in groups) else None
