@@ -33,12 +33,16 @@ def test_the_notice_counts_only_jobs_that_replace_existing_results(tmp_path, mon
         rerun_notice.PlannedJob("fine_train", ("a.txt",), params_changed=True),
         rerun_notice.PlannedJob("fine_eval", ("b.txt",), code_changed=True),
         rerun_notice.PlannedJob("fine_eval", ("new.txt",), params_changed=True),  # nothing to replace
-        rerun_notice.PlannedJob("queries", ("b.txt",)),  # input updated: not a change of settings or code
+        rerun_notice.PlannedJob("queries", ("b.txt",), reason="Updated input files: x"),  # not settings or code
     ]
     text = rerun_notice.notice(jobs, {"seed": 0}, tmp_path / "none")
-    assert "redoes 2 job(s)" in text and "fine_train 1" in text and "fine_eval 1" in text
+    first, second = text.splitlines()[:2]
+    assert "redoes 3 of 4 job(s) over results that exist here" in first and "Updated input files: x (1)" in first
+    assert "2 of them were built with other" in second and "fine_train 1" in second and "fine_eval 1" in second
     assert "snakemake -d runs/<name>" in text
-    assert rerun_notice.notice(jobs[2:], {"seed": 0}, tmp_path / "none") is None
+    only = rerun_notice.notice(jobs[2:], {"seed": 0}, tmp_path / "none")  # one line: how many, and why
+    assert "\n" not in only and "redoes 1 of 2 job(s)" in only and "queries 1" in only, only
+    assert rerun_notice.notice(jobs[2:3], {"seed": 0}, tmp_path / "none") is None
 
 
 # ----------------------------------------------------------------------------- end to end (tiny scene)

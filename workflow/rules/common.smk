@@ -273,15 +273,25 @@ wildcard_constraints:
 
 
 # ---------------------------------------------------------------- data root
-def _resolve_root():
-    """The data folder: flatlandia_root when given explicitly (--configfile, --config, a module's
-    config), else the environment variable FLATLANDIA_ROOT, else the default config's."""
+def _written_root():
+    """The data folder as the user wrote it: flatlandia_root when given explicitly (--configfile,
+    --config, a module's config), else the environment variable FLATLANDIA_ROOT, else the default
+    config's."""
     env = os.environ.get("FLATLANDIA_ROOT")
-    root = env if env and "flatlandia_root" not in CONFIG_GIVEN else config["flatlandia_root"]
-    return config_path(root).resolve()
+    return env if env and "flatlandia_root" not in CONFIG_GIVEN else config["flatlandia_root"]
 
 
-FLAT_ROOT_GIVEN = _resolve_root()
+def as_written(resolved, written):
+    """The data folder as the jobs name it: relative to the working folder when the user wrote a
+    relative path, so that a run folder copied into another clone with the data beside it names
+    the same files (its jobs' inputs and settings are unchanged: nothing reruns); absolute when
+    written absolute."""
+    if Path(str(written)).expanduser().is_absolute():
+        return resolved
+    return Path(os.path.relpath(resolved, Path.cwd()))
+
+
+FLAT_ROOT_GIVEN = config_path(_written_root()).resolve()
 FLAT_FETCH = not FLAT_ROOT_GIVEN.exists()
 # a fetch writes fetch.dest, before any job: only a folder below resources/ or the declared data folder
 # (flatlandia_root, absent), never '.', '..', the working folder, its parents, the root or home, a
@@ -291,7 +301,7 @@ if FLAT_FETCH:
         check_dest(config["fetch"]["dest"], data_folder=FLAT_ROOT_GIVEN)
     except FetchError as err:
         sys.exit(f"ERROR: config: {err}")
-FLAT_ROOT = Path(config["fetch"]["dest"]) if FLAT_FETCH else FLAT_ROOT_GIVEN
+FLAT_ROOT = Path(config["fetch"]["dest"]) if FLAT_FETCH else as_written(FLAT_ROOT_GIVEN, _written_root())
 FETCH_FLAG = str(Path(config["fetch"]["dest"]).with_suffix(".fetched"))
 
 

@@ -28,6 +28,7 @@ class PlannedJob:
     code_changed: bool = False
     input_changed: bool = False
     forced: bool = False
+    reason: str = ""  # Snakemake's reasons, as it words them
 
 
 def from_dag(dag) -> list[PlannedJob]:
@@ -46,6 +47,7 @@ def from_dag(dag) -> list[PlannedJob]:
                     bool(reason.code_changed),
                     bool(reason.input_changed),
                     bool(reason.forced),
+                    str(reason),
                 )
             )
         return out
@@ -70,18 +72,38 @@ def changed_keys(old: dict, new: dict, ignore: Iterable[str] = ("select",)) -> l
     return [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in keys]
 
 
-def notice(jobs: list[PlannedJob], config: dict, records_dir: str | Path = provenance.PROVENANCE_DIR) -> str | None:
-    """The message for jobs that will overwrite existing results built otherwise, or None."""
-    redo = [j for j in jobs if any(Path(o).exists() for o in j.outputs) and (j.params_changed or j.code_changed)]
+def redo_line(jobs: list[PlannedJob]) -> str | None:
+    """One line: how many jobs redo results that exist here, by rule, and the first reasons
+    (Snakemake's words: an input updated, code or settings changed, forced...); None when none does."""
+    redo = [j for j in jobs if any(Path(o).exists() for o in j.outputs)]
     if not redo:
         return None
     by_rule = Counter(j.rule for j in redo)
+    reasons = Counter(j.reason.split(";")[0].strip() or "no reason given" for j in redo)
+    return (
+        f"flatlandia: this run redoes {len(redo)} of {len(jobs)} job(s) over results that exist here ("
+        + ", ".join(f"{rule} {n}" for rule, n in by_rule.most_common(6))
+        + (", ..." if len(by_rule) > 6 else "")
+        + "); first reasons: "
+        + "; ".join(f"{why} ({n})" for why, n in reasons.most_common(3))
+    )
+
+
+def notice(jobs: list[PlannedJob], config: dict, records_dir: str | Path = provenance.PROVENANCE_DIR) -> str | None:
+    """The message for jobs that will overwrite existing results (:func:`redo_line`), and for those
+    built with other settings or code what changed; None when no job redoes an existing result."""
+    first = redo_line(jobs)
+    redo = [j for j in jobs if any(Path(o).exists() for o in j.outputs) and (j.params_changed or j.code_changed)]
+    if not redo:
+        return first
+    by_rule = Counter(j.rule for j in redo)
     why = Counter("settings" if j.params_changed else "code" for j in redo)
     lines = [
-        f"flatlandia: this run redoes {len(redo)} job(s) whose results exist here, built with other "
+        first,
+        f"flatlandia: {len(redo)} of them were built with other "
         f"{' and '.join(f'{k} ({n})' for k, n in why.items())}: "
         + ", ".join(f"{rule} {n}" for rule, n in by_rule.most_common())
-        + "; their results will be replaced."
+        + "; their results will be replaced.",
     ]
     old_ids = _old_config_ids(redo, records_dir)
     if old_ids:
