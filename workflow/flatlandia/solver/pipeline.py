@@ -290,12 +290,20 @@ def _distinct(t_a, theta_a, t_b, theta_b) -> bool:
 @functools.cache
 def warm_up() -> None:
     """Compile (or load from numba's cache) every solver kernel on a tiny problem, so that timed
-    queries never include compilation (seconds the first time in a process without a cache).
-    Once per process (cached): every scene's evaluation calls it."""
+    queries never include compilation (seconds the first time in a process without a cache):
+    metric and depth maps, the seeds and the verifier's pool, the likelihood ratio. Once per
+    process (cached): every scene's evaluation calls it."""
+    from flatlandia import classes
+
     rng = np.random.default_rng(0)
     ref, ref_cls = rng.uniform(-50, 50, (30, 2)), rng.integers(0, 3, 30)
     q, q_cls = rng.uniform(1, 20, (5, 2)), ref_cls[:5]
     prior, seen = rng.uniform(-50, 50, (20, 3)), rng.random((20, 30)) < 0.3
+    nf, nb = len(verify.FEATURES), len(likelihood.RANGE_EDGES_M) - 1
+    na, nk = len(likelihood.BEARING_EDGES_DEG) - 1, classes.N_CLASSES
+    zeros = (0.0,) * nk, (0.0,) * nb, (0.0,) * na
+    flat = likelihood.LikelihoodModel(50.0, 80.0, -1.0, *zeros, 0.0, 0.0, -1.0, *zeros)
+    verifier = Verifier(np.zeros(nf), np.zeros(nf), np.ones(nf))
     for metric in (True, False):
         solve(
             q,
@@ -304,5 +312,5 @@ def warm_up() -> None:
             ref_cls,
             metric=metric,
             config={"covis_weight": 1.0, "prior_heading_sigma_deg": 20.0},
-            priors=TrainingPriors(prior, seen, (2.0, 0.5)),
+            priors=TrainingPriors(prior, seen, (2.0, 0.5), verifier, flat),
         )
