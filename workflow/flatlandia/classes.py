@@ -45,3 +45,5 @@ CLASSES = [
     "object--phone-booth",
 ]
 N_CLASSES = len(CLASSES)
+#: the road markings painted on the ground: the first 14 classes (ids 0-13)
+MARKINGS = tuple(CLASSES[: CLASSES.index("other-marking") + 1])

@@ -80,7 +80,7 @@ class Proposal:
     or the coarse source's label that comes before its strategy (``Sim+Trip 2N_LM``).
     ``figure_label``: the figures' panel title. ``coarse``: the coarse source whose proposal table
     (``paths.coarse_proposals(coarse)``) holds the regions; '' for a region computed from the map
-    (``flatlandia.proposals.proposals_for``). ``strategy_key``: the config key choosing which of that
+    (``flatlandia.proposals.for_queries``). ``strategy_key``: the config key choosing which of that
     table's strategies the fine runs use. ``priors``: the region of the learned priors a depth-map
     solver run reads (rule solver_priors): a verifier learned on the same region, else the scale
     prior alone.

@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import geo
-from flatlandia.classes import CLASSES
+from flatlandia.classes import CLASSES, MARKINGS
 from flatlandia.plumbing import ply
 from flatlandia.plumbing.errors import InputError
 
@@ -101,23 +101,7 @@ MACRO_CLASSES: tuple[MacroClass, ...] = (
     MacroClass(
         "marking_trash",
         (0, 255, 0),
-        _ids(
-            "driveway",
-            "marking--discrete--arrow--left",
-            "marking--discrete--arrow--right",
-            "marking--discrete--arrow--split-left-or-straight",
-            "marking--discrete--arrow--split-right-or-straight",
-            "marking--discrete--arrow--straight",
-            "crosswalk-plain",
-            "crosswalk-zebra",
-            "give-way-row",
-            "give-way-single",
-            "stop-line",
-            "marking--discrete--symbol--bicycle",
-            "marking--discrete--text",
-            "other-marking",
-            "object--trash-can",
-        ),
+        _ids(*MARKINGS, "object--trash-can"),
     ),
 )
 MACRO_BY_RGB = {m.rgb: m for m in MACRO_CLASSES}

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from flatlandia import vocabulary
 from flatlandia.plumbing import escape
 from flatlandia.plumbing.files import write_parquet, write_text
 
@@ -122,7 +123,7 @@ SCHEMAS: dict[str, list[Column]] = {
             "proposal",
             "str",
             "",
-            "gtbb (oracle box) | whole (whole reference map) | coarse-sim | coarse-trip | coarse-simtrip",
+            " | ".join(f"{slug} ({p.figure_label})" for slug, p in vocabulary.PROPOSALS.items()),
         ),
         Column(
             "strategy",

@@ -189,6 +189,24 @@ def _solve_small(H, g, n):
 
 
 @njit(cache=True)
+def damped_step(H, g, p, c, npar):
+    """One Gauss-Newton step of hypothesis ``c`` (row ``c`` of ``p``, its first ``npar`` parameters)
+    from its normal equations ``H`` x = ``g``, a little Levenberg damping on the diagonal; False
+    when the step is not finite (``p`` unchanged) or below 1e-10 (converged): the caller stops."""
+    for a in range(npar):
+        H[a, a] += 1e-6
+    step = _solve_small(H, g, npar)
+    big = 0.0
+    for a in range(npar):
+        if not math.isfinite(step[a]):
+            return False
+        big = max(big, abs(step[a]))
+    for a in range(npar):
+        p[c, a] -= step[a]
+    return big >= 1e-10
+
+
+@njit(cache=True)
 def _wrap(a):
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
@@ -298,20 +316,7 @@ def refine_gauss_newton(p, R, inl, query, priors, iters):
             _match_rows(H, g, J, p, c, R, inl, query, npar)
             if not query.metric:
                 _prior_rows(H, g, p, c, priors)
-            for a in range(npar):
-                H[a, a] += 1e-6
-            step = _solve_small(H, g, npar)
-            big = 0.0
-            finite = True
-            for a in range(npar):
-                if not math.isfinite(step[a]):
-                    finite = False
-                big = max(big, abs(step[a]))
-            if not finite:
-                break
-            for a in range(npar):
-                p[c, a] -= step[a]
-            if big < 1e-10:
+            if not damped_step(H, g, p, c, npar):
                 break
     return p
 

@@ -26,20 +26,22 @@ object costs the smallest normalised squared residual over same-class candidates
 log-scale for depth maps, co-visibility) when priors are given; (3) the ``top_k`` distinct
 hypotheses are refined (robust Gauss-Newton on their matches, with re-association), re-scored,
 and the cheapest wins; (4) or, given a verifier (depth maps with priors), the ``verify_top_k``
-best are refined and the verifier's highest score wins (``solver_verify``: near-tie hypotheses
+best are refined and the verifier's highest score wins (:mod:`flatlandia.solver.verify`: near-tie hypotheses
 that the cost ranks wrongly, told apart by what the training cameras near each pose saw). The
 next-best distinct poses of the same pool come along as alternatives (:func:`locate`, which
 :func:`solve` and every caller go through). The inner loops (hypotheses, scoring, refinement) are compiled with numba in
-``solver_kernels``; ``scoring.padded_costs`` keeps the padded numpy form as the reference
+``kernels``; ``scoring.padded_costs`` keeps the padded numpy form as the reference
 they are tested against. For depth maps hypotheses come from 3-bearing resections (range-free)
 and then 2-point similarities. The result holds the pose, the inlier matches (query index,
 candidate index) and a confidence in [0, 1].
 
-Where each step lives: ``solver_problem`` (the query's derived arrays), ``solver_priors`` (the
-training-split priors), ``solver_hypotheses`` (generation, gating, chunked scoring, the distinct
-best), ``solver_scoring`` (MSAC cost and refinement), ``solver_verify`` (the verifier's features
-and score) and ``solver_verify_fit`` (learning it), ``solver_kernels`` (the compiled loops);
-``solver_bound`` refines on the true matches (the bound the choice of hypotheses is held to).
+Where each step lives (modules of :mod:`flatlandia.solver`): ``problem`` (the query's derived
+arrays), ``noise`` (the one noise model), ``priors`` (the training-split priors), ``hypotheses``
+(generation, gating, chunked scoring, the distinct best), ``camera_hypotheses`` (the seeds at every
+training camera), ``scoring`` (MSAC cost and refinement), ``verify`` (the verifier's features and
+score) and ``verify_fit`` (learning it), ``likelihood`` and ``calibration`` (the answer's
+probability), ``kernels`` (the compiled loops); ``bound`` refines on the true matches (the bound
+the choice of hypotheses is held to).
 """
 
 from __future__ import annotations

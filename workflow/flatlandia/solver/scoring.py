@@ -2,7 +2,7 @@
 
 Scoring: each query object costs the smallest normalised squared residual over its same-class
 candidates, truncated at ``tau**2``, plus the prior costs. The compiled kernels
-(``solver_kernels``) do the data term; :func:`padded_costs` is the plain numpy form they are
+(:mod:`flatlandia.solver.kernels`) do the data term; :func:`padded_costs` is the plain numpy form they are
 tested against. Refinement: robust Gauss-Newton on each hypothesis' matches, re-associated
 ``refine_rounds`` times.
 """

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from flatlandia.solver.kernels import _solve_small, _wrap
+from flatlandia.solver.kernels import _wrap, damped_step
 from flatlandia.solver.noise import bearing_error, range_bin
 
 
@@ -233,19 +233,6 @@ def refine_sequence(p, R, inl, terms, priors, iters):
                 e = _wrap(p[c, 2] - priors.fix_heading) / priors.fix_heading_sigma
                 idx[0], J[0] = 2, 1.0 / priors.fix_heading_sigma
                 _accumulate(H, g, J, idx, 1, e, 1.0)
-            for a in range(npar):
-                H[a, a] += 1e-6
-            step = _solve_small(H, g, npar)
-            big = 0.0
-            finite = True
-            for a in range(npar):
-                if not math.isfinite(step[a]):
-                    finite = False
-                big = max(big, abs(step[a]))
-            if not finite:
-                break
-            for a in range(npar):
-                p[c, a] -= step[a]
-            if big < 1e-10:
+            if not damped_step(H, g, p, c, npar):
                 break
     return p

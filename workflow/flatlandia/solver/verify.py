@@ -6,7 +6,7 @@ docs/measurements.md, "Geometric solver"). What separates them is evidence the M
 cost weighs poorly or not at all: how well the matched objects agree with what the training
 cameras near the pose saw (Jaccard overlap, visibility, objects seen there but not matched),
 how dense the training cameras are there, and the cost's own terms. A linear score of these
-features (:class:`Verifier`) is learned from the training split (``solver_verify_fit``) and
+features (:class:`Verifier`) is learned from the training split (:mod:`flatlandia.solver.verify_fit`) and
 picks the hypothesis with the highest score.
 """
 
