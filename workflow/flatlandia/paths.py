@@ -129,8 +129,15 @@ def principal_plane(scene=SCENE) -> str:
 
 
 def solver_priors(region="{region}") -> str:
-    """The solver's learned priors fitted for ``region`` (vocabulary.PRIOR_REGIONS; rule solver_priors)."""
+    """The solver's learned priors for ``region`` (vocabulary.PRIOR_REGIONS), the answers' calibration
+    included (rule solver_calibration): what every rule that solves depth maps reads."""
     return _r("solver", "priors", f"{region}.json")
+
+
+def solver_fit(region="{region}") -> str:
+    """The priors fitted on the training split for ``region``, before the calibration (rule
+    solver_priors)."""
+    return _r("solver", "priors", f"{region}.fit.json")
 
 
 def proposal_priors(proposal: str) -> str:

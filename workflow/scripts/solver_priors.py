@@ -1,11 +1,10 @@
-"""Rule solver_priors: the solver's learned priors of depth maps (scale prior, likelihood model,
-verifier) from the benchmark scenes' training split, and the answers' calibration from their
-validation split, for one region (flatlandia.solver.learned_priors, flatlandia.sequences.validation)."""
+"""Rule solver_priors: the solver's learned priors of depth maps (noise model, scale prior,
+likelihood model, verifier) from the benchmark scenes' training split, for one region
+(flatlandia.solver.learned_priors); rule solver_calibration adds the answers' calibration."""
 
 import pandas as pd
 
 from flatlandia.plumbing import rule_log
-from flatlandia.sequences import validation
 from flatlandia.solver import learned_priors, verify
 
 
@@ -16,9 +15,6 @@ def main(smk, log):
         scenes, dict(smk.params["solver"]), region if region in learned_priors.REGIONS else None
     )
     log.info("depth scale prior (log metres per unit): %s", fitted.scale)
-    if fitted.verifier is not None:
-        weights = {f: round(float(w), 3) for f, w in zip(verify.FEATURES, fitted.verifier.weights)}
-        log.info("verifier on %s, weights of the standardised features: %s", region, weights)
     if fitted.noise is not None:
         log.info(
             "noise model: bearing sigma %s deg, log-range sigma %s per range bin, on %d detections; "
@@ -28,6 +24,9 @@ def main(smk, log):
             fitted.noise.detections,
             {k: round(v, 3) for k, v in fitted.noise.distortion.items()},
         )
+    if fitted.verifier is not None:
+        weights = {f: round(float(w), 3) for f, w in zip(verify.FEATURES, fitted.verifier.weights)}
+        log.info("verifier on %s, weights of the standardised features: %s", region, weights)
     if fitted.likelihood is not None:
         lik = fitted.likelihood
         log.info(
@@ -35,19 +34,6 @@ def main(smk, log):
             lik.fov_half_deg,
             lik.max_range_m,
             lik.share_w,
-        )
-    if region in learned_priors.REGIONS and fitted.verifier is not None:
-        fitted, answers = validation.calibrated(
-            scenes, dict(smk.params["solver"]), fitted, region, dict(smk.params["beyond"]), int(smk.params["seed"])
-        )
-        fitted, evidence = validation.with_null(
-            scenes, dict(smk.params["solver"]), fitted, region, int(smk.params["seed"])
-        )
-        log.info(
-            "calibration on %d validation answers and %d nonsense queries: %s",
-            len(answers),
-            int((evidence["nonsense"] != "").sum()),
-            fitted.calibration.to_dict(),
         )
     fitted.write(smk.output.priors)
 
