@@ -245,6 +245,24 @@ class _Sequence:
             total += self.fix.cost(anchor[:, :2], anchor[:, 2])
         return total, terms
 
+    def ranking_key(self, anchor, cost, terms, single, poses) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(key, likelihood ratio, agreement) of refined anchor poses: the verifier's score (with the
+        fix's cost) or the joint cost halved, less the likelihood ratio against chance and the frames'
+        agreement with each place (their own answers: independent evidence); lower is better."""
+        if self.seq.verify and self.verifier is not None and verify.usable(self.problems[0], self.priors):
+            key = -self.verifier_scores(terms)
+            if self.fix is not None:
+                key = key + self.fix.cost(anchor[:, :2], anchor[:, 2]) / 2.0
+        else:
+            key = cost / 2.0
+        llr = self.likelihood_ratio(terms)
+        if np.isfinite(llr).all():
+            key = key - float(self.cfg.likelihood_weight) * llr
+        agree = self.agreement(single, poses)
+        if np.isfinite(agree).all():
+            key = key - float(self.seq.agreement_weight) * agree * self.n
+        return key, llr, agree
+
     def terms(self) -> sk.SequenceTerms:
         """Every frame's observations, the odometry and the refinement's noise, as the joint
         refinement reads them."""
@@ -416,18 +434,7 @@ def locate_sequence(
         ok &= ~np.array([sq.priors.too_far(a[:2]) for a in anchor])
     if not ok.any():
         return SequenceLocalization(None)
-    if seq.verify and sq.verifier is not None and verify.usable(sq.problems[0], sq.priors):
-        key = -sq.verifier_scores(terms)
-        if sq.fix is not None:
-            key = key + sq.fix.cost(anchor[:, :2], anchor[:, 2]) / 2.0
-    else:
-        key = cost / 2.0
-    llr = sq.likelihood_ratio(terms)
-    if np.isfinite(llr).all():
-        key = key - float(cfg.likelihood_weight) * llr
-    agree = sq.agreement(single, poses)
-    if np.isfinite(agree).all():  # each frame whose own answer is this place: independent evidence for it
-        key = key - float(seq.agreement_weight) * agree * sq.n
+    key, llr, agree = sq.ranking_key(anchor, cost, terms, single, poses)
     order = [int(k) for k in np.argsort(np.where(ok, key, np.inf), kind="stable") if ok[k]]
     best = order[0]
     m_total = sum(pb.m for pb in sq.problems)

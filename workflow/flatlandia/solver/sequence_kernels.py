@@ -126,6 +126,9 @@ def refine_sequence(p, R, inl, terms, priors, iters):
     slack. ``R`` (C, M, 2) matched candidates of every object, ``inl`` (C, M) which count. Rows:
     bearings and log-ranges of every frame (as the single-frame refinement), the odometry slack,
     each frame's scale prior and camera prior (``priors.cam`` / ``head``), and the anchor's fix.
+
+    Over 100 lines: one compiled loop per hypothesis that assembles every row of one sparse normal
+    system; split into calls, each would pass the same dozen arrays and scratch buffers back and forth.
     """
     n_hyp, m = R.shape[0], R.shape[1]
     nf = terms.odo.shape[0]
