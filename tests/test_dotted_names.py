@@ -36,7 +36,9 @@ def doc_names() -> dict[str, str]:
     texts = [(p, p.read_text()) for p in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]]
     for p in sorted((REPO / "workflow" / "flatlandia").rglob("*.py")):
         tree = ast.parse(p.read_text())
-        docs = [ast.get_docstring(n) for n in ast.walk(tree) if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef))]
+        docs = [
+            ast.get_docstring(n) for n in ast.walk(tree) if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef))
+        ]
         texts.append((p, "\n".join(d for d in docs if d)))
     for p, text in texts:
         for m in NAME.finditer(text):

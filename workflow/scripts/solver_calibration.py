@@ -14,9 +14,7 @@ def main(smk, log):
     fitted = learned_priors.LearnedPriors.read(smk.input.fitted)
     region = smk.wildcards.region
     if region in learned_priors.REGIONS and fitted.verifier is not None:
-        scenes = [
-            (pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)
-        ]
+        scenes = [(pd.read_parquet(r), pd.read_parquet(q)) for r, q in zip(smk.input.reference_maps, smk.input.queries)]
         settings, seed = dict(smk.params["solver"]), int(smk.params["seed"])
         fitted, answers = validation.calibrated(scenes, settings, fitted, region, dict(smk.params["beyond"]), seed)
         fitted, evidence = validation.with_null(scenes, settings, fitted, region, seed)
