@@ -21,7 +21,7 @@ test: install check
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: install
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" -n $(TEST_WORKERS) --dist loadfile
 
 # Formatting and lint: ruff for Python, snakefmt for the rule files, Snakemake's own lint.
 check: install

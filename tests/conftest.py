@@ -22,6 +22,11 @@ from snakemake_runner import smk
 
 REPO = Path(__file__).resolve().parents[1]
 TESTS = REPO / "tests"
+# tests/bin first on PATH: its scontrol answers at once where no SLURM controller runs (Snakemake's
+# SLURM plugin asks it in every Snakemake process: 9 s each on a machine with SLURM's tools and no
+# controller; the SLURM test's own controller is asked as before)
+if os.environ.get("PATH", "").split(os.pathsep)[0] != str(TESTS / "bin"):
+    os.environ["PATH"] = os.pathsep.join([str(TESTS / "bin"), os.environ.get("PATH", "")])
 #: the tiny synthetic scene in the published format, made by tests/data/make_tiny_scene.py
 TINY_ROOT = REPO / "tests" / "data" / "tiny"
 TINY_SCENE = "0"
