@@ -167,7 +167,7 @@ def test_requirements_agree_with_the_full_freeze(pins):
 def test_development_tools_stay_out_of_the_workflows_requirements():
     run = _pins((REPO / "envs" / "requirements.txt").read_text().splitlines())
     dev = _pins((REPO / "envs" / "requirements-dev.txt").read_text().splitlines())
-    assert {"pytest", "pytest-xdist", "selenium", "ruff", "snakefmt"} <= set(dev)
+    assert {"pytest", "pytest-xdist", "selenium", "ruff", "snakefmt", "snakedeploy"} <= set(dev)
     assert not set(run) & set(dev), set(run) & set(dev)
     assert HOST_TOOLS <= set(run)
 

@@ -1,8 +1,9 @@
 """Deploying the workflow the ways Snakemake users do (issue 35): `snakemake` from the repository root
 (the default target `all`, the report), the workflow as a module of a user's own project loaded
-from its repository at a release tag (what `snakedeploy deploy-workflow URL DEST --tag vX` writes:
-`github(...)`; offline here: git's url.<base>.insteadOf points github.com at a tagged copy of this
-checkout), `snakemake --lint` in a bare clone and with the data, and explicit configuration over
+from its repository at a release tag (deployed by `snakedeploy deploy-workflow URL DEST --tag vX`
+itself, which writes `github(...)`; offline here: git's url.<base>.insteadOf points github.com at a
+tagged copy of this checkout), with the module's handlers and the project's own relative paths
+(issue 45), `snakemake --lint` in a bare clone and with the data, and explicit configuration over
 the environment variable FLATLANDIA_ROOT. Dry runs are fast; runs of jobs are slow."""
 
 from __future__ import annotations
@@ -28,35 +29,21 @@ GITHUB_REPO = "example/flatlandia-workflow"
 TINY = ["--configfile", str(REPO / "config" / "test" / "tiny.yaml")]
 #: the tiny scene with 2-epoch trainings: `all` in about 2.5 minutes on 2 cores
 TINY_SMALL = [*TINY, str(REPO / "config" / "test" / "slurm_small.yaml")]
-#: the Snakefile snakedeploy writes (its template use_module.smk.jinja), plus the module's handlers
-USER_SNAKEFILE = f"""from snakemake.utils import min_version
+#: snakedeploy, as `make install` puts it beside Snakemake (envs/requirements-dev.txt)
+SNAKEDEPLOY = str(Path(SNAKEMAKE).parent / "snakedeploy")
+#: the line that starts each planned download's note (flatlandia.data.fetch.download_note)
+DOWNLOAD = "flatlandia: this plan downloads "
+#: lines a project's Snakefile may add: the module's handlers called by hand (what the docs asked for
+#: before issue 45), and an onsuccess of its own
+OLD_HANDLER_LINES = """
 
-
-min_version("6.10.0")
-
-
-configfile: "config/config.yaml"
-
-
-# declare https://github.com/{GITHUB_REPO} as a module
-module flatlandia_workflow:
-    snakefile:
-        {{source}}
-    config:
-        config
-
-
-# use all rules from https://github.com/{GITHUB_REPO}
-use rule * from flatlandia_workflow
-
-
-# a module's onstart/onsuccess run only when the user's Snakefile calls them
 onstart:
     flatlandia_workflow.onstart()
 
 
 onsuccess:
     flatlandia_workflow.onsuccess()
+    print("the project's own onsuccess")
 """
 
 
@@ -84,17 +71,35 @@ def github_env(repository: Path, cache: Path) -> dict:
     }
 
 
-def user_project(folder: Path, repository: Path, source: str) -> Path:
-    """A user's project as snakedeploy lays it out (the repository's config/ and profiles/ copied, a
-    Snakefile loading the module), with a config of its own: the defaults on the tiny scene."""
-    shutil.copytree(repository / "config", folder / "config")
-    shutil.copytree(repository / "profiles", folder / "profiles")
-    own = yaml.safe_load((repository / "config" / "config.yaml").read_text())
-    own.update(flatlandia_root=str(TINY_ROOT), scenes=str(REPO / "config" / "test" / "tiny_scenes.tsv"))
-    (folder / "config" / "config.yaml").write_text(yaml.safe_dump(own, sort_keys=False))
-    (folder / "workflow").mkdir()
-    (folder / "workflow" / "Snakefile").write_text(USER_SNAKEFILE.format(source=source))
+def deploy(folder: Path, tag: str, env: dict, source: str | None = None) -> Path:
+    """A user's project as `snakedeploy deploy-workflow https://github.com/<GITHUB_REPO> FOLDER --tag
+    TAG` writes it (config/, profiles/ and LICENSE copied, workflow/Snakefile loading the module), from
+    the tagged copy ``env`` serves; ``source`` replaces the module's `github(...)` source."""
+    cmd = [SNAKEDEPLOY, "deploy-workflow", f"https://github.com/{GITHUB_REPO}", str(folder), "--tag", tag]
+    res = subprocess.run([*cmd, "--name", "flatlandia_workflow"], env=env, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
+    snakefile = folder / "workflow" / "Snakefile"
+    written = f'github("{GITHUB_REPO}", path="workflow/Snakefile", tag="{tag}")'
+    assert written in snakefile.read_text() and "onstart" not in snakefile.read_text()
+    if source is not None:
+        snakefile.write_text(snakefile.read_text().replace(written, source))
     return folder
+
+
+def own_config(project: Path, **changes) -> Path:
+    """The project's config/config.yaml changed: by default, the defaults on the tiny scene."""
+    config = project / "config" / "config.yaml"
+    own = yaml.safe_load(config.read_text())
+    own.update(
+        changes or dict(flatlandia_root=str(TINY_ROOT), scenes=str(REPO / "config" / "test" / "tiny_scenes.tsv"))
+    )
+    config.write_text(yaml.safe_dump(own, sort_keys=False))
+    return project
+
+
+def downloads(res: subprocess.CompletedProcess) -> list[str]:
+    """The planned downloads' notes of a run or dry run."""
+    return [line for line in (res.stdout + res.stderr).splitlines() if line.startswith(DOWNLOAD)]
 
 
 @pytest.fixture(scope="module")
@@ -112,9 +117,8 @@ def repository_plan(tmp_path_factory) -> dict[str, int]:
 @pytest.fixture
 def github_project(tmp_path, release_repository):
     """(project folder, environment) of a user who deployed the release with snakedeploy."""
-    source = f'github("{GITHUB_REPO}", path="workflow/Snakefile", tag="{TAG}")'
-    project = user_project(tmp_path / "project", release_repository, source)
-    return project, github_env(release_repository, tmp_path / "cache")
+    env = github_env(release_repository, tmp_path / "cache")
+    return own_config(deploy(tmp_path / "project", TAG, env)), env
 
 
 # ---------------------------------------------------------------- the repository root
@@ -163,6 +167,34 @@ def test_snakemake_from_the_repository_root_runs_all_and_reports(default_run):
     html = (default_run / "results" / "report.html").read_text()
     assert f"flatlandia {__version__}" in html  # the landing page names the release
     assert "dataset_stats.md" in html and "training_curves.png" in html
+    for part in DOCUTILS_PARTS:  # the landing page showed report metadata as docutils' parts (issue 45)
+        assert part not in html, part
+
+
+#: what Snakemake 9.27's landing page showed of a report metadata value: docutils' publish_parts
+#: (WHOLE, ENCODING utf-8, ERRORS strict, VERSION of docutils)
+DOCUTILS_PARTS = ('"whole":', '"encoding": "utf-8"', '"errors": "strict"', "<document source=")
+
+
+def test_the_reports_landing_page_is_the_workflows_description():
+    """The landing page is the workflow's description (workflow/report/workflow.rst, Snakemake's
+    `report:`), which names the release; no report metadata, which Snakemake 9.27 shows as docutils'
+    parts. Rendered as Snakemake renders it (Jinja, then docutils' html_body)."""
+    import docutils
+    from docutils.core import publish_parts
+    from jinja2 import Environment
+
+    profile = yaml.safe_load((REPO / "workflow" / "profiles" / "default" / "config.yaml").read_text())
+    assert not any(k.startswith("report-metadata") for k in profile)
+    assert 'report: "report/workflow.rst"' in (REPO / "workflow" / "Snakefile").read_text()
+    text = Environment(trim_blocks=True, lstrip_blocks=True).from_string(
+        (REPO / "workflow" / "report" / "workflow.rst").read_text()
+    )
+    html = publish_parts(text.render(snakemake=None, categories={}, files=[]), writer="html")["html_body"]
+    assert f"Flatlandia workflow, flatlandia {__version__}." in html
+    assert "System Message" not in html  # docutils' own errors would show on the page
+    for part in (*DOCUTILS_PARTS, f'"version": "{docutils.__version__}"', "ENCODING"):
+        assert part not in html, part
 
 
 # ---------------------------------------------------------------- a module from a tag
@@ -184,12 +216,30 @@ def test_a_module_of_another_release_than_the_installed_package_stops_with_one_l
         pyproject.write_text(pyproject.read_text().replace(f'version = "{__version__}"', 'version = "99.0.0"', 1))
 
     repository = tagged_repository(tmp_path / "remote" / "flatlandia-workflow", "v99.0.0", edit=bump)
-    source = f'github("{GITHUB_REPO}", path="workflow/Snakefile", tag="v99.0.0")'
-    project = user_project(tmp_path / "project", repository, source)
-    res = run(project, "-n", env=github_env(repository, tmp_path / "cache"))
+    env = github_env(repository, tmp_path / "cache")
+    res = run(own_config(deploy(tmp_path / "project", "v99.0.0", env)), "-n", env=env)
     assert res.returncode != 0
     errors = [line for line in (res.stdout + res.stderr).splitlines() if line.startswith("ERROR:")]
     assert len(errors) == 1 and "flatlandia 99.0.0" in errors[0] and f"flatlandia {__version__}" in errors[0], errors
+    # what to install, from the module's own source and tag
+    assert f"pip install 'flatlandia[workflow] @ git+https://github.com/{GITHUB_REPO}@v99.0.0'" in errors[0], errors
+    assert "Traceback" not in res.stderr
+
+
+@pytest.mark.slow
+def test_a_module_without_the_package_names_what_to_install(github_project, tmp_path):
+    """The rules import the package, which a module does not bring: one line with the pip command."""
+    project, env = github_project
+    absent = tmp_path / "absent" / "flatlandia"  # first on the path: `import flatlandia` fails
+    absent.mkdir(parents=True)
+    (absent / "__init__.py").write_text(
+        "raise ModuleNotFoundError(\"No module named 'flatlandia'\", name='flatlandia')\n"
+    )
+    res = run(project, "-n", env=env | {"PYTHONPATH": str(absent.parent)})
+    assert res.returncode != 0
+    errors = [line for line in (res.stdout + res.stderr).splitlines() if line.startswith("ERROR:")]
+    assert len(errors) == 1 and errors[0].startswith("ERROR: the Python package flatlandia is not installed"), errors
+    assert f"pip install 'flatlandia[workflow] @ git+https://github.com/{GITHUB_REPO}@{TAG}'" in errors[0], errors
     assert "Traceback" not in res.stderr
 
 
@@ -207,7 +257,8 @@ class KnownSnakemakeBug(Exception):
 )
 def test_a_module_from_a_local_git_repository_plans_the_same_jobs(release_repository, repository_plan, tmp_path):
     source = f'gitfile(repo_path="{release_repository}", path="workflow/Snakefile", tag="{TAG}")'
-    project = user_project(tmp_path / "project", release_repository, source)
+    env = github_env(release_repository, tmp_path / "cache")
+    project = own_config(deploy(tmp_path / "project", TAG, env, source=source))
     res = run(project, "-n", env={"XDG_CACHE_HOME": str(tmp_path / "cache")})
     if "expected str instance, LocalSourceFile found" in res.stdout + res.stderr:
         raise KnownSnakemakeBug((res.stdout + res.stderr)[-500:])
@@ -215,7 +266,12 @@ def test_a_module_from_a_local_git_repository_plans_the_same_jobs(release_reposi
 
 
 def _same_file(a: Path, b: Path) -> bool:
-    """Equal files; Parquet tables equal with their metadata but a recorded duration (`seconds`)."""
+    """Equal files; Parquet tables equal with their metadata but a recorded duration (`seconds`); the
+    ingest report but the data folder as each run names it (`root`: the project's config gives it
+    absolute, the repository's run relative to its run folder, flatlandia.plumbing.travel)."""
+    if a.name == "ingest.json":
+        ja, jb = json.loads(a.read_text()), json.loads(b.read_text())
+        return {k: v for k, v in ja.items() if k != "root"} == {k: v for k, v in jb.items() if k != "root"}
     if a.suffix != ".parquet":
         return a.read_bytes() == b.read_bytes()
     ta, tb = pq.read_table(a), pq.read_table(b)
@@ -228,21 +284,29 @@ def _same_file(a: Path, b: Path) -> bool:
     return ta.equals(tb) and meta(ta) == meta(tb)
 
 
-@pytest.mark.slow
-def test_a_module_from_a_tag_runs_maps_as_the_repository_does(github_project, default_run):
-    """`maps` of the tiny scene in the user's project: the same files as the repository's own run; the
-    module's onstart removes a killed run's temporary, its onsuccess writes the run summary, and the
-    provenance records name the release the rules came from."""
-    project, env = github_project
+def killed_runs_temporary(project: Path) -> Path:
+    """A temporary left in the project's results/ by a run whose process is gone."""
     dead = subprocess.Popen(["true"])
     dead.wait()
     stale = project / "results" / f".x.parquet.partial-{files._host_tag()}-{dead.pid}-abcdefgh"
     stale.parent.mkdir(parents=True)
     stale.write_bytes(b"left by a killed run")
+    return stale
+
+
+@pytest.mark.slow
+def test_a_module_from_a_tag_runs_maps_as_the_repository_does(github_project, default_run):
+    """`maps` of the tiny scene in the user's project, its Snakefile as snakedeploy wrote it: the same
+    files as the repository's own run; the module's onstart removes a killed run's temporary, its
+    onsuccess writes the run summary (no line added by hand), and the provenance records name the
+    release the rules came from."""
+    project, env = github_project
+    stale = killed_runs_temporary(project)
     res = run(project, "--cores", "2", "maps", env=env)
     assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
     assert not stale.exists()
-    assert (project / "results" / "summary.md").is_file() and "# Run summary" in res.stdout
+    assert (project / "results" / "summary.md").is_file() and res.stdout.count("# Run summary") == 1
+    assert "add to your workflow/Snakefile" not in res.stderr
     built = sorted(p.relative_to(project) for p in (project / "results").rglob("*") if p.is_file())
     assert Path(f"results/{TINY_SCENE}/queries/queries.parquet") in built, built
     for rel in built:
@@ -251,6 +315,66 @@ def test_a_module_from_a_tag_runs_maps_as_the_repository_does(github_project, de
     record = json.loads((project / "logs" / "provenance" / "queries" / f"scene-{TINY_SCENE}.json").read_text())
     assert record["package_version"] == __version__
     assert GITHUB_REPO in record["workflow"]["source"] and TAG in record["git_commit"], record["workflow"]
+
+
+@pytest.mark.slow
+def test_a_project_that_calls_the_module_handlers_itself_runs_them_once(github_project):
+    """A Snakefile with the lines the docs asked for before, and an onsuccess of its own: each of the
+    module's handlers runs once, the project's too."""
+    project, env = github_project
+    snakefile = project / "workflow" / "Snakefile"
+    snakefile.write_text(snakefile.read_text() + OLD_HANDLER_LINES)
+    stale = killed_runs_temporary(project)
+    res = run(project, "--cores", "1", f"results/{TINY_SCENE}/ingest/ingest.json", env=env)
+    assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
+    assert not stale.exists() and res.stderr.count("the leftover of an interrupted run") == 1, res.stderr[-2000:]
+    assert res.stdout.count("# Run summary") == 1 and res.stdout.count("the project's own onsuccess") == 1
+    assert (project / "results" / "summary.md").is_file()
+
+
+@pytest.mark.slow
+def test_a_deployed_projects_copied_config_says_what_its_plan_downloads(release_repository, tmp_path):
+    """The config snakedeploy copies names the data as ../shared/flatlandia and the Lund photos as
+    ../shared/images/lund, relative to the project, where neither exists: the dry run plans both
+    downloads and says so, one line each (what, the rule, from where, into where, the size, why)."""
+    env = github_env(release_repository, tmp_path / "cache")
+    project = deploy(tmp_path / "project", TAG, env)
+    res = run(project, "-n", env=env)
+    counts = job_counts(res)
+    assert counts["fetch_flatlandia"] == 1 and counts["fetch_images"] == 1, counts
+    photos, published = sorted(downloads(res))
+    assert published.startswith(f"{DOWNLOAD}the published data (rule fetch_flatlandia): https://codeload.github.com/")
+    assert " into resources/flatlandia, size unknown until it starts, at most 1024 MB" in published, published
+    assert (
+        f"flatlandia_root '../shared/flatlandia' does not exist here ({tmp_path / 'shared' / 'flatlandia'})"
+        in published
+    )
+    assert photos.startswith(f"{DOWNLOAD}the photos of images scene lund (rule fetch_images): https://"), photos
+    assert f"its path '../shared/images/lund' does not exist here ({tmp_path / 'shared' / 'images' / 'lund'})" in photos
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("source", ["github", "folder"])
+def test_a_deployed_projects_relative_paths_are_its_own(source, tmp_path):
+    """Relative paths of the project's config are taken from the project, never from the module's
+    repository, even one loaded from a folder that holds them: a data folder `data` there only is
+    fetched (and said so); copied into the project, it is read from there, as written."""
+    repository = tagged_repository(tmp_path / "remote" / "flatlandia-workflow")
+    shutil.copytree(TINY_ROOT, repository / "data")  # beside the module's own files only
+    env = github_env(repository, tmp_path / "cache")
+    folder = f'"{repository / "workflow" / "Snakefile"}"' if source == "folder" else None
+    project = deploy(tmp_path / "project", TAG, env, source=folder)
+    shutil.copy(REPO / "config" / "test" / "tiny_scenes.tsv", project / "config" / "tiny_scenes.tsv")
+    own_config(project, flatlandia_root="data", scenes="config/tiny_scenes.tsv")
+    res = run(project, "-n", "maps", env=env)
+    assert job_counts(res)["fetch_flatlandia"] == 1
+    (note,) = downloads(res)
+    assert f"flatlandia_root 'data' does not exist here ({project / 'data'})" in note, note
+    shutil.copytree(TINY_ROOT, project / "data")
+    res = run(project, "-n", "maps", env=env)
+    counts = job_counts(res)
+    assert "fetch_flatlandia" not in counts and counts["ingest"] == 1, counts
+    assert "data/local_maps.json" in res.stdout and str(repository) not in res.stdout and not downloads(res)
 
 
 # ---------------------------------------------------------------- lint
@@ -263,6 +387,7 @@ def test_a_bare_clone_plans_and_lints_cleanly(tmp_path):
     res = run(clone, "-n")
     counts = job_counts(res)
     assert counts["fetch_flatlandia"] == 1 and counts["all"] == 1, counts
+    assert len(downloads(res)) == counts["fetch_flatlandia"] + counts.get("fetch_images", 0)  # one line each
     res = run(clone, "--lint")
     assert res.returncode == 0 and "Congratulations" in res.stderr, (res.stdout + res.stderr)[-3000:]
 

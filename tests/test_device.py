@@ -16,6 +16,7 @@ import pandas as pd
 import pytest
 import torch
 from conftest import smk_dry_run
+from snakemake_runner import job_stats, smk
 
 from flatlandia import config, device, geo
 from flatlandia.coarse import graphs, retrieval
@@ -78,15 +79,31 @@ def test_a_device_the_setting_does_not_know_is_refused():
 
 
 @pytest.mark.skipif(HAS_CUDA, reason="this machine has a GPU: cuda is honoured")
-def test_the_workflow_stops_at_its_parse_when_cuda_is_asked_for_without_a_gpu(repo, tmp_path):
+def test_a_dry_run_with_cuda_without_a_gpu_warns_and_plans_the_jobs(repo, tmp_path):
+    """A plan for a GPU machine can be previewed anywhere: one WARNING line naming the setting, and
+    the same jobs as on the CPU."""
     tiny = ["--configfile", str(repo / "config" / "test" / "tiny.yaml")]
     res = smk_dry_run(repo, tmp_path, "all", *tiny, "--config", "device=cuda")
+    assert res.returncode == 0, res.stderr[-2000:]
+    said = [ln for ln in (res.stdout + res.stderr).splitlines() if "WARNING" in ln or "ERROR" in ln]
+    assert len(said) == 1 and said[0].startswith("WARNING: config: 'device': cuda asked for"), said
+    assert said[0].endswith("this dry run plans the jobs anyway, a run here stops with it as an ERROR")
+    assert "Traceback" not in res.stderr
+    cpu = smk_dry_run(repo, tmp_path, "all", *tiny, "--config", "device=cpu")
+    assert cpu.returncode == 0, cpu.stderr[-2000:]
+    assert job_stats(res.stdout) == job_stats(cpu.stdout) and job_stats(res.stdout)["total"] > 20
+
+
+@pytest.mark.slow  # the Snakemake runner (a run, though it stops at its parse)
+@pytest.mark.skipif(HAS_CUDA, reason="this machine has a GPU: cuda is honoured")
+def test_a_run_with_cuda_without_a_gpu_stops_at_its_parse(repo, tmp_path):
+    tiny = ["--configfile", str(repo / "config" / "test" / "tiny.yaml")]
+    res = smk(repo, tmp_path, "--cores", "1", "maps", *tiny, "--config", "device=cuda")
     assert res.returncode == 1
-    errors = [ln for ln in (res.stdout + res.stderr).splitlines() if "ERROR" in ln]
+    errors = [ln for ln in (res.stdout + res.stderr).splitlines() if "ERROR" in ln or "WARNING" in ln]
     assert len(errors) == 1 and errors[0].startswith("ERROR: config: 'device': cuda asked for"), errors
     assert "Traceback" not in res.stderr and "Job stats" not in res.stdout  # before any job is planned
-    ok = smk_dry_run(repo, tmp_path, "all", *tiny, "--config", "device=cpu")
-    assert ok.returncode == 0, ok.stderr[-2000:]
+    assert not (tmp_path / "results").exists()
 
 
 @pytest.mark.skipif(HAS_CUDA, reason="this machine has a GPU: cuda is honoured")

@@ -207,7 +207,92 @@ def test_map_audit_and_sfm_figures(tiny, saved, tmp_path):
         }
     )
     stats = pd.Series({"registered": 12, "images_input": 12, "mean_reprojection_error_px": 0.63})
-    sfm.plot_summary(cams, rng.normal(size=(300, 3)) * [6, 2, 1], stats, tmp_path / "sfm.png", "scene lund: SfM")
+    points = rng.normal(size=(300, 3)) * [6, 2, 1]
+    sfm.plot_summary(cams, points, stats, tmp_path / "sfm.png", "scene lund: SfM")
+    for name, alignment in _alignments(cams).items():
+        sfm.plot_summary(cams, points, stats, tmp_path / f"sfm_{name}.png", "scene lund: SfM", alignment=alignment)
+    sfm.plot_summary(cams.assign(lat=np.nan, lon=np.nan), points, stats, tmp_path / "no_gps.png", "scene lund: SfM")
+    _check(saved)
+
+
+def _alignments(cams: pd.DataFrame) -> dict[str, dict]:
+    """Alignment records (as rule gps_alignment writes them) of the cameras of
+    test_map_audit_and_sfm_figures: to the GPS fixes (the SfM frame turned 90 degrees, 2 m per unit)
+    and a local frame without GPS."""
+    from flatlandia import geo
+
+    lonlat = cams[["lon", "lat"]].to_numpy(float)
+    frame = geo.frame_for(lonlat)
+    A = 2.0 * np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
+    xyz = cams[["x", "y", "z"]].to_numpy(float)
+    b = (frame.to_xy(lonlat) - xyz @ A.T).mean(axis=0)
+    gps = {"mode": "gps", "A": A.tolist(), "b": b.tolist(), "frame_lon0": frame.lon0, "frame_lat0": frame.lat0}
+    local = {"mode": "none", "A": np.eye(2, 3).tolist(), "b": [0.0, 0.0], "unit": "SfM unit"}
+    return {"gps": gps, "local": local}
+
+
+def _drawn(monkeypatch) -> list:
+    """The figures the code draws, kept when it closes them."""
+    plt = figures.pyplot()
+    kept, close = [], plt.close
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig) or close(fig))
+    return kept
+
+
+def test_the_sfm_figure_draws_the_model_on_the_map_when_it_is_aligned(tmp_path, monkeypatch):
+    """sfm_summary.png's left panel was the cameras' best-fit plane in SfM units, rotated against the
+    map (issue 45): with the scene's GPS alignment it is the map's frame, east and north in metres,
+    beside the GPS track in the same frame; without GPS the axes say it is the SfM frame."""
+    from flatlandia import geo
+    from flatlandia.images import sfm
+
+    rng = np.random.default_rng(1)
+    cams = pd.DataFrame(
+        {
+            "name": [f"{k:02d}.jpg" for k in range(12)],
+            "x": np.arange(12.0),
+            "y": rng.normal(0, 0.3, 12),
+            "z": rng.normal(0, 0.1, 12),
+            "lon": 11.0 + np.arange(12) * 1e-5,
+            "lat": 48.0 + rng.normal(0, 1e-6, 12),
+            "heading": np.full(12, 90.0),
+        }
+    )
+    stats = pd.Series({"registered": 12, "images_input": 12, "mean_reprojection_error_px": 0.63})
+    kept = _drawn(monkeypatch)
+    alignments = _alignments(cams)
+    for name, alignment in alignments.items():
+        sfm.plot_summary(cams, rng.normal(size=(30, 3)), stats, tmp_path / f"{name}.png", "scene", alignment=alignment)
+    sfm.plot_summary(cams, rng.normal(size=(30, 3)), stats, tmp_path / "none.png", "scene")
+    (model, track), (local, _), (unaligned, _) = (fig.axes for fig in kept)
+    assert (model.get_xlabel(), model.get_ylabel()) == ("x east (m)", "y north (m)")
+    drawn = np.column_stack(model.get_lines()[0].get_data())
+    assert np.allclose(drawn, geo.alignment_points(alignments["gps"], cams[["x", "y", "z"]].to_numpy(float)))
+    assert np.ptp(drawn[:, 1]) > 3 * np.ptp(drawn[:, 0])  # the walk east in SfM runs north on the map
+    assert "SfM unit" not in model.get_title() + model.get_xlabel() + model.get_ylabel()
+    assert track.get_xlim() == model.get_xlim() and track.get_ylim() == model.get_ylim()  # one frame, one view
+    assert "SfM frame" in local.get_xlabel() and "SfM frame" in local.get_ylabel()
+    assert "SfM frame" in unaligned.get_xlabel() and "SfM units" in unaligned.get_xlabel()
+
+
+def test_an_empty_map_says_no_objects(tmp_path, monkeypatch, saved):
+    """An images scene with the default segmentation ends with a map of 0 objects: its figure was blank
+    axes, and matplotlib warned "No artists with labels found to put in legend" (issue 45)."""
+    import warnings
+
+    kept = _drawn(monkeypatch)
+    ref = tiny_scene().ref.iloc[:0]
+    queries = tiny_scene().queries.iloc[:0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        reference_map.plot_reference_map(
+            ref, queries, tmp_path / "empty.png", "scene mine (Lund): 0 objects, 0 queries", empty_because="why it is"
+        )
+    (fig,) = kept
+    texts = [t.get_text() for t in _texts(fig)]
+    assert "no objects" in texts and "why it is" in texts, texts
+    assert not any(ax.axison for ax in fig.axes) and fig.axes[0].get_legend() is None
+    assert (tmp_path / "empty.png").stat().st_size > 0
     _check(saved)
 
 

@@ -132,6 +132,54 @@ def test_backends_fail_clearly_without_their_inputs(tmp_path):
         segment.make_backend("magic")
 
 
+def test_the_classes_a_backend_labels_are_told_before_any_job(tmp_path):
+    """What the run's start reads of a backend (segment.labelled_classes): no model is loaded, no
+    image read; a file that cannot be read yet is "unknown" (None), left to rule segment to refuse."""
+    assert segment.labelled_classes("offline") == []
+    labels, model = tmp_path / "labels", tmp_path / "model"
+    labels.mkdir()
+    model.mkdir()
+    assert segment.labelled_classes("precomputed", labels_dir=str(labels)) is None  # no labels.json yet
+    (labels / "labels.json").write_text(json.dumps(["void", "nature--sky", "human--person"]))
+    assert segment.labelled_classes("precomputed", labels_dir=str(labels)) == []
+    (labels / "labels.json").write_text(json.dumps(["void", "object--street-light", "nature--vegetation"]))
+    assert segment.labelled_classes("precomputed", labels_dir=str(labels)) == ["object--street-light"]
+    assert segment.labelled_classes("transformers", weights=str(model)) is None
+    (model / "config.json").write_text(json.dumps({"id2label": {"0": "Sky", "1": "Street Light", "2": "Pole"}}))
+    assert segment.labelled_classes("transformers", weights=str(model)) == [
+        "object--street-light",
+        "object--support--pole",
+    ]
+    (model / "config.json").write_text(json.dumps({"id2label": {"0": "Sky", "1": "Person"}}))
+    assert segment.labelled_classes("transformers", weights=str(model)) == []
+
+
+def test_a_backend_without_object_classes_is_said_before_sfm(tmp_path):
+    """With the default segmentation an images scene ended, after minutes of SfM, with 0 objects and 0
+    queries, said only by the run's summary (issue 45): the run's start says it in one line, naming the
+    backend and docs/backends.md, when it is about to build an images scene's model."""
+    offline = {"backend": "offline", "weights": None, "labels_dir": None}
+    line = segment.empty_map_warning(offline, ["mine"], {"image_audit", "segment", "sfm", "objects"})
+    assert line == (
+        "WARNING: segment.backend offline labels no object classes: images scene(s) mine will get SfM and masks "
+        "but an empty map (0 objects, 0 queries); for objects give per-pixel Vistas labels (segment.backend "
+        "precomputed or transformers): docs/backends.md"
+    )
+    assert "\n" not in line
+    assert segment.empty_map_warning(offline, ["mine"], None) == line  # the plan unknown: said
+    assert segment.empty_map_warning(offline, [], {"sfm"}) is None  # no images scene selected
+    assert segment.empty_map_warning(offline, ["mine"], {"fine_eval", "objects"}) is None  # its SfM is built
+    (tmp_path / "labels.json").write_text(json.dumps(["void", "nature--sky"]))
+    precomputed = {"backend": "precomputed", "weights": None, "labels_dir": str(tmp_path)}
+    line = segment.empty_map_warning(precomputed, ["a", "b"], {"sfm"})
+    assert f"segment.backend precomputed (no name in {tmp_path / 'labels.json'} is an object class)" in line
+    assert "images scene(s) a, b will get" in line
+    (tmp_path / "labels.json").write_text(json.dumps(["void", "object--street-light"]))
+    assert segment.empty_map_warning(precomputed, ["a"], {"sfm"}) is None
+    transformers = {"backend": "transformers", "weights": str(tmp_path / "absent"), "labels_dir": None}
+    assert segment.empty_map_warning(transformers, ["a"], {"sfm"}) is None  # rule segment says what is missing
+
+
 def test_ignore_iou_on_hand_made_masks():
     a = np.full((4, 4), 255, np.uint8)
     b = a.copy()

@@ -64,6 +64,87 @@ def test_an_images_scene_with_its_folder_still_plans(tmp_path):
     assert res.returncode == 0 and "image_audit" in res.stdout, res.stderr[-3000:]
 
 
+# ---------------------------------------------------------------- align per scene (issue 45)
+
+ALIGN_HEAD = "scene\tsource\tcity\tname\tpath\turl\tsubfolder\talign\n"
+TINY_ROW = "0\tflatlandia\tFlatland\tFlatland_Synthetic_Street_0\t\t\t\t\n"
+
+
+def _align_sheet(tmp_path: Path, *rows: str) -> Path:
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text(ALIGN_HEAD + TINY_ROW + "".join(r + "\n" for r in rows))
+    return sheet
+
+
+def test_a_bad_align_cell_is_one_error_naming_the_sheet_line_and_value(tmp_path):
+    (tmp_path / "photos").mkdir()
+    for cell, said in [
+        ("GPS", "line 3, column align: 'GPS' is not gps, none or empty (empty: the config's images.align.mode)"),
+        ("local", "line 3, column align: 'local' is not gps, none or empty"),
+    ]:
+        sheet = _align_sheet(tmp_path, f"mine\timages\tLund\tmy_walk\t{tmp_path / 'photos'}\t\t\t{cell}")
+        res = smk_dry_run(REPO, tmp_path, "maps", "--configfile", str(TINY), "--config", f"scenes={sheet}")
+        assert _one_error(res).startswith(f"ERROR: {sheet}: {said}")
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text(ALIGN_HEAD + TINY_ROW.replace("\t\n", "\tnone\n"))
+    res = smk_dry_run(REPO, tmp_path, "maps", "--configfile", str(TINY), "--config", f"scenes={sheet}")
+    assert _one_error(res) == (
+        f"ERROR: {sheet}: line 2, column align: 'none' on published scene '0': only an images scene is aligned "
+        "(leave the cell empty)"
+    )
+
+
+def test_the_sheet_sets_align_per_scene(tmp_path):
+    """Scenes with and without GPS in one run (they needed a run each: images.align.mode is global): a
+    scene's align cell is its mode, an empty cell the config's; the rules that read the mode get the
+    scene's, and only the GPS-aligned scene is localized by the benchmark's methods."""
+    from flatlandia.plumbing import debug, provenance
+
+    for name in ("walk", "indoors"):
+        (tmp_path / name).mkdir()
+    sheet = _align_sheet(
+        tmp_path,
+        f"walk\timages\tLund\twalk\t{tmp_path / 'walk'}\t\t\t",
+        f"indoors\timages\tLund\tindoors\t{tmp_path / 'indoors'}\t\t\tnone",
+    )
+
+    def settings(rule, scene, **config):
+        job = debug.mock_snakemake(rule, tmp_path, [TINY], {"scenes": str(sheet), **config}, scene=scene)
+        return provenance.rule_settings(job)
+
+    assert settings("gps_alignment", "walk")["images.align"]["mode"] == "gps"
+    indoors = settings("gps_alignment", "indoors")
+    assert indoors["images.align"]["mode"] == "none" and indoors["images.align"]["unit_m"] == 1.0
+    assert settings("image_audit", "indoors")["images.align.mode"] == "none"
+    assert settings("image_audit", "walk", images={"align": {"mode": "none"}})["images.align.mode"] == "none"
+    res = smk_dry_run(REPO, tmp_path, "benchmark", "--configfile", str(TINY), "--config", f"scenes={sheet}")
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "results/walk/localization/localization.parquet" in res.stdout
+    assert "results/indoors/localization" not in res.stdout
+
+
+@pytest.mark.slow  # runs a Snakemake job (the audit of an empty folder, which fails at once)
+def test_the_run_says_before_sfm_that_its_segmentation_labels_no_object(tmp_path):
+    """The run's start, before its first job, says in one line that the default segmentation labels no
+    object class (an empty map after minutes of SfM); a dry run plans silently."""
+    from snakemake_runner import smk
+
+    (tmp_path / "photos").mkdir()
+    sheet = tmp_path / "scenes.tsv"
+    sheet.write_text(SHEET_HEAD + f"mine\timages\tLund\tmy_walk\t{tmp_path / 'photos'}\t\t\n")
+    args = ("results/mine/images/images.parquet", "--configfile", str(TINY), "--config", f"scenes={sheet}")
+    res = smk(REPO, tmp_path, "--cores", "1", *args)
+    out = res.stdout + res.stderr
+    said = [ln for ln in out.splitlines() if "labels no object classes" in ln]
+    assert said == [
+        "flatlandia: WARNING: segment.backend offline labels no object classes: images scene(s) mine will get SfM "
+        "and masks but an empty map (0 objects, 0 queries); for objects give per-pixel Vistas labels "
+        "(segment.backend precomputed or transformers): docs/backends.md"
+    ], out[-3000:]
+    assert out.index(said[0]) < out.index("rule image_audit:")
+    assert "labels no object classes" not in (smk_dry_run(REPO, tmp_path, *args).stderr)
+
+
 def test_a_broken_optional_published_file_is_said_a_missing_one_is_not(tmp_path):
     """A truncated tokens.txt let the run end with status 0 and a PROBLEM line only in the rule's log."""
     root = tmp_path / "flat"

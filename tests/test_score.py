@@ -6,6 +6,7 @@ published scenes (slow)."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -131,6 +132,11 @@ def _bad_cases(t: pd.DataFrame) -> dict:
         "unknown map_type": (good.assign(map_type="rgb"), ".csv", "unknown map_type 'rgb'"),
         "unknown proposal": (good.assign(proposal="coarse-oracle"), ".csv", "unknown proposal 'coarse-oracle'"),
         "negative seconds": (good.assign(seconds=-1.0), ".csv", "seconds is not a number >= 0"),
+        "unknown status": (good.assign(status="sure"), ".csv", "status 'sure' in line 2 (scene"),
+        "status left empty": (good.assign(status=""), ".csv", "is none of ok, ambiguous, no pose"),
+        "no pose beside a pose": (good.assign(status="no pose"), ".csv", "status 'no pose' beside a pose in line 2"),
+        "probability above 1": (good.assign(probability=1.5), ".csv", "probability is not a number from 0 to 1"),
+        "probability not a number": (good.assign(probability="high"), ".csv", "probability is not a number from 0"),
         "empty file": ("", ".csv", "empty file"),
         "header only": ("scene,token,x_m,y_m,theta_deg\n", ".csv", "holds no poses"),
         "not parquet": ("scene,token\n", ".parquet", "cannot be read as Parquet"),
@@ -157,6 +163,11 @@ def _bad_cases(t: pd.DataFrame) -> dict:
         "unknown map_type",
         "unknown proposal",
         "negative seconds",
+        "unknown status",
+        "status left empty",
+        "no pose beside a pose",
+        "probability above 1",
+        "probability not a number",
         "lat out of range",
         "empty file",
         "header only",
@@ -313,6 +324,65 @@ def test_round_trip_the_solvers_own_poses_score_as_the_solver(tiny_results, tiny
         assert mine["trained_on"].iloc[0] == "" and mine["method_label"].iloc[0] == "mine"
 
 
+# ---------------------------------------------------------------- answers: status and probability
+
+
+def _answered_file(t: pd.DataFrame) -> tuple[pd.DataFrame, float, float]:
+    """A poses file with answers, on the tiny scene's 10 train queries, and its answered share and
+    within (5 m, 5 deg) of the answered counted by hand: queries 0-3 ok at the truth (within), 4 ok
+    20 m off (answered, not within), 5-6 ambiguous at the truth, 7 ambiguous 20 m off, 8 a row
+    without a pose (status no pose), 9 left out. Answered: 5 of 10; within of them: 4 of 5."""
+    poses = _metric(t)
+    poses.loc[[4, 7], "x_m"] += 20.0
+    poses["status"] = ["ok"] * 5 + ["ambiguous"] * 3 + ["no pose", "ok"]
+    poses["probability"] = [0.9, 0.95, 0.8, 0.99, 0.75, 0.4, 0.5, 0.3, 0.0, 0.9]
+    poses.loc[8, ["x_m", "y_m", "theta_deg"]] = np.nan  # an empty pose: CSV cells left empty
+    return poses.iloc[:9], 100 * 5 / 10, 100 * 4 / 5
+
+
+def test_score_counts_the_answered_from_the_status_column(tiny_results, tiny_scenes, tmp_path, capsys):
+    """A poses file with status and probability (as `localize --batch` writes it): `flatlandia score`
+    says the answered share and how many of the answered are within (5 m, 5 deg), equal to the count
+    by hand; summary.json and scores.md carry them as the fine table's columns; a query without a
+    pose (left empty or left out) is not answered, and has probability 0 (the solver's rows say so)."""
+    poses, answered, within = _answered_file(_truth(tiny_scenes))
+    path = _write(poses, tmp_path / "answers.csv")
+    out = tmp_path / "out"
+    rc, lines = _cli(capsys, path, "--name", "mine", "--out", out, "--results", tiny_results, "--split", "train")
+    assert rc == 0, lines
+    said = next(ln for ln in lines if ln.startswith("mine_depth_whole"))
+    assert said.endswith(f"; {answered:.1f} % answered (status ok), {within:.1f} % of them within (5 m, 5 deg)"), said
+    summary = json.loads((out / "mine_depth_whole" / "summary.json").read_text())
+    assert summary["answered_pct"] == pytest.approx(answered) and summary["within_answered_pct"] == pytest.approx(
+        within
+    )
+    assert summary["has_status"] is True
+    errors = pd.read_parquet(out / "mine_depth_whole" / "errors.parquet")
+    assert errors["answered"].tolist() == [True] * 5 + [False] * 5
+    assert errors["probability"].tolist() == pytest.approx([0.9, 0.95, 0.8, 0.99, 0.75, 0.4, 0.5, 0.3, 0.0, 0.0])
+    md = (out / "scores.md").read_text()
+    head = next(ln for ln in md.splitlines() if ln.startswith("| method |"))
+    assert head.endswith("| answered % | 5 m & 5° of the answered |"), head
+    row = next(ln for ln in md.splitlines() if ln.startswith("| mine (yours) |"))
+    assert row.endswith(f"| {answered:.1f} | {within:.1f} |"), row
+
+
+def test_a_file_without_status_scores_as_before(tiny_results, tiny_scenes, tmp_path, capsys):
+    """An outside method's file (no status, no probability) scores as it always did: every pose it
+    gives answered, no probability, nothing new said on the terminal or in scores.md."""
+    poses = _metric(_truth(tiny_scenes)).iloc[:9]
+    path = _write(poses, tmp_path / "plain.csv")
+    out = tmp_path / "out"
+    rc, lines = _cli(capsys, path, "--name", "mine", "--out", out, "--results", tiny_results, "--split", "train")
+    assert rc == 0, lines
+    assert not any("answered" in ln for ln in lines), lines
+    summary = json.loads((out / "mine_depth_whole" / "summary.json").read_text())
+    assert summary["has_status"] is False and summary["answered_pct"] == 100.0
+    errors = pd.read_parquet(out / "mine_depth_whole" / "errors.parquet")
+    assert errors["answered"].all() and errors["probability"].isna().all()
+    assert "answered" not in (out / "scores.md").read_text()
+
+
 # ---------------------------------------------------------------- plausibility warnings
 
 
@@ -342,12 +412,11 @@ def test_swapped_lon_lat_stops_the_file_and_a_few_swapped_rows_are_a_warning(
         InputError, match=r"10 of its 10 poses look wrong .*lon and lat look swapped.*nothing was scored"
     ):
         _warnings(swapped, tmp_path, tiny_scenes)
-    xy = _noisy(t, metres=0.5).rename(columns={"x_m": "y_m", "y_m": "x_m"})  # the tiny street is 80 m long
-    try:  # cameras within 14 m of x = y are less than 20 m off swapped: not suspected, so not always most rows
-        said = " ".join(_warnings(xy, tmp_path, tiny_scenes, "xy.csv"))
-    except InputError as e:
-        said = str(e)
-    assert "poses look wrong" in said and "x_m and y_m look swapped" in said, said
+    # x_m and y_m swapped in every row: each pose still lies in the tiny street's scene (80 m long), so no
+    # row is suspected; the file's median error says it (the file is scored)
+    xy = _noisy(t, metres=0.5).rename(columns={"x_m": "y_m", "y_m": "x_m"})
+    w = _warnings(xy, tmp_path, tiny_scenes, "xy.csv")
+    assert len(w) == 1 and w[0].startswith("xy.csv: x_m and y_m look swapped: swapped, the median position"), w
     some = pd.concat([swapped.iloc[:3], g.iloc[3:]], ignore_index=True)[["scene", "token", "lon", "lat", "heading_deg"]]
     w = _warnings(some, tmp_path, tiny_scenes, "some.csv")
     assert len(w) == 1 and "3 of its 10 poses look wrong" in w[0] and "lon and lat look swapped" in w[0], w
@@ -370,6 +439,39 @@ def test_swapped_lon_lat_stops_the_file_and_a_few_swapped_rows_are_a_warning(
     rc, lines = _cli(capsys, tmp_path / "p.csv", *args)
     assert rc == 1 and len(lines) == 1 and not (tmp_path / "o2").exists(), lines
     assert lines[0].startswith(f"ERROR: {tmp_path / 'p.csv'}: 10 of its 10 poses look wrong"), lines
+
+
+def test_a_wrong_pose_inside_its_scene_is_no_swap(tiny_scenes, tmp_path):
+    """The solver's own poses drew "x_m and y_m look swapped" for one wrong pose that lay inside its
+    scene (scene 10; issue 45): read swapped it fell near its truth. A pose inside its scene is a
+    method's error, whatever a swap would make of it; as lon/lat neither."""
+    t = _truth(tiny_scenes)
+    poses = _noisy(t, metres=0.3)
+    k = int(np.argmax(np.abs(t["x_m"] - t["y_m"])))  # the camera farthest from the line x = y
+    assert abs(t["x_m"][k] - t["y_m"][k]) > 20  # put at its swapped truth, it is 28 m and more off
+    poses.loc[k, ["x_m", "y_m"]] = t.loc[k, ["y_m", "x_m"]].to_numpy(float)
+    box = score.scene_extents(tiny_scenes)[TINY_SCENE]
+    assert box[0] < poses["x_m"][k] < box[2] and box[1] < poses["y_m"][k] < box[3]  # inside the scene
+    assert _warnings(poses, tmp_path, tiny_scenes) == []
+    assert _warnings(_geographic(poses, tiny_scenes), tmp_path, tiny_scenes, "g.csv") == []
+
+
+def test_a_pose_outside_its_scene_that_a_swap_puts_in_it_is_a_swap(tiny_scenes, tmp_path):
+    """The other side: given, the pose lies where no method could have put it (outside the scene), and
+    swapped it lies in the scene near its truth. The tiny scene moved 3 km east of its origin, so that
+    x_m and y_m swapped leave it."""
+    moved = {
+        s: dataclasses.replace(
+            b, ref=b.ref.assign(x_m=b.ref["x_m"] + 3000.0), queries=b.queries.assign(x_m=b.queries["x_m"] + 3000.0)
+        )
+        for s, b in tiny_scenes.items()
+    }
+    t = _truth(moved)
+    poses = _noisy(t, metres=0.3)
+    poses.loc[:2, ["x_m", "y_m"]] = poses.loc[:2, ["y_m", "x_m"]].to_numpy(float)
+    w = _warnings(poses, tmp_path, moved)
+    assert len(w) == 1 and "3 of its 10 poses look wrong" in w[0] and "x_m and y_m look swapped" in w[0], w
+    assert all(f"line {k}" in w[0] for k in (2, 3, 4)) and "line 5" not in w[0], w
 
 
 def test_radians_for_degrees_and_back_are_warnings(tiny_scenes, tmp_path):

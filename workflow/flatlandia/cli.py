@@ -2,7 +2,8 @@
 ``flatlandia config`` checks or rewrites the files generated from the config schema;
 ``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.plumbing.debug);
 ``flatlandia localize --map MAP --query QUERY.json`` localizes your own query (flatlandia.localize; or
-``--sequence FRAMES.json`` several frames together; ``--gps LON,LAT --gps-sigma-m M`` a phone's fix);
+``--sequence FRAMES.json`` several frames together; ``--gps LON,LAT --gps-sigma-m M`` a phone's fix;
+``--plot FILE.png`` the answer drawn on its map; ``--batch RESULTS --out POSES.csv`` a whole split);
 ``flatlandia score POSES --name NAME --out DIR`` scores your own poses as the benchmark's methods (flatlandia.score)."""
 
 from __future__ import annotations
@@ -346,18 +347,19 @@ def _priors_file(priors: str | None) -> str | None:
     return None if priors in (None, "auto", "none") else priors
 
 
-def _write_out(write, out: str) -> bool:
-    """Run ``write()``, a command's write of --out; False after one ERROR line when the write door
-    refused it or the write failed (a full disk, a folder in the way): nothing half-written is kept."""
+def _write_out(write, out: str, flag: str = "--out") -> bool:
+    """Run ``write()``, a command's write of --out (or of ``flag``'s file); False after one ERROR line
+    when the write door refused it or the write failed (a full disk, a folder in the way): nothing
+    half-written is kept."""
     try:
         write()
     except InputError as e:
-        _error(f"--out: {e.path} {e.problem}")  # the door names --out or a file below it
+        _error(f"{flag}: {e.path} {e.problem}")  # the door names the file or a file below it
         return False
     except OSError as e:
         full = files.full_disk_error(e)
         why = files.FULL_ERRNOS[full.errno] if full is not None else (e.strerror or str(e))
-        _error(f"--out: could not write {out}: {why}; nothing was written (free some space or give another --out)")
+        _error(f"{flag}: could not write {out}: {why}; nothing was written (free some space or give another {flag})")
         return False
     return True
 
@@ -369,11 +371,11 @@ def localize_batch(args) -> int:
     from flatlandia.localize import batch
 
     try:
-        if args.query or args.sequence or args.near or args.gps or args.compass:
+        if args.query or args.sequence or args.near or args.gps or args.compass or args.plot:
             raise InputError(
                 "--batch",
-                "localizes a whole split: give no --query, --sequence, --near, --gps or --compass "
-                "(a fix per query: --fixes FILE.csv)",
+                "localizes a whole split: give no --query, --sequence, --near, --gps, --compass or --plot "
+                "(a fix per query: --fixes FILE.csv; --plot draws one query's answer)",
             )
         if not args.out:
             raise InputError("--batch", "needs --out POSES.csv (or .parquet): the poses file flatlandia score reads")
@@ -435,9 +437,11 @@ def localize_query(args) -> int:
         reads = [args.query, args.sequence, args.map, _priors_file(args.priors)]
         if args.out:
             _refuse_overwriting(args.out, reads)
+        drawn = _plot_query(args, reads)
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
+        m = localize.load_map(args.map, learned=learned) if drawn is not None else args.map  # drawn on, too
         result = localize.localize_file(
-            args.map,
+            m,
             args.query,
             args.map_type,
             near,
@@ -457,8 +461,42 @@ def localize_query(args) -> int:
         lambda: files.write_text(text + "\n", args.out, reads=reads, artifacts=_run_artifacts()), args.out
     ):
         return 1
+    if drawn is not None and not _write_out(lambda: _write_plot(args, m, drawn, result, reads), args.plot, "--plot"):
+        return 1
     print(text)
     return 0
+
+
+def _plot_query(args, reads: list):
+    """The query whose answer --plot draws (a sequence's anchor frame), read and checked before the
+    map loads, with the plot's file (PNG or SVG, matplotlib installed, a place the write door
+    allows); None without --plot. InputError for a file of several queries: a plot is one answer."""
+    if not args.plot:
+        return None
+    from flatlandia import localize
+    from flatlandia.localize import answer_figure
+
+    answer_figure.check_plot(args.plot)
+    try:
+        _refuse_overwriting(args.plot, [*reads, args.out])
+    except InputError as e:
+        raise InputError("--plot", e.problem) from None
+    if args.sequence:
+        return localize.read_sequence(args.sequence).frames[0]
+    if not args.query:
+        return None  # localize_file says what is missing
+    queries, _ = localize.read_queries(args.query)
+    if len(queries) != 1:
+        raise InputError("--plot", f"draws one answer: {args.query} holds {len(queries)} queries (give a file of one)")
+    return queries[0]
+
+
+def _write_plot(args, m, query, result: dict, reads: list) -> None:
+    """--plot: the answer drawn on its map (flatlandia.localize.answer_figure)."""
+    from flatlandia.localize import answer_figure
+
+    answer = result["results"][0] if "results" in result else result
+    answer_figure.write_answer_figure(m, query, answer, args.plot, reads=[*reads, args.out], artifacts=_run_artifacts())
 
 
 def _print_warnings(result: dict) -> None:
@@ -647,6 +685,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     lq.add_argument(
         "--out", metavar="OUT.json", help="also write the JSON here; with --batch: the poses file (.csv, .parquet)"
+    )
+    lq.add_argument(
+        "--plot",
+        metavar="FILE.png",
+        help="also draw the answer on its map (.png or .svg): the map's objects by class, the pose, the query's rays, "
+        "the alternatives, the status and probability (needs matplotlib: the extra plot)",
     )
     lq.set_defaults(func=localize_query)
     sc = sub.add_parser(

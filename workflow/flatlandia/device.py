@@ -95,6 +95,12 @@ def workflow_check(setting: str, jobs_run_here: bool = True) -> str | None:
     return cuda_error(problem) if problem else None
 
 
+def dry_run_warning(problem: str) -> str:
+    """The WARNING line (without ``WARNING: ``) a dry run prints instead of stopping on the problem
+    :func:`workflow_check` found: a plan for a GPU machine can be previewed on any machine."""
+    return f"{problem}; this dry run plans the jobs anyway, a run here stops with it as an ERROR"
+
+
 def model_device(model):
     """The device a model's weights are on (the CPU for a model without any)."""
     import torch

@@ -54,6 +54,15 @@ def is_builtin(method: str) -> bool:
     return method in METHODS
 
 
+# ----------------------------------------------------------------------------- answers
+
+#: an answer's status (flatlandia.localize.answer_status): ``ok`` (answered: its calibrated
+#: probability of being within (5 m, 5 deg) is at least solver.answer_probability), ``ambiguous``
+#: (below it), or ``no pose``; the batch's poses file carries it, and ``flatlandia score`` counts
+#: the answered from it
+ANSWERED, AMBIGUOUS, NO_POSE = "ok", "ambiguous", "no pose"
+STATUSES = (ANSWERED, AMBIGUOUS, NO_POSE)
+
 # ----------------------------------------------------------------------------- strategies
 
 #: how a coarse model's scores become a proposal (coarse.evaluation): the N_LM best objects, 2 N_LM,

@@ -12,10 +12,10 @@ from snakemake.utils import validate
 from flatlandia import config as config_schema
 from flatlandia import device as device_check
 from flatlandia import paths, vocabulary
-from flatlandia.plumbing import stale_locks, scheduler
+from flatlandia.plumbing import module_handlers, stale_locks, scheduler
 from flatlandia.plumbing import validate as config_door
 from flatlandia.plumbing.errors import InputError
-from flatlandia.data.fetch import FetchError, check_dest
+from flatlandia.data.fetch import FetchError, check_dest, download_note
 
 # A lock of this folder left by a killed run is removed before this run locks, when provably stale
 # (flatlandia.plumbing.stale_locks); otherwise Snakemake refuses after one line saying whose lock it is.
@@ -95,19 +95,32 @@ def jobs_run_here():
     return workflow.remote_exec or workflow.resource_settings.nodes is None
 
 
+#: whether this workflow is a module of another project's Snakefile (flatlandia.plumbing.module_handlers)
+AS_MODULE = module_handlers.as_module(workflow)
+
+
+def dry_run():
+    """Whether this Snakemake only plans (-n), as its output settings say (a run when they do not)."""
+    return bool(getattr(getattr(workflow, "output_settings", None), "dryrun", False))
+
+
 # config 'device': cuda where the jobs run and torch sees no GPU stops here, before any job (torch is
 # imported only for cuda); a cluster job checks again on its node, where its Snakemake parses this.
+# A dry run warns and plans: a plan for a GPU machine can be previewed anywhere.
 DEVICE_PROBLEM = device_check.workflow_check(config["device"], jobs_run_here())
-if DEVICE_PROBLEM:
+if DEVICE_PROBLEM and dry_run():
+    print(f"WARNING: {device_check.dry_run_warning(DEVICE_PROBLEM)}", file=sys.stderr)
+elif DEVICE_PROBLEM:
     sys.exit(f"ERROR: {DEVICE_PROBLEM}")
 
 
 def config_path(path):
     """A path from the config: relative to the working directory if it exists there, else to the
-    repository when the workflow runs from a folder (a module from a remote source: the working
-    directory only)."""
+    repository when the workflow runs from its clone; as a module of another project (from a folder
+    or a remote source), relative to that project's working directory only, where its config was
+    written."""
     p = Path(path).expanduser()
-    if p.is_absolute() or p.exists() or REPO_DIR is None:
+    if p.is_absolute() or p.exists() or REPO_DIR is None or AS_MODULE:
         return p
     beside_repo = Path(REPO_DIR) / p
     return beside_repo if beside_repo.exists() else p
@@ -141,6 +154,11 @@ def read_scene_sheet(path):
     dup = sorted(set(sheet.loc[sheet["scene"].duplicated(), "scene"]))
     if dup:
         sys.exit(f"ERROR: {path}: duplicate scene ids {dup}")
+    from flatlandia.images import gps_alignment
+
+    align = gps_alignment.sheet_align_problem(sheet)  # the optional column align: gps, none or empty
+    if align:
+        sys.exit(f"ERROR: {path}: {align}")
     return sheet.set_index("scene", drop=False)
 
 
@@ -255,10 +273,17 @@ def check_images_folders():
 check_images_folders()
 
 
+def align_mode(scene):
+    """images.align.mode of an images scene: its align cell in the scene sheet, else the config's."""
+    from flatlandia.images import gps_alignment
+
+    return gps_alignment.scene_mode(SCENES_SHEET.loc[scene].get("align", ""), config["images"]["align"]["mode"])
+
+
 def localization_scenes():
     """Images scenes whose queries the benchmark's methods localize (scene_localization), those
     on a GPS-aligned map (a local frame has no metres to measure errors in)."""
-    return images_scenes() if config["images"]["align"]["mode"] == "gps" else []
+    return [s for s in images_scenes() if align_mode(s) == "gps"]
 
 
 def scene_source(wildcards):
@@ -303,6 +328,27 @@ if FLAT_FETCH:
         sys.exit(f"ERROR: config: {err}")
 FLAT_ROOT = Path(config["fetch"]["dest"]) if FLAT_FETCH else as_written(FLAT_ROOT_GIVEN, _written_root())
 FETCH_FLAG = str(Path(config["fetch"]["dest"]).with_suffix(".fetched"))
+_SAID_DOWNLOADS = set()
+
+
+def say_download(key, what, rule, url, dest, why):
+    """One line on the terminal, once, when the plan downloads (flatlandia.data.fetch.download_note):
+    called by the fetch rules' input functions, which Snakemake calls for the jobs it plans, in a dry
+    run too; not in a cluster job's own Snakemake (the submitting host said it)."""
+    if key in _SAID_DOWNLOADS or not workflow.is_main_process:
+        return
+    _SAID_DOWNLOADS.add(key)
+    line = download_note(what, rule, url, dest, why, config["fetch"]["max_download_mb"])
+    print(f"flatlandia: {line}", file=sys.stderr)
+
+
+def missing_data_folder():
+    """Why the published data is downloaded: the data folder as written, and where it was looked for."""
+    setting = "FLATLANDIA_ROOT" if _written_root() != config["flatlandia_root"] else "flatlandia_root"
+    return (
+        f"{setting} {str(_written_root())!r} does not exist here ({FLAT_ROOT_GIVEN}): set it to a copy of the data "
+        "to skip the download"
+    )
 
 
 def flatlandia_file(relpath):

@@ -7,6 +7,8 @@ include: "inputs/data.smk"
 if FLAT_FETCH:
 
     rule fetch_flatlandia:
+        input:
+            fetch_flatlandia_note,
         output:
             flag=FETCH_FLAG,
         log:

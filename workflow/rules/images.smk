@@ -7,6 +7,8 @@ include: "inputs/images.smk"
 
 
 rule fetch_images:
+    input:
+        fetch_images_note,
     output:
         images=directory("resources/images/{scene}"),
     log:
@@ -41,8 +43,8 @@ rule image_audit:
             "images.min_side_px",
             "images.max_megapixels",
             "images.missing_gps",
-            "images.align.mode",
         ),
+        **scene_align_keys("images.align.mode"),
         folder_fingerprint=images_folder_fingerprint,
     script:
         "../scripts/image_audit.py"
@@ -131,6 +133,7 @@ rule plot_sfm:
         model=paths.sfm(part="model"),
         cameras=paths.sfm(part="cameras.parquet"),
         stats=paths.sfm(part="sfm_stats.parquet"),
+        alignment=paths.gps_alignment(),
     output:
         png=report(
             paths.sfm(part="sfm_summary.png"),
@@ -165,6 +168,7 @@ rule gps_alignment:
     resources:
         **rule_resources("gps_alignment"),
     params:
-        **config_keys("images.align", "seed"),
+        **scene_align_keys("images.align"),
+        **config_keys("seed"),
     script:
         "../scripts/gps_alignment.py"

@@ -1,4 +1,5 @@
-"""Rule plot_sfm: top view of an images scene's SfM model beside its GPS track."""
+"""Rule plot_sfm: top view of an images scene's SfM model, on the map's frame of its alignment record,
+beside its GPS track."""
 
 from pathlib import Path
 
@@ -7,7 +8,7 @@ import pandas as pd
 import pycolmap
 
 from flatlandia.images import sfm
-from flatlandia.plumbing import rule_log
+from flatlandia.plumbing import files, rule_log
 
 
 def main(smk, log):
@@ -15,7 +16,8 @@ def main(smk, log):
     cams = pd.read_parquet(smk.input.cameras)
     stats = pd.read_parquet(smk.input.stats).iloc[0]
     pts = np.array([p.xyz for p in rec.points3D.values()])
-    sfm.plot_summary(cams, pts, stats, Path(smk.output.png), f"scene {smk.wildcards.scene}")
+    alignment = files.read_json(smk.input.alignment)
+    sfm.plot_summary(cams, pts, stats, Path(smk.output.png), f"scene {smk.wildcards.scene}", alignment=alignment)
     log.info("wrote %s", smk.output.png)
 
 

@@ -161,6 +161,27 @@ def check_sha256(url: str, got: str, expected: str | None) -> None:
         )
 
 
+def _known_size(url: str, max_download_mb: float) -> str:
+    """How big a download is, in words: a local archive's size (file://); an https:// one's is
+    known only once it starts, so its cap is named instead."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme.lower() == "file":
+        try:
+            return f"{os.stat(urllib.request.url2pathname(parts.path)).st_size / MB:,.1f} MB"
+        except OSError:
+            return "a local archive not found"
+    return f"size unknown until it starts, at most {max_download_mb:g} MB (fetch.max_download_mb)"
+
+
+def download_note(what: str, rule: str, url: str, dest: str, why: str, max_download_mb: float) -> str:
+    """The one line a plan that downloads prints before any job: what (and the rule), from where,
+    into where, how big when known, and why the local copy was not used. Why: a dry run must not
+    plan a download silently (a project whose relative data folder does not resolve there)."""
+    return escape.terminal(
+        f"this plan downloads {what} (rule {rule}): {url} into {dest}, {_known_size(url, max_download_mb)}; {why}"
+    )
+
+
 # ----------------------------------------------------------------------------- unpacking
 
 

@@ -162,10 +162,15 @@ def plot_reference_map(
     path: str | Path,
     title: str,
     axes: tuple[str, str] = ("x east (m)", "y north (m)"),
+    empty_because: str = "",
 ) -> None:
-    """Objects coloured by class, query cameras with heading arrows, in the map's unit."""
+    """Objects coloured by class, query cameras with heading arrows, in the map's unit. A map
+    without objects says so in words (and ``empty_because``), not as blank axes."""
     plt = figures.pyplot()
 
+    if not len(ref):
+        _plot_empty_map(plt, path, title, empty_because)
+        return
     fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
     cmap = plt.get_cmap("tab20")
     for k, (label, grp) in enumerate(ref.groupby("class_label", sort=True)):
@@ -202,6 +207,24 @@ def plot_reference_map(
     ax.set_title(escape.mathtext(title))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", bbox_inches="tight")
+    plt.close(fig)
+
+
+def _plot_empty_map(plt, path: str | Path, title: str, empty_because: str) -> None:
+    """The figure of a map without objects: its title and "no objects", with why when known (the
+    default segmentation of an images scene labels no object class), in place of empty axes."""
+    import textwrap
+
+    fig, ax = plt.subplots(figsize=(8, 3), dpi=110)
+    ax.axis("off")
+    ax.set_title(escape.mathtext(title))
+    ax.text(0.5, 0.62, "no objects", ha="center", va="center", fontsize=16, transform=ax.transAxes)
+    if empty_because:
+        why = textwrap.fill(escape.mathtext(empty_because), 70)
+        ax.text(0.5, 0.3, why, ha="center", va="center", fontsize=9, color="0.3", transform=ax.transAxes)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", bbox_inches="tight")

@@ -23,6 +23,47 @@ from flatlandia.scaled_rigid import ransac_scaled_rigid
 #: Defaults: the `images.align` section of workflow/schemas/config.schema.yaml.
 _ALIGN = config.section_defaults("images.align")
 
+# --------------------------------------------------------------------------- the mode of each scene
+
+#: the scene sheet's optional column that sets one images scene's ``images.align.mode``, so that scenes
+#: with and without GPS are built in one run (empty: the config's mode)
+SHEET_COLUMN = "align"
+
+
+def align_modes() -> list[str]:
+    """The values of ``images.align.mode`` (the schema's enum: gps, none)."""
+    return list(config.schema()["properties"]["images"]["properties"]["align"]["properties"]["mode"]["enum"])
+
+
+def sheet_align_problem(sheet) -> str | None:
+    """What is wrong with the scene sheet's ``align`` column, as 'line N, column align: ...' (the
+    header is line 1), or None: a cell neither empty nor a mode (:func:`align_modes`), or a mode on a
+    published scene (whose map is the published one: nothing is aligned)."""
+    if SHEET_COLUMN not in sheet.columns:
+        return None
+    from flatlandia.plumbing.validate import shown
+
+    modes = align_modes()
+    for i, (cell, source, scene) in enumerate(zip(sheet[SHEET_COLUMN], sheet["source"], sheet["scene"])):
+        where = f"line {i + 2}, column {SHEET_COLUMN}"
+        if cell == "":
+            continue
+        if cell not in modes:
+            return f"{where}: {shown(cell)} is not {', '.join(modes)} or empty (empty: the config's images.align.mode)"
+        if source != "images":
+            return (
+                f"{where}: {shown(cell)} on published scene {shown(scene)}: only an images scene is aligned "
+                "(leave the cell empty)"
+            )
+    return None
+
+
+def scene_mode(cell: str, default: str) -> str:
+    """A scene's ``images.align.mode``: its sheet cell (checked by :func:`sheet_align_problem`), else
+    the config's ``default``."""
+    return cell or default
+
+
 # --------------------------------------------------------------------------- GPS alignment
 
 

@@ -504,5 +504,6 @@ def check_alignment_inputs(df: pd.DataFrame, folder: str | Path, align_mode: str
             f"aligning the model to the map needs at least {MIN_GEOTAGGED} geotagged images more than "
             f"{MIN_GPS_SPAN_M:.0f} m apart. Either give their positions in {Path(folder) / 'metadata.csv'} "
             "(columns name, lat, lon; optional alt, heading, capture_time), or build a local-frame map "
-            "without GPS: --config 'images={align: {mode: none}}'",
+            "without GPS: none in this scene's align column of the scene sheet, or for every scene --config "
+            "'images={align: {mode: none}}'",
         )

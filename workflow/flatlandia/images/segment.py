@@ -422,6 +422,55 @@ def make_backend(name: str, weights: str | None = None, labels_dir: str | None =
     raise InputError("config segment.backend", f"unknown backend {name!r} (offline, precomputed, transformers)")
 
 
+def labelled_classes(backend: str, weights: str | None = None, labels_dir: str | None = None) -> list[str] | None:
+    """The Flatlandia classes the configured backend (config ``segment``) can label, told before any
+    job from a small file at most: ``offline`` none; ``precomputed`` those of its ``labels.json``;
+    ``transformers`` those of its checkpoint's ``config.json`` (``id2label``). None where it cannot be
+    told yet (a file missing or unreadable: rule segment says what is wrong with it)."""
+    from flatlandia.plumbing import files
+
+    if backend == "offline":
+        return []
+    try:
+        if backend == "precomputed" and labels_dir:
+            names = read_label_names(Path(labels_dir) / "labels.json")
+        elif backend == "transformers" and weights:
+            id2label = files.read_json(Path(weights) / "config.json", max_bytes=16 * 2**20)["id2label"]
+            names = vistas_names({int(k): str(v) for k, v in id2label.items()})
+        else:
+            return None
+    except (InputError, OSError, KeyError, TypeError, ValueError, AttributeError):
+        return None
+    have = set(flatlandia_class_of(names).tolist()) - {NOT_AN_OBJECT}
+    return [c for cid, c in enumerate(CLASSES) if cid in have]
+
+
+#: the rules that are about to build an images scene's SfM model: the warning below comes before them
+SFM_RULES = frozenset({"fetch_images", "image_audit", "segment", "sfm"})
+
+
+def empty_map_warning(settings: dict, scenes: list[str], planned_rules: set[str] | None = None) -> str | None:
+    """One line for the run's start when this run builds the SfM model of images ``scenes`` with a
+    segmentation backend (``settings``: config ``segment``) that labels no object class: the map
+    would end with 0 objects and 0 queries after minutes of SfM, said only by the run's summary.
+    None when no images scene is selected, the backend labels classes (or cannot be told yet), or
+    ``planned_rules`` (the rules of the jobs about to run; None: unknown) build no SfM."""
+    if not scenes or (planned_rules is not None and not planned_rules & SFM_RULES):
+        return None
+    backend = settings["backend"]
+    if labelled_classes(backend, settings["weights"], settings["labels_dir"]) != []:
+        return None
+    whose = {
+        "precomputed": f" (no name in {Path(str(settings['labels_dir'])) / 'labels.json'} is an object class)",
+        "transformers": f" (no class of the checkpoint {settings['weights']} is an object class)",
+    }.get(backend, "")
+    return (
+        f"WARNING: segment.backend {backend}{whose} labels no object classes: images scene(s) "
+        f"{', '.join(map(str, scenes))} will get SfM and masks but an empty map (0 objects, 0 queries); for "
+        "objects give per-pixel Vistas labels (segment.backend precomputed or transformers): docs/backends.md"
+    )
+
+
 def mask_and_classes(
     ids: np.ndarray,
     names: list[str],

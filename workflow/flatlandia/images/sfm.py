@@ -207,30 +207,60 @@ def stats_table(rec, n_input: int, removed: pd.DataFrame) -> pd.DataFrame:
     )
 
 
-def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, path: Path, title: str) -> None:
-    """Top view of the model (cameras + points on the camera plane) beside the GPS track (metres)."""
+def _model_plane(cameras: np.ndarray, points: np.ndarray, alignment: dict | None):
+    """Cameras and points (N, 3) on the plane the left panel draws, and its axis labels: the map's
+    frame when the scene has an alignment record (east/north metres after GPS alignment; without GPS,
+    the SfM frame's ground plane, named so), else the cameras' best-fit plane of the SfM frame."""
+    from flatlandia import geo
+
+    if alignment is not None:
+        cam2, pts2 = geo.alignment_points(alignment, cameras), geo.alignment_points(alignment, points)
+        if not geo.alignment_is_local(alignment):
+            return cam2, pts2, ("x east (m)", "y north (m)")
+        unit = alignment["unit"]
+        return cam2, pts2, (f"x, SfM frame's ground plane ({unit})", f"y, SfM frame's ground plane ({unit})")
+    mu = np.median(cameras, axis=0)
+    _, _, vt = np.linalg.svd(cameras - mu, full_matrices=False)
+    labels = ("SfM frame, camera plane axis 1 (SfM units)", "SfM frame, camera plane axis 2 (SfM units)")
+    return (cameras - mu) @ vt[:2].T, (points - mu) @ vt[:2].T, labels
+
+
+def plot_summary(
+    cameras: pd.DataFrame,
+    points: np.ndarray,
+    stats: pd.Series,
+    path: Path,
+    title: str,
+    alignment: dict | None = None,
+) -> None:
+    """Top view of the model (cameras + points) beside the GPS track. With the scene's alignment
+    record (rule gps_alignment) the model is drawn on the map (east/north metres; a scene without
+    GPS: its SfM ground plane, labelled so) and the GPS track in the same frame, so the two panels
+    compare; without it, on the cameras' plane of the SfM frame (an arbitrary rotation and scale)."""
     plt = figures.pyplot()
 
     from flatlandia import geo
     from flatlandia.plumbing.files import atomic_path
 
     cameras = cameras.sort_values("name")  # capture order for Mapillary sequences
-    c = cameras[["x", "y", "z"]].to_numpy()
-    mu = np.median(c, axis=0)
-    _, _, vt = np.linalg.svd(c - mu, full_matrices=False)
-    cam2 = (c - mu) @ vt[:2].T
-    pts2 = (np.asarray(points, float).reshape(-1, 3) - mu) @ vt[:2].T
+    cam2, pts2, labels = _model_plane(
+        cameras[["x", "y", "z"]].to_numpy(float), np.asarray(points, float).reshape(-1, 3), alignment
+    )
     fig, axes = plt.subplots(1, 2, figsize=(12, 6), dpi=100)
     ax = axes[0]
     ax.scatter(pts2[:, 0], pts2[:, 1], s=1, c="0.6", label=f"{len(pts2)} points")
     ax.plot(cam2[:, 0], cam2[:, 1], "-o", ms=3, c="tab:red", label=f"{len(cam2)} cameras")
-    lim = np.percentile(np.abs(np.vstack([cam2, pts2])), 98) * 1.2 if len(pts2) else None
-    if lim:
-        ax.set_xlim(-lim, lim)
-        ax.set_ylim(-lim, lim)
+    if len(pts2):
+        centre = np.median(cam2, axis=0)
+        lim = np.percentile(np.abs(np.vstack([cam2, pts2]) - centre), 98) * 1.2
+        if lim > 0:
+            ax.set_xlim(centre[0] - lim, centre[0] + lim)
+            ax.set_ylim(centre[1] - lim, centre[1] + lim)
     ax.set_aspect("equal")
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
     ax.set_title(
-        f"SfM (camera plane, SfM units): {stats['registered']}/{stats['images_input']} registered, "
+        f"SfM model from above: {stats['registered']}/{stats['images_input']} registered, "
         f"{stats['mean_reprojection_error_px']:.2f} px",
         fontsize=9,
     )
@@ -238,7 +268,9 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
     ax = axes[1]
     gps = cameras.dropna(subset=["lat", "lon"])
     if len(gps):
-        xy = geo.frame_for(gps[["lon", "lat"]].to_numpy()).to_xy(gps[["lon", "lat"]].to_numpy())
+        lonlat = gps[["lon", "lat"]].to_numpy(float)
+        frame = geo.alignment_frame(alignment) if alignment is not None else None
+        xy = (frame or geo.frame_for(lonlat)).to_xy(lonlat)
         ax.plot(xy[:, 0], xy[:, 1], "-o", ms=3, c="tab:blue", label="GPS (EXIF)")
         if "heading" in gps and gps["heading"].notna().any():
             th = np.radians(90.0 - gps["heading"].to_numpy(float))  # compass -> CCW from east
@@ -249,12 +281,19 @@ def plot_summary(cameras: pd.DataFrame, points: np.ndarray, stats: pd.Series, pa
                 np.sin(th),
                 color="tab:blue",
                 alpha=0.6,
-                width=0.004,
+                width=0.002,
                 angles="xy",
                 scale_units="xy",
                 scale=0.15,
             )
+        if frame is not None:  # the model's frame and view: the aligned cameras beside their fixes
+            ax.plot(cam2[:, 0], cam2[:, 1], "o", ms=2, c="tab:red", alpha=0.6, label="SfM cameras, aligned")
+            ax.set_xlim(axes[0].get_xlim())
+            ax.set_ylim(axes[0].get_ylim())
         ax.legend(fontsize=8)
+    else:
+        ax.axis("off")
+        ax.text(0.5, 0.5, "no GPS positions", ha="center", va="center", transform=ax.transAxes)
     ax.set_aspect("equal")
     ax.set_xlabel("x east (m)")
     ax.set_ylabel("y north (m)")

@@ -15,6 +15,7 @@ from flatlandia.classes import CLASSES
 from flatlandia.localize.gps_fixes import far
 from flatlandia.localize.maps import ObjectMap, lonlat_of, metres_to_map, place
 from flatlandia.localize.query_files import MIN_OBJECTS, Query
+from flatlandia.vocabulary import AMBIGUOUS, ANSWERED, NO_POSE
 
 
 def answer_pose(m: ObjectMap, sol, unit: float, rows: np.ndarray, q: Query) -> dict:
@@ -84,9 +85,9 @@ def answer_status(best, threshold: float) -> dict:
     ``threshold`` (``solver.answer_probability``), else ``ambiguous``: the alternatives, each with
     its probability, say where else the camera may be."""
     if best is None:
-        return {"status": "no pose", "probability": 0.0}
+        return {"status": NO_POSE, "probability": 0.0}
     p = probability_of(best)
-    return {"status": "ok" if p is None or p >= threshold else "ambiguous", "probability": p}
+    return {"status": ANSWERED if p is None or p >= threshold else AMBIGUOUS, "probability": p}
 
 
 def dumps(result: Any) -> str:

@@ -36,11 +36,16 @@ from flatlandia.plumbing.errors import InputError
 from flatlandia.plumbing.names import plain_name
 
 #: the poses file's columns: what ``flatlandia score`` reads (scene, token, the metric pose, the
-#: setting and the query time), then what the answer adds (ignored by score): found, the answer's
-#: confidence, the scene the pose lies in (a city can put a query in another scene) and why a
-#: query got no pose
-POSE_COLUMNS = ["scene", "token", "x_m", "y_m", "theta_deg", "map_type", "proposal", "seconds"]
-EXTRA_COLUMNS = ["found", "confidence", "located_scene", "reason"]
+#: setting, the query time, the answer's status and calibrated probability of being within (5 m,
+#: 5 deg): the answered share is counted from them), then what the answer adds (ignored by score):
+#: found, the answer's confidence, its best alternative (pose and probability; empty when none),
+#: the scene the pose lies in (a city can put a query in another scene) and why a query got no pose
+POSE_COLUMNS = ["scene", "token", "x_m", "y_m", "theta_deg", "map_type", "proposal", "seconds", "status", "probability"]
+ALTERNATIVE_COLUMNS = ["alt_x_m", "alt_y_m", "alt_theta_deg", "alt_probability"]
+EXTRA_COLUMNS = ["found", "confidence", *ALTERNATIVE_COLUMNS, "located_scene", "reason"]
+#: the alternatives a query's answer is asked for: the best one goes to the file (the ranking of
+#: the best pose does not depend on it)
+ALTERNATIVES = 1
 #: the proposal a batch searches by default: the whole map (the score's setting ``whole``); the
 #: others (vocabulary.PROPOSALS) are the map regions of rule fine_eval (``gtbb``, the oracle box;
 #: ``coarse-*``, a coarse stage's proposals), searched row for row as it searches them
@@ -329,6 +334,9 @@ class Batch:
         p = self.poses
         found = int(p["found"].sum())
         line = f"{len(p)} queries, {found} localized, {len(p) - found} without a pose"
+        answered = int((p["status"] == vocabulary.ANSWERED).sum())
+        if found:
+            line += f" ({answered} answered, status {vocabulary.ANSWERED}; {found - answered} {vocabulary.AMBIGUOUS})"
         moved = p["found"] & p["located_scene"].notna() & (p["located_scene"] != p["scene"])
         if moved.any():
             line += f", {int(moved.sum())} placed in another scene than their own"
@@ -401,21 +409,28 @@ def localize_batch(
         )
     total = sum(len(q) for _, q in work)
     bar = _terminal_progress(total, "localize") if progress else None
-    rows, warnings = [], []
+    rows, warnings, warm = [], [], False
     t0 = time.perf_counter()
     for scene, queries in work:
         if not queries:
             continue
         m = cmap if cmap is not None else src.scene_map(scene, learned, settings, proposal)
         pos = {int(o): k for k, o in enumerate(m.obj_idx)}
-        for q in bar(queries) if bar else queries:
+
+        def answer(q, m=m, pos=pos, scene=scene):
             gps, compass = fixes.get((scene, q.id), (None, None))
             region = None
             if regions:  # the proposal's objects, in proposed order (a query without one: none)
                 region = np.array([pos[o] for o in regions[scene][0].get(q.id, []) if o in pos], np.int64)
-            answer = solve.localize(m, q, map_type, alternatives=0, gps=gps, compass=compass, rows=region)
-            warnings += answer.get("warnings", [])
-            rows.append(_row(m, scene, q.id, map_type, answer, proposal))
+            return solve.localize(m, q, map_type, alternatives=ALTERNATIVES, gps=gps, compass=compass, rows=region)
+
+        if not warm:
+            _warm_up(answer, queries[0])
+            warm = True
+        for q in bar(queries) if bar else queries:
+            a = answer(q)
+            warnings += a.get("warnings", [])
+            rows.append(_row(m, scene, q.id, map_type, a, proposal))
     if bar:
         bar.close()
     notes.append(f"localized in {time.perf_counter() - t0:.1f} s wall (maps loaded per scene)")
@@ -423,15 +438,23 @@ def localize_batch(
     return Batch(poses, notes, list(dict.fromkeys(warnings)))
 
 
+def _warm_up(answer: Callable[[query_files.Query], dict], query: query_files.Query) -> None:
+    """Solve the batch's first query once, untimed, before any query is timed, so that no query's
+    ``seconds`` holds the solver's compilation. Why not :func:`flatlandia.solver.warm_up` alone
+    (load_map calls it): it compiles the plain solver on a made-up problem, not the kernels of the
+    learned priors (verifier, likelihood), the camera seeds or the city search, which numba compiled
+    inside the first query's seconds (8.5 s with an empty numba cache; 20 s in issue 45). The first
+    query asked as it will be asked runs the kernels its path runs."""
+    answer(query)
+
+
 def _row(m: maps.ObjectMap, scene: str, token: str, map_type: str, answer: dict, proposal: str) -> dict:
-    """One query's row of the poses file: its pose in its own scene's frame (a city's pose moved out
-    of the tiled frame by its scene's tile), empty where it has none."""
-    x = y = theta = None
-    if answer["found"]:
-        xy = maps.scene_xy(m, scene, answer["x_m"], answer["y_m"])
-        if xy is not None:
-            x, y = xy
-            theta = answer["theta_deg"]
+    """One query's row of the poses file: its pose and its best alternative's in its own scene's
+    frame (a city's pose moved out of the tiled frame by its scene's tile), empty where it has none;
+    its status and probability as the answer gives them (:func:`flatlandia.localize.answer_status`)."""
+    x, y, theta = _scene_pose(m, scene, answer) if answer["found"] else (None, None, None)
+    alts = answer["alternatives"][:1]
+    alt = [*_scene_pose(m, scene, alts[0]), alts[0]["probability"]] if alts else [None] * 4
     return {
         "scene": scene,
         "token": token,
@@ -441,11 +464,21 @@ def _row(m: maps.ObjectMap, scene: str, token: str, map_type: str, answer: dict,
         "map_type": map_type,
         "proposal": proposal,
         "seconds": answer["seconds"],
+        "status": answer["status"],
+        "probability": answer["probability"],
         "found": bool(answer["found"]),
         "confidence": answer["confidence"],
+        **dict(zip(ALTERNATIVE_COLUMNS, alt, strict=True)),
         "located_scene": answer.get("scene"),
         "reason": answer.get("reason", ""),
     }
+
+
+def _scene_pose(m: maps.ObjectMap, scene: str, pose: dict) -> tuple:
+    """(x_m, y_m, theta_deg) of an answer's pose (or an alternative's) in ``scene``'s own frame;
+    Nones where the city has no tile of that scene."""
+    xy = maps.scene_xy(m, scene, pose["x_m"], pose["y_m"])
+    return (None, None, None) if xy is None else (*xy, pose["theta_deg"])
 
 
 def write_poses(batch: Batch, path: str | Path, *, reads=(), artifacts=()) -> Path:
@@ -457,7 +490,7 @@ def write_poses(batch: Batch, path: str | Path, *, reads=(), artifacts=()) -> Pa
 
     path = Path(path)
     df = batch.poses.copy()
-    for c in ("x_m", "y_m", "theta_deg"):
+    for c in ("x_m", "y_m", "theta_deg", "probability", *ALTERNATIVE_COLUMNS):
         df[c] = df[c].astype(float)
     if path.suffix.lower() == ".parquet":
         files.write_parquet(df, path, {"written_by": "flatlandia localize --batch"}, reads=reads, artifacts=artifacts)

@@ -286,7 +286,7 @@ def localize_sequence(
 
 
 def localize_file(
-    map_path: str | Path,
+    map_path: str | Path | ObjectMap,
     query_path: str | Path | None,
     map_type: str | None = None,
     near: tuple[float, float] | None = None,
@@ -302,7 +302,8 @@ def localize_file(
     (``sequence_path``, depth maps): its anchor's answer with every frame's pose
     (:func:`localize_sequence`). ``gps``/``compass``: a fix of the query (of the sequence's anchor).
     The input is read and checked before the map loads (a bad query fails in a second).
-    ``map_type`` None: ``depth`` for a sequence (the only type it takes), else ``gt``."""
+    ``map_type`` None: ``depth`` for a sequence (the only type it takes), else ``gt``. ``map_path``
+    may be a map already loaded (:func:`load_map`; ``--plot`` draws the answer on it)."""
     if map_type is None:
         map_type = "depth" if sequence_path is not None else "gt"
     if map_type not in MAP_TYPES:
@@ -316,8 +317,13 @@ def localize_file(
         if near is not None:
             raise InputError("--near", "a sequence takes a GPS fix (--gps), not --near")
         seq = read_sequence(sequence_path)
-        return localize_sequence(load_map(map_path, **load_args), seq, gps, compass, alternatives)
+        return localize_sequence(_loaded(map_path, load_args), seq, gps, compass, alternatives)
     queries, many = read_queries(query_path)
-    m = load_map(map_path, **load_args)
+    m = _loaded(map_path, load_args)
     results = [localize(m, q, map_type, near, radius_m, alternatives, gps, compass) for q in queries]
     return {"results": results} if many else results[0]
+
+
+def _loaded(map_path: str | Path | ObjectMap, load_args: dict) -> ObjectMap:
+    """A map given loaded, or loaded from its file (:func:`load_map`)."""
+    return map_path if isinstance(map_path, ObjectMap) else load_map(map_path, **load_args)

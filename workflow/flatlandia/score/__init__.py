@@ -8,8 +8,11 @@ compass heading, clockwise from north: heading = 90 - theta). Optional columns: 
 (``gt`` or ``depth``, default ``depth``), ``proposal`` (``gtbb``, ``whole``, ``coarse-sim``,
 ``coarse-trip``, ``coarse-simtrip``, ``coarse-solver``; default ``whole``) name the setting a row
 was computed in (one run per setting; an empty cell takes the default), ``seconds`` its query time
-(empty: unknown). Other columns are ignored. A query without a pose is a row left out, or one whose
-three pose cells are empty (CSV) or null (Parquet), as ``poses_template.csv`` of the export comes.
+(empty: unknown), ``status`` (``ok``, ``ambiguous``, ``no pose``: the answered are the ``ok``) and
+``probability`` (of being within (5 m, 5 deg)) the answer as ``flatlandia localize --batch``
+writes it (without them every pose is answered, as before). Other columns are ignored. A query
+without a pose is a row left out, or one whose three pose cells are empty (CSV) or null (Parquet),
+as ``poses_template.csv`` of the export comes.
 
 Why the same functions: a row of an external run must read against the solver's and the learned
 models' rows, so it is built by :func:`flatlandia.fine.evaluation.error_row` (errors by

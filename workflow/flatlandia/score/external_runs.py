@@ -72,14 +72,11 @@ def errors_table(
     """One run's errors table (rule fine_eval's columns, :func:`evaluation.error_row`): a row per
     ``split`` query of every scene, in the solver's order; the file's pose of that query in this
     (map_type, proposal) setting, or a failure (no pose: infinite error, 180 deg) where it has none.
-    The proposal gives the row's proposal size and solvability (F%), as for the built-in runs."""
+    The proposal gives the row's proposal size and solvability (F%), as for the built-in runs. A file
+    with answers (:func:`answer_of`) gives each row its ``answered`` and ``probability``."""
     mine = poses.table[(poses.table["map_type"] == map_type) & (poses.table["proposal"] == proposal)]
-    pose_of = {
-        (s, t): (x, y, th, sec)
-        for s, t, x, y, th, sec in mine[["scene", "token", "x_m", "y_m", "theta_deg", "seconds"]].itertuples(
-            index=False
-        )
-    }
+    columns = ["scene", "token", "x_m", "y_m", "theta_deg", "seconds", "status", "probability"]
+    pose_of = {(s, t): rest for s, t, *rest in mine[columns].itertuples(index=False)}
     label = vocabulary.strategy_label(proposal, strategy)
     rows = []
     for b in scenes.values():
@@ -96,9 +93,10 @@ def errors_table(
             if given is None:
                 pose, errors, seconds = (np.nan, np.nan, np.nan), (np.inf, 180.0), np.nan
             else:
-                x, y, th, seconds = given
+                x, y, th, seconds = given[:4]
                 pose = (x, y, math.radians(th))
                 errors = geo.pose_errors(x, y, pose[2], r.x_m, r.y_m, math.radians(r.theta_deg))
+            answered, probability = answer_of(poses, given[4:] if given is not None else None)
             rows.append(
                 evaluation.error_row(
                     r,
@@ -112,9 +110,25 @@ def errors_table(
                     fit=(float("nan"), 0, 0),
                     seconds=seconds,
                     cpu_seconds=float("nan"),
+                    probability=probability,
+                    answered=answered,
                 )
             )
     return pd.DataFrame(rows)
+
+
+def answer_of(poses: Poses, given: tuple | None) -> tuple[bool, float]:
+    """(answered, probability) of a query whose pose row gives ``(status, probability)``, or None
+    when the file has no pose of it. A file with a status column answers the poses it marks ``ok``
+    (vocabulary.ANSWERED, the status of flatlandia localize: probability at least
+    solver.answer_probability), never a query without a pose; a file without one answers every
+    pose, as before (a method without a probability answers every query it places: rule
+    fine_eval's error_row). A query without a pose has probability 0 where the file gives
+    probabilities (the solver's own rows say so), NaN where it does not."""
+    if given is None:
+        return (not poses.has_status), (0.0 if poses.has_probability else float("nan"))
+    status, probability = given
+    return (status == vocabulary.ANSWERED if poses.has_status else True), float(probability)
 
 
 def run_summary(
@@ -147,6 +161,7 @@ def run_summary(
         split=poses.split,
         scored=scored,
         missing=int(len(errors) - scored),
+        has_status=poses.has_status,
     )
     return out
 
@@ -198,6 +213,18 @@ class Run:
             f"{s['scored']} scored, {s['missing']} missing (failures); median {f(s['median_m'], '.2f')} m, "
             f"{f(s['median_deg'], '.2f')} deg; recall {ms} m: {rm} %; {ds} deg: {rd} %; "
             f"{f(s[evaluation.WITHIN_COLUMN], '.1f')} % within ({evaluation.WITHIN[0]:g} m, {evaluation.WITHIN[1]:g} deg)"
+            + (self.answers() if s.get("has_status") else "")
+        )
+
+    def answers(self) -> str:
+        """The answered share and how many of the answered are within (5 m, 5 deg), as the fine
+        table's % answered and % within of the answered (a file with a status column)."""
+        s = self.summary
+        within = s["within_answered_pct"]
+        of_them = "none answered" if within is None or not np.isfinite(within) else f"{within:.1f} % of them within"
+        return (
+            f"; {s['answered_pct']:.1f} % answered (status {vocabulary.ANSWERED}), {of_them} "
+            f"({evaluation.WITHIN[0]:g} m, {evaluation.WITHIN[1]:g} deg)"
         )
 
 

@@ -45,11 +45,6 @@ def _truth(poses: Poses, scenes: dict[str, BenchmarkScene]) -> pd.DataFrame:
     return poses.table.merge(truth, on=["scene", "token"], how="left")
 
 
-#: a pose is suspected of a unit or order mix-up only when it is this far from its truth (metres):
-#: an honest pose a few metres off, near the line x = y, must not read as swapped
-ROW_IMPLAUSIBLE_M = 20.0
-
-
 #: a pose this far outside its scene (the box around its map objects and query cameras), metres, is
 #: nowhere a method could have put it from that map
 EXTENT_MARGIN_M = 500.0
@@ -108,11 +103,13 @@ def _readings(t: pd.DataFrame, form: str, scenes: dict[str, BenchmarkScene], pat
 def row_plausibility(poses: Poses, scenes: dict[str, BenchmarkScene]) -> list[str]:
     """Pose by pose, against its scene (:func:`scene_extents`): a pose outside the scene's extent looks
     wrong, and so does one that a mixed-up unit or order (kilometres, x/y or lon/lat swapped, lon/lat
-    in radians, :func:`_readings`) explains: read that way it lies in the scene, closer to its truth
-    than as given, and as given it is outside the scene, or within the scene shrunk 1000 times
-    around its origin (kilometres), or :data:`ROW_IMPLAUSIBLE_M` from its truth while read that way
-    it is within :data:`IMPLAUSIBLE_M` and :data:`FAR_SMALLER` times closer. Some such rows: a warning naming them (returned); most of them
-    (over half): InputError, the file is not scored."""
+    in radians, :func:`_readings`) explains: as given it is where no method could have put it (outside
+    the scene; for kilometres also within the scene shrunk 1000 times around its origin), and read
+    that way it lies in the scene, closer to its truth. A wrong pose inside the scene is a method's
+    error, not a mix-up, however near its swapped reading falls to the truth (a solver's pose on
+    scene 10 was called swapped so); a whole file swapped inside its scenes is :func:`plausibility`'s
+    median test. Some such rows: a warning naming them (returned); most of them (over half):
+    InputError, the file is not scored."""
     t = _truth(poses, scenes)
     if not len(t):
         return []
@@ -139,9 +136,7 @@ def row_plausibility(poses: Poses, scenes: dict[str, BenchmarkScene]) -> list[st
     for why, (rx, ry) in _readings(t, poses.form, scenes, poses.path).items():
         with np.errstate(invalid="ignore"):
             e = np.hypot(rx - gx, ry - gy)
-            telling = outside | ((err > ROW_IMPLAUSIBLE_M) & (e * FAR_SMALLER < err) & (e <= IMPLAUSIBLE_M))
-            if "kilometres" in why:
-                telling |= at_origin
+            telling = (outside | at_origin) if "kilometres" in why else outside
             fixes = inside(rx, ry) & (e < err) & telling & (e < best)
         reason[fixes], best[fixes] = why, e[fixes]
     far = outside & (reason == "")

@@ -38,6 +38,12 @@ DEFAULT_MAP_TYPE = "depth"
 DEFAULT_PROPOSAL = vocabulary.WHOLE
 
 
+#: an answer's columns, optional (``flatlandia localize --batch`` writes them): its status (one of
+#: vocabulary.STATUSES; the answered are those ``ok``) and its probability of being within (5 m,
+#: 5 deg), from 0 to 1; a file without them scores as before (every pose answered, no probability)
+STATUS, PROBABILITY = "status", "probability"
+
+
 #: offending values a message lists
 SHOW = 5
 
@@ -61,6 +67,16 @@ class Poses:
 
     def settings(self) -> list[tuple[str, str]]:
         return list(self.held)
+
+    @property
+    def has_status(self) -> bool:
+        """The file says which poses are answered (a ``status`` column)."""
+        return STATUS in self.columns
+
+    @property
+    def has_probability(self) -> bool:
+        """The file gives each pose's probability of being within (5 m, 5 deg)."""
+        return PROBABILITY in self.columns
 
 
 def _read_table(path: Path) -> tuple[pd.DataFrame, str, dict[str, np.ndarray]]:
@@ -317,6 +333,8 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
         if bad:
             raise InputError(path, f"seconds is not a number >= 0 (or empty) in {listing(label(i) for i in bad)}")
 
+    status, probability = _answers(raw, cols, path, label, no_pose)
+
     unknown_scenes = sorted({s for s in scene if s not in scenes}, key=_natural)
     if unknown_scenes:
         raise InputError(
@@ -339,6 +357,8 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
             "b": numbers[FORMS[form][1]],
             "angle": numbers[FORMS[form][2]],
             "seconds": seconds,
+            "status": status,
+            "probability": probability,
             "where": [_where(kind, i) for i in range(n)],
         }
     )
@@ -367,6 +387,42 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
     if empty_rows:
         poses.notes.append(f"{empty_rows} of its rows have no pose (left empty): failures, as queries left out")
     return poses
+
+
+def _answers(raw: pd.DataFrame, cols: list[str], path: Path, label, no_pose: np.ndarray) -> tuple[list, np.ndarray]:
+    """The rows' status (None where the file has no status column, or for a row without a pose left
+    without one) and probability (NaN where not given), checked: a status of
+    vocabulary.STATUSES, ``no pose`` only on a row without a pose, a probability from 0 to 1."""
+    n = len(raw)
+    status: list = [None] * n
+    if STATUS in cols:
+        status = _text(raw[STATUS])
+        bad = [i for i, v in enumerate(status) if v not in vocabulary.STATUSES and not (v is None and no_pose[i])]
+        if bad:
+            shown = sorted({validate.shown(status[i]) if status[i] else "(empty)" for i in bad})
+            raise InputError(
+                path,
+                f"status {listing(shown)} in {listing(label(i) for i in bad)} is none of "
+                f"{', '.join(vocabulary.STATUSES)} (the answers of flatlandia localize)",
+            )
+        posed = [i for i, v in enumerate(status) if v == vocabulary.NO_POSE and not no_pose[i]]
+        if posed:
+            raise InputError(
+                path,
+                f"status {vocabulary.NO_POSE!r} beside a pose in {listing(label(i) for i in posed)}: leave the pose "
+                "empty, or give the pose's status",
+            )
+    probability = np.full(n, np.nan)
+    if PROBABILITY in cols:
+        probability, not_numbers = _numbers(list(raw[PROBABILITY]))
+        bad = sorted(
+            set(not_numbers) | set(np.flatnonzero(~(np.isnan(probability) | ((probability >= 0) & (probability <= 1)))))
+        )
+        if bad:
+            raise InputError(
+                path, f"probability is not a number from 0 to 1 (or empty) in {listing(label(i) for i in bad)}"
+            )
+    return status, probability
 
 
 def to_metric(table: pd.DataFrame, form: str, scenes: dict[str, BenchmarkScene], path) -> tuple[np.ndarray, ...]:

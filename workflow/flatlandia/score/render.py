@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia import paper
+from flatlandia import paper, vocabulary
 from flatlandia.fine import evaluation
 from flatlandia.plumbing import escape, files
 from flatlandia.score.external_runs import Scores
@@ -24,11 +24,15 @@ SCORE_COLUMNS = (
     + evaluation.RECALL_COLUMNS
     + ["no_pose_pct", "failure_pct", "gross_pct"]
 )
+#: the columns scores.md adds for a poses file with answers (a status column): the fine table's
+#: % answered and % within (5 m, 5°) of the answered
+ANSWER_SCORE_COLUMNS = ["answered_pct", "within_answered_pct"]
 
 
 def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
     """scores.md: per setting, the method's row beside the built-in rows of the same map type
-    and proposal (every threshold and recall column)."""
+    and proposal (every threshold and recall column; for a file with answers, the answered share
+    and the within (5 m, 5°) of the answered)."""
     from flatlandia.fine import fine_table
 
     thresholds = [f"{m:g} m & {d:g}°" for m, d in paper.THRESHOLDS]
@@ -56,6 +60,10 @@ def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
         out += [f"**Warning**: {escape.markdown(w)}", ""]
     for run in scores.runs:
         s = run.summary
+        columns, run_heads = SCORE_COLUMNS, heads
+        if s.get("has_status"):
+            columns = SCORE_COLUMNS + ANSWER_SCORE_COLUMNS
+            run_heads = heads + ["answered %", "{:g} m & {:g}° of the answered".format(*evaluation.WITHIN)]
         mine = fine_table.table_rows([s])
         rows = [mine]
         if scores.builtin is not None:
@@ -67,14 +75,15 @@ def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
         out += [
             f"## {escape.markdown(run.map_type)} local maps, {escape.markdown(s['strategy'])} proposals",
             "",
-            f"{s['queries']} queries, {s['scored']} scored, {s['missing']} missing (failures).",
+            f"{s['queries']} queries, {s['scored']} scored, {s['missing']} missing (failures)."
+            + (f" Answered: status {vocabulary.ANSWERED} in the file." if s.get("has_status") else ""),
             "",
-            "| method | " + " | ".join(heads) + " |",
-            "|---|" + "---|" * len(heads),
+            "| method | " + " | ".join(run_heads) + " |",
+            "|---|" + "---|" * len(run_heads),
         ]
         for r in df.to_dict("records"):
             cells = []
-            for c in SCORE_COLUMNS:
+            for c in columns:
                 v = r[c]
                 if c == "queries":
                     cells.append(str(int(v)))

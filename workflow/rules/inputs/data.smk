@@ -2,6 +2,15 @@
 # wants rules and functions in separate files). No lambdas in rules.
 
 
+def fetch_flatlandia_note(wildcards):
+    """No input: says in one line that the plan downloads the published data (say_download), while
+    no earlier fetch's flag is there."""
+    if not Path(FETCH_FLAG).exists():
+        url, dest = config["fetch"]["url"], config["fetch"]["dest"]
+        say_download("flatlandia", "the published data", "fetch_flatlandia", url, dest, missing_data_folder())
+    return []
+
+
 def fetch_dest(wildcards, output):
     """fetch.dest, where the data is unpacked, beside the fetch's flag (FETCH_FLAG: dest's name with
     .fetched); taken from the flag, as Snakemake asks of a path parameter, so a module's prefix moves both."""

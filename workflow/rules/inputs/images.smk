@@ -15,6 +15,21 @@ def images_dir(wildcards):
     return f"resources/images/{wildcards.scene}"  # fetched by rule fetch_images
 
 
+def fetch_images_note(wildcards):
+    """No input: says in one line that the plan downloads an images scene's photos (say_download),
+    while its folder is not there."""
+    dest = f"resources/images/{wildcards.scene}"
+    if not Path(dest).exists():
+        row = SCENES_SHEET.loc[wildcards.scene]
+        why = "its path is empty"
+        if row["path"]:
+            where = os.path.abspath(config_path(row["path"]))
+            why = f"its path {row['path']!r} does not exist here ({where}): set it to the folder of the photos to skip the download"
+        what = f"the photos of images scene {wildcards.scene}"
+        say_download(f"images {wildcards.scene}", what, "fetch_images", row["url"], dest, f"{config['scenes']}: {why}")
+    return []
+
+
 def images_fetch_params(wildcards):
     """Where rule fetch_images downloads a scene's images from, and the archive's pinned sha256
     (the sheet's optional sha256 column; empty = not pinned)."""
@@ -52,3 +67,18 @@ def segment_mem_mb():
     """Memory for segment (MB): 1000 + 80 per megapixel of images.max_megapixels, the largest image
     the audit lets through (measured on the offline backend: docs/measurements.md, "Images branch")."""
     return int(1000 + 80 * config["images"]["max_megapixels"])
+
+
+def scene_align_keys(*keys):
+    """The config keys of images.align as a rule's params (named as config_keys names them: the section
+    `images.align` or `images.align.mode`), per scene: the scene's align cell in the scene sheet sets
+    its mode (align_mode), so scenes with and without GPS are built in one run."""
+
+    def param_of(key):
+        def param(wildcards):
+            section = {**config["images"]["align"], "mode": align_mode(wildcards.scene)}
+            return section if key == "images.align" else section[key.removeprefix("images.align.")]
+
+        return param
+
+    return {key: param_of(key) for key in keys}
