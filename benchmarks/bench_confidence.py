@@ -36,8 +36,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fine_solver import load  # noqa: E402
 
 from flatlandia import config  # noqa: E402
+from flatlandia.benchmark import metrics  # noqa: E402
 from flatlandia.city import index, tiling  # noqa: E402
-from flatlandia.fine import evaluation  # noqa: E402
 from flatlandia.sequences import evaluation as be  # noqa: E402
 from flatlandia.sequences import validation  # noqa: E402
 from flatlandia.solver import calibration, learned_priors  # noqa: E402
@@ -184,7 +184,7 @@ def main(argv=None) -> int:
             cells.append("–" if s is None or not np.isfinite(s[col]) else f"{s[col]:.1f}")
         print("| " + " | ".join(cells) + " |")
     print("\nevery row (ours):")
-    cols = ["within_5m_5deg", "wrong_scene_pct", *evaluation.ANSWER_COLUMNS, "cpu_median_ms", "cpu_p90_ms"]
+    cols = ["within_5m_5deg", "wrong_scene_pct", *metrics.ANSWER_COLUMNS, "cpu_median_ms", "cpu_p90_ms"]
     print("map | frames | GPS | " + " | ".join(cols) + " | ECE floor")
     ours = pd.read_parquet(args.out / "errors_ours.parquet")
     key = ours["gps_sigma_m"].fillna(-1.0)

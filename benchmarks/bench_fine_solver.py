@@ -24,7 +24,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
 from flatlandia import solver  # noqa: E402
-from flatlandia.fine import evaluation  # noqa: E402
+from flatlandia.benchmark import metrics, solver_runs  # noqa: E402
 
 
 def load(root: Path):
@@ -39,17 +39,17 @@ def load(root: Path):
 def describe(e: pd.DataFrame) -> str:
     """One line: median errors, recalls at 1/3/5 m and 1/3/5 deg, % within (5 m, 5 deg) and the
     paper's thresholds, gross and no-pose shares, query time (CPU of the process and wall) median / p90."""
-    s = evaluation.summarise(e)
+    s = metrics.summarise(e)
     em, ed = e["error_m"].to_numpy(float), e["error_deg"].to_numpy(float)
     ms = 1000 * e[["cpu_seconds", "seconds"]].quantile([0.5, 0.9])
     return (
         f"n={s['queries']} median {s['median_m']:.2f} m / {s['median_deg']:.2f} deg; "
-        f"% within {'/'.join(f'{m:g}' for m in evaluation.RECALL_M)} m "
-        + " / ".join(f"{s[c]:.1f}" for c in evaluation.RECALL_COLUMNS[: len(evaluation.RECALL_M)])
-        + f", {'/'.join(f'{d:g}' for d in evaluation.RECALL_DEG)} deg "
-        + " / ".join(f"{s[c]:.1f}" for c in evaluation.RECALL_COLUMNS[len(evaluation.RECALL_M) :])
+        f"% within {'/'.join(f'{m:g}' for m in metrics.RECALL_M)} m "
+        + " / ".join(f"{s[c]:.1f}" for c in metrics.RECALL_COLUMNS[: len(metrics.RECALL_M)])
+        + f", {'/'.join(f'{d:g}' for d in metrics.RECALL_DEG)} deg "
+        + " / ".join(f"{s[c]:.1f}" for c in metrics.RECALL_COLUMNS[len(metrics.RECALL_M) :])
         + f", (5 m, 5 deg) {100 * ((em < 5) & (ed < 5)).mean():.1f}; paper thresholds "
-        + " / ".join(f"{s[c]:.1f}" for c in evaluation.THRESHOLD_COLUMNS)
+        + " / ".join(f"{s[c]:.1f}" for c in metrics.THRESHOLD_COLUMNS)
         + f"; gross {s['gross_pct']:.1f}%; no pose {s['no_pose_pct']:.1f}%; query CPU median "
         f"{ms.loc[0.5, 'cpu_seconds']:.1f} ms p90 {ms.loc[0.9, 'cpu_seconds']:.1f} ms (wall "
         f"{ms.loc[0.5, 'seconds']:.1f} / {ms.loc[0.9, 'seconds']:.1f} ms)"
@@ -81,7 +81,7 @@ def solver_errors(
         coarse = pd.read_parquet(root / "coarse" / proposal.split("-", 1)[1] / "proposals.parquet")
     solver_settings = dict(solver_settings)
     strategy = solver_settings.pop("strategy", "2N_LM")
-    return evaluation.solver_errors(
+    return solver_runs.solver_errors(
         [(ref, q) for _, ref, q in scenes], map_type, proposal, solver_settings, learned, coarse, strategy, split, every
     )
 

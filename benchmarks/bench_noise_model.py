@@ -23,7 +23,7 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "workflow"))
 
-from flatlandia.fine import evaluation  # noqa: E402
+from flatlandia.benchmark import solver_runs  # noqa: E402
 from flatlandia.sequences import validation  # noqa: E402
 from flatlandia.solver import calibration, learned_priors  # noqa: E402
 
@@ -45,7 +45,7 @@ def run(scenes, config: dict, overrides: dict, calibrate: bool) -> str:
     if calibrate:
         learned, _ = validation.calibrated(scenes, settings, learned, "whole", None, int(config["seed"]))
         learned, _ = validation.with_null(scenes, settings, learned, "whole", int(config["seed"]))
-    e = evaluation.solver_errors(scenes, "depth", "whole", settings, learned, split="val")
+    e = solver_runs.solver_errors(scenes, "depth", "whole", settings, learned, split="val")
     em, ed = e["error_m"].to_numpy(float), e["error_deg"].to_numpy(float)
     right = (em < 5) & (ed < 5)
     ms = 1000 * e["cpu_seconds"].quantile([0.5, 0.9])

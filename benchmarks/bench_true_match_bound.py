@@ -24,9 +24,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_fine_solver import describe, load, solver_config, solver_errors  # noqa: E402
 
-from flatlandia import solver  # noqa: E402
+from flatlandia import (
+    geo,  # noqa: E402
+    solver,  # noqa: E402
+)
 from flatlandia.data import localmaps  # noqa: E402
-from flatlandia.fine import evaluation  # noqa: E402
 from flatlandia.solver import bound  # noqa: E402
 
 
@@ -49,7 +51,7 @@ def bound_errors(scenes, split: str, ranges: bool, priors: bool, solver_settings
                 cfg,
                 given if priors else None,
             )
-            e_m, e_deg = evaluation.pose_errors(x, y, th, r.x_m, r.y_m, theta)
+            e_m, e_deg = geo.pose_errors(x, y, th, r.x_m, r.y_m, theta)
             rows.append({"error_m": e_m, "error_deg": e_deg, "solvable": True, "seconds": 0.0, "cpu_seconds": 0.0})
     return pd.DataFrame(rows)
 

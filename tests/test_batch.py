@@ -18,9 +18,9 @@ from conftest import TINY_SCENE
 from tiny_results import builtin_summary, tiny_scene
 
 from flatlandia import cli, config, geo, paths, score
+from flatlandia.benchmark import fine_rows, metrics, solver_runs
 from flatlandia.city import index, tiling
 from flatlandia.data import export, reference_map
-from flatlandia.fine import evaluation, fine_table
 from flatlandia.localize import batch
 from flatlandia.plumbing import files
 from flatlandia.report import tables
@@ -48,13 +48,15 @@ def tiny_run(tmp_path_factory):
     summaries = []
     for map_type in ("gt", "depth"):
         for proposal, label in (("whole", "whole map"), ("gtbb", "GT-BB")):
-            e = evaluation.solver_errors([(ref, q)], map_type, proposal, config.section_defaults("solver"), split=SPLIT)
+            e = solver_runs.solver_errors(
+                [(ref, q)], map_type, proposal, config.section_defaults("solver"), split=SPLIT
+            )
             e["strategy"] = label
             folder = results / "fine" / f"solver_{map_type}_{proposal}"
             files.write_parquet(e, folder / "errors.parquet")
             summaries.append(builtin_summary(e, "solver", map_type, proposal, label, ref))
-            files.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
-    files.write_parquet(fine_table.table_rows(summaries), results / "tables" / "fine_localization.parquet")
+            files.write_json(files.json_safe(summaries[-1]), folder / "summary.json")
+    files.write_parquet(fine_rows.table_rows(summaries), results / "tables" / "fine_localization.parquet")
     ex = results / "export"
     out = export.scene_export(TINY_SCENE, ref, meta, q)
     for name in ("reference_map", "queries", "local_maps", "proposals", "ground_truth"):
@@ -111,7 +113,7 @@ def test_export_batch_score_gives_the_solvers_table_row(tiny_run, tmp_path, caps
     assert status == 0, out + err
     run = f"batch_{map_type}_{proposal}"
     summary = json.loads((tmp_path / "scores" / run / "summary.json").read_text())
-    mine = fine_table.table_rows([summary])
+    mine = fine_rows.table_rows([summary])
     builtin = pd.read_parquet(tiny_run / "tables" / "fine_localization.parquet")
     theirs = builtin[builtin["run"] == f"solver_{map_type}_{proposal}"].reset_index(drop=True)
     assert not _row_differences(mine, theirs)
@@ -128,8 +130,8 @@ def test_export_batch_score_gives_the_solvers_table_row(tiny_run, tmp_path, caps
     assert cells[9:15] == ["recall 1 m", "recall 3 m", "recall 5 m", "recall 1°", "recall 3°", "recall 5°"]
     for label in ("batch (yours)", "geometric solver"):
         row = next(line for line in md.splitlines() if line.startswith(f"| {label} |"))
-        assert row.split("|")[7].strip() == f"{theirs[evaluation.WITHIN_COLUMN].iloc[0]:.1f}"
-    assert f"{theirs[evaluation.WITHIN_COLUMN].iloc[0]:.1f} % within (5 m, 5 deg)" in out
+        assert row.split("|")[7].strip() == f"{theirs[metrics.WITHIN_COLUMN].iloc[0]:.1f}"
+    assert f"{theirs[metrics.WITHIN_COLUMN].iloc[0]:.1f} % within (5 m, 5 deg)" in out
     answered = f"{theirs['answered_pct'].iloc[0]:.1f} % answered (status ok), "
     assert answered in out, out
 
@@ -353,11 +355,11 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
     summaries = []
     settings_runs = [("depth", "whole"), ("gt", "whole"), ("depth", "gtbb")]
     for map_type, proposal in settings_runs:
-        e = evaluation.solver_errors(read, map_type, proposal, settings, learned[proposal])
+        e = solver_runs.solver_errors(read, map_type, proposal, settings, learned[proposal])
         e["strategy"] = {"whole": "whole map", "gtbb": "GT-BB"}[proposal]
         summaries.append(builtin_summary(e, "solver", map_type, proposal, e["strategy"].iloc[0], read[0][0]))
-        summaries[-1]["ref_map_kb"] = float(np.mean([evaluation.ref_map_kb(r) for r, _ in read]))
-    builtin = fine_table.table_rows(summaries)
+        summaries[-1]["ref_map_kb"] = float(np.mean([metrics.ref_map_kb(r) for r, _ in read]))
+    builtin = fine_rows.table_rows(summaries)
     for map_type, proposal in settings_runs:
         poses = tmp_path / f"{map_type}_{proposal}.csv"
         status, out, err = _cli(
@@ -369,7 +371,7 @@ def test_batch_reproduces_the_solvers_rows_on_published_scenes(flat_root, tmp_pa
         assert status == 0, out + err
         summary = json.loads((out_dir / f"batch_{map_type}_{proposal}" / "summary.json").read_text())
         theirs = builtin[builtin["run"] == f"solver_{map_type}_{proposal}"].reset_index(drop=True)
-        assert not _row_differences(fine_table.table_rows([summary]), theirs), (map_type, proposal)
+        assert not _row_differences(fine_rows.table_rows([summary]), theirs), (map_type, proposal)
         if proposal != "whole":
             continue
         exported = batch.localize_batch(

@@ -271,14 +271,14 @@ def test_the_floor_of_objects_is_the_schema_minimum():
     import inspect
 
     from flatlandia import geo, localize
+    from flatlandia.benchmark import metrics
     from flatlandia.data import published
-    from flatlandia.fine import evaluation
 
     node = config.schema()["properties"]["images"]["properties"]["min_objects"]
     assert node["minimum"] == geo.MIN_OBJECTS <= node["default"]
     assert localize.MIN_OBJECTS == geo.MIN_OBJECTS
     assert inspect.signature(published.read_local_maps).parameters["min_objects"].default == geo.MIN_OBJECTS
-    assert inspect.signature(evaluation.solvable).parameters["min_objects"].default == geo.MIN_OBJECTS
+    assert inspect.signature(metrics.solvable).parameters["min_objects"].default == geo.MIN_OBJECTS
 
 
 def test_a_users_sequence_gets_the_simulated_sequences_noise_floor():

@@ -10,10 +10,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from flatlandia.benchmark import fine_rows, metrics
 from flatlandia.city import city_table
 from flatlandia.coarse import evaluation as coarse_evaluation
 from flatlandia.data import stats
-from flatlandia.fine import evaluation, fine_table, scene_localization
+from flatlandia.fine import fine_table, scene_localization
 from flatlandia.plumbing import escape, files, summary
 from flatlandia.report import tables
 from flatlandia.viewer import page
@@ -96,7 +97,7 @@ def fine_summaries(label: str = "MLP", strategy: str = "GT-BB", trained_on: str 
             "epochs": 3,
             "train_s": 60.0,
             **base,
-            **evaluation.summarise(errors),
+            **metrics.summarise(errors),
         }
         for mt in ("gt", "depth")
     ]
@@ -186,7 +187,7 @@ def test_normal_tables_are_unchanged():
     [
         lambda: tables.to_markdown(stats_frame(["Barcelona", "Sao Paulo"])),
         lambda: tables.to_latex(stats_frame(["Barcelona", "Sao Paulo"]), caption="Dataset statistics"),
-        lambda: fine_table.render_markdown(fine_table.table_rows(fine_summaries()), note="a **note**"),
+        lambda: fine_table.render_markdown(fine_rows.table_rows(fine_summaries()), note="a **note**"),
         lambda: coarse_evaluation.render_markdown(coarse_table(), note="`x`"),
         lambda: city_table.markdown(city_frame(), "note `x`"),
         lambda: scene_localization.render_markdown(scene_rows(), "9"),
@@ -201,7 +202,7 @@ def test_escaping_changes_nothing_without_specials(render, monkeypatch):
 
 
 def test_fine_markdown_escapes_run_values():
-    df = fine_table.table_rows(fine_summaries(label=HOSTILE, trained_on=HOSTILE))
+    df = fine_rows.table_rows(fine_summaries(label=HOSTILE, trained_on=HOSTILE))
     md = fine_table.render_markdown(df, note="the **note** stays bold")
     assert_markdown_safe(md)
     assert "the **note** stays bold" in md and "## Table 4 (GT-BB proposals)" in md

@@ -7,7 +7,8 @@ import pandas as pd
 import pytest
 
 from flatlandia import paper
-from flatlandia.fine import evaluation, fine_table, scene_localization
+from flatlandia.benchmark import fine_rows, metrics
+from flatlandia.fine import fine_table, scene_localization
 from flatlandia.report import tables
 
 
@@ -32,7 +33,7 @@ ERRORS = _errors(
 
 
 def test_recall_counts_position_and_heading_apart_and_failures_as_misses():
-    s = evaluation.summarise(ERRORS)
+    s = metrics.summarise(ERRORS)
     # under 1 m: 0.5, 0.9, 0.2 (the first has a 30 deg heading: position recall ignores it)
     assert s["recall_1m"] == pytest.approx(30.0)
     assert s["recall_3m"] == pytest.approx(50.0)  # + 2.0, 2.9
@@ -42,14 +43,14 @@ def test_recall_counts_position_and_heading_apart_and_failures_as_misses():
     assert s["recall_3deg"] == pytest.approx(40.0)  # + 2.5, 2.0 (the 20 m query)
     assert s["recall_5deg"] == pytest.approx(60.0)  # + 4.5, 4.0; 30, 60 and the failures miss
     assert s["pct_1m_5deg"] == pytest.approx(20.0)  # the paper's joint threshold is unchanged
-    empty = evaluation.summarise(ERRORS.iloc[:0])
-    assert all(np.isnan(empty[c]) for c in evaluation.RECALL_COLUMNS)
+    empty = metrics.summarise(ERRORS.iloc[:0])
+    assert all(np.isnan(empty[c]) for c in metrics.RECALL_COLUMNS)
 
 
 def test_orienternet_figures_are_keyed_by_our_thresholds():
-    assert tuple(paper.ORIENTERNET_MGL_RECALL_M) == evaluation.RECALL_M
-    assert tuple(paper.ORIENTERNET_MGL_RECALL_DEG) == evaluation.RECALL_DEG
-    assert evaluation.RECALL_COLUMNS == [
+    assert tuple(paper.ORIENTERNET_MGL_RECALL_M) == metrics.RECALL_M
+    assert tuple(paper.ORIENTERNET_MGL_RECALL_DEG) == metrics.RECALL_DEG
+    assert metrics.RECALL_COLUMNS == [
         "recall_1m",
         "recall_3m",
         "recall_5m",
@@ -61,25 +62,25 @@ def test_orienternet_figures_are_keyed_by_our_thresholds():
 
 def _summaries():
     """Two runs as fine_eval writes them: the solver on GT-BB (gt maps) and on the whole map (depth)."""
-    gtbb = {"run": "solver_gt_gtbb", "map_type": "gt", "strategy": "GT-BB", **evaluation.summarise(ERRORS)}
+    gtbb = {"run": "solver_gt_gtbb", "map_type": "gt", "strategy": "GT-BB", **metrics.summarise(ERRORS)}
     whole = _errors([0.5, 2.0, 10.0, np.inf], [0.5, 2.0, 10.0, 180.0])
     return [
         gtbb,
-        {"run": "solver_depth_whole", "map_type": "depth", "strategy": "whole map", **evaluation.summarise(whole)},
+        {"run": "solver_depth_whole", "map_type": "depth", "strategy": "whole map", **metrics.summarise(whole)},
     ]
 
 
 def test_every_run_has_its_recalls_in_parquet_markdown_and_latex(tmp_path):
-    df = fine_table.table_rows(_summaries())
+    df = fine_rows.table_rows(_summaries())
     tables.write_table(df, "fine_localization", tmp_path / "f.parquet", tmp_path / "f.md", tmp_path / "f.tex")
     back = pd.read_parquet(tmp_path / "f.parquet").set_index("run")
-    assert back.loc["solver_gt_gtbb", evaluation.RECALL_COLUMNS].tolist() == pytest.approx([30, 50, 70, 20, 40, 60])
-    assert back.loc["solver_depth_whole", evaluation.RECALL_COLUMNS].tolist() == pytest.approx([25, 50, 50, 25, 50, 50])
+    assert back.loc["solver_gt_gtbb", metrics.RECALL_COLUMNS].tolist() == pytest.approx([30, 50, 70, 20, 40, 60])
+    assert back.loc["solver_depth_whole", metrics.RECALL_COLUMNS].tolist() == pytest.approx([25, 50, 50, 25, 50, 50])
 
     flat = (tmp_path / "f.md").read_text().splitlines()
     head = [c.strip() for c in flat[0].split("|")[1:-1]]
     row = dict(zip(head, (c.strip() for c in flat[2].split("|")[1:-1])))
-    assert row["run"] == "solver_gt_gtbb" and [row[c] for c in evaluation.RECALL_COLUMNS] == [
+    assert row["run"] == "solver_gt_gtbb" and [row[c] for c in metrics.RECALL_COLUMNS] == [
         "30",
         "50",
         "70",
@@ -93,7 +94,7 @@ def test_every_run_has_its_recalls_in_parquet_markdown_and_latex(tmp_path):
 
 
 def test_paper_layout_keeps_tables_4_5_and_adds_recall_beside_orienternet():
-    md = fine_table.render_markdown(fine_table.table_rows(_summaries()))
+    md = fine_table.render_markdown(fine_rows.table_rows(_summaries()))
     table4, recall = md.split("## Recall at the field's thresholds")
     assert "## Table 4 (GT-BB proposals)" in table4 and "## Table 5 (coarse proposals and whole map)" in table4
     assert "recall" not in table4.split("## Table 4")[1]  # the paper's layout stays as it was
@@ -110,9 +111,9 @@ def test_paper_layout_keeps_tables_4_5_and_adds_recall_beside_orienternet():
 
 def test_a_run_without_recalls_reads_as_missing_not_zero():
     """A summary written before the recalls existed: NaN in the table, a dash in the markdown."""
-    old = {k: v for k, v in _summaries()[0].items() if k not in evaluation.RECALL_COLUMNS}
-    df = fine_table.table_rows([old])
-    assert df[evaluation.RECALL_COLUMNS].isna().all(axis=None)
+    old = {k: v for k, v in _summaries()[0].items() if k not in metrics.RECALL_COLUMNS}
+    df = fine_rows.table_rows([old])
+    assert df[metrics.RECALL_COLUMNS].isna().all(axis=None)
     assert "| geometric solver | GT-BB | gt | – | – | – | – | – | – |" in fine_table.render_markdown(df)
 
 
@@ -126,11 +127,11 @@ def test_scene_rows_markdown_shows_the_recalls():
                 "map_type": "depth",
                 "proposal": "whole",
                 "strategy": "whole map",
-                **evaluation.summarise(ERRORS),
+                **metrics.summarise(ERRORS),
             }
         ]
     )
     lines = scene_localization.render_markdown(rows, "9").splitlines()
     head = [c.strip() for c in lines[2].split("|")[1:-1]]
     cells = dict(zip(head, (c.strip() for c in lines[4].split("|")[1:-1])))
-    assert [cells[c] for c in evaluation.RECALL_COLUMNS] == ["30.00", "50.00", "70.00", "20.00", "40.00", "60.00"]
+    assert [cells[c] for c in metrics.RECALL_COLUMNS] == ["30.00", "50.00", "70.00", "20.00", "40.00", "60.00"]

@@ -15,8 +15,8 @@ from conftest import TINY_SCENE
 from tiny_results import tiny_scene
 
 from flatlandia import config
+from flatlandia.benchmark import solver_runs
 from flatlandia.data import reference_map
-from flatlandia.fine import evaluation
 from flatlandia.report import figures
 from flatlandia.viewer import query_figures, scene_view
 
@@ -117,7 +117,7 @@ def tiny():
     settings = config.section_defaults("solver")
     for map_type in ("gt", "depth"):
         for proposal in ("gtbb", "whole"):
-            e = evaluation.solver_errors([(ref, q)], map_type, proposal, settings, split="train")
+            e = solver_runs.solver_errors([(ref, q)], map_type, proposal, settings, split="train")
             e["strategy"] = {"gtbb": "GT-BB", "whole": "whole map"}[proposal]
             errors[f"solver_{map_type}_{proposal}"] = e
             # a second method, so that panels hold several curves (the MLP's poses: the solver's, moved)

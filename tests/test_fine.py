@@ -9,6 +9,7 @@ import torch
 from snakemake_runner import smk
 
 from flatlandia import checkpoints, geo, proposals, solver
+from flatlandia.benchmark import fine_rows, metrics, solver_runs
 from flatlandia.fine import evaluation, fine_table, models, training
 from flatlandia.solver import problem, scoring
 
@@ -28,7 +29,7 @@ def scene(scene9):
 def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
     ref, q = scene
     props = proposals.gtbb_proposals(ref, q)
-    e = evaluation.evaluate_solver(ref, q, props, "gt")
+    e = solver_runs.evaluate_solver(ref, q, props, "gt")
     assert len(e) == len(q)
     assert (e["error_m"] < 0.1).mean() >= 0.99
     # the solver's matches, per local-map object, are the published ones (the figures link them)
@@ -41,7 +42,7 @@ def test_solver_exact_on_gt_maps_of_a_real_scene(scene):
 def test_solver_exact_on_gt_maps_whole_map(scene):
     ref, q = scene
     q = q.iloc[:20]
-    e = evaluation.evaluate_solver(ref, q, proposals.whole_map_proposals(ref, q), "gt")
+    e = solver_runs.evaluate_solver(ref, q, proposals.whole_map_proposals(ref, q), "gt")
     assert (e["error_m"] < 0.1).mean() >= 0.95
 
 
@@ -157,7 +158,7 @@ def test_fit_scale():
 
 
 def test_pose_errors_wrap_around():
-    e_m, e_deg = evaluation.pose_errors(3.0, 4.0, math.radians(179.0), 0.0, 0.0, math.radians(-179.0))
+    e_m, e_deg = geo.pose_errors(3.0, 4.0, math.radians(179.0), 0.0, 0.0, math.radians(-179.0))
     assert e_m == pytest.approx(5.0) and e_deg == pytest.approx(2.0)
 
 
@@ -171,7 +172,7 @@ def test_summary_on_hand_made_errors():
             "error_paper_m": [0.0] * 6,
         }
     )
-    s = evaluation.summarise(e)
+    s = metrics.summarise(e)
     assert s["pct_0.5m_2deg"] == pytest.approx(100 / 6)
     assert s["pct_1m_5deg"] == pytest.approx(200 / 6)
     assert s["pct_5m_10deg"] == pytest.approx(300 / 6)
@@ -183,17 +184,17 @@ def test_summary_on_hand_made_errors():
 
 
 def test_solvable_counts_class_multiset():
-    assert evaluation.solvable([1, 1, 2], [1, 1, 2, 5])
-    assert not evaluation.solvable([1, 1, 2], [1, 2, 5])  # only one object of class 1 for two query objects
-    assert not evaluation.solvable([1, 2, 3], [4, 5, 6])
+    assert metrics.solvable([1, 1, 2], [1, 1, 2, 5])
+    assert not metrics.solvable([1, 1, 2], [1, 2, 5])  # only one object of class 1 for two query objects
+    assert not metrics.solvable([1, 2, 3], [4, 5, 6])
 
 
 def test_gtbb_box_and_paper_units():
     ref_xy = np.array([[0.0, 0.0], [10.0, 10.0], [10.5, 5.0], [12.0, 5.0], [-0.4, 5.0]])
     idx = proposals.gtbb_indices(ref_xy, [0, 1], [10.0, 0.0])
     assert set(idx) == {0, 1, 2, 4}  # box [0,10]^2 enlarged 10%: [-0.5, 10.5]
-    mpu = evaluation.metres_per_unit(45.0)
-    assert evaluation.paper_metres(mpu, 45.0) == pytest.approx(215.0)
+    mpu = metrics.metres_per_unit(45.0)
+    assert metrics.paper_metres(mpu, 45.0) == pytest.approx(215.0)
 
 
 def test_markdown_table_layout():
@@ -208,11 +209,11 @@ def test_markdown_table_layout():
             mean_query_s=0.002,
             failure_pct=0.0,
             gross_pct=1.0,
-            **{c: 10.0 for c in evaluation.THRESHOLD_COLUMNS},
+            **{c: 10.0 for c in metrics.THRESHOLD_COLUMNS},
         )
         for mt in ("gt", "depth")
     ]
-    md = fine_table.render_markdown(fine_table.table_rows(rows))
+    md = fine_table.render_markdown(fine_rows.table_rows(rows))
     assert "Table 4" in md and "| MLP | GT-BB |" in md and "13.3" in md  # the paper's depth MLP median
 
 
@@ -369,9 +370,9 @@ def test_external_proposal_table_and_failure_rate(scene):
     props = good.copy()
     props["strategy"] = "2N_LM"
     props.loc[0, "proposal"] = [int(ref["obj_idx"].iloc[0])]  # one object: cannot hold a solution
-    e = evaluation.evaluate_solver(ref, q, props, "gt")
+    e = solver_runs.evaluate_solver(ref, q, props, "gt")
     assert not e.loc[0, "solvable"] and e.loc[1:, "solvable"].all()
-    assert evaluation.summarise(e)["failure_pct"] == pytest.approx(100 / 6)
+    assert metrics.summarise(e)["failure_pct"] == pytest.approx(100 / 6)
     assert (e.loc[1:, "error_m"] < 0.1).all() and set(e["strategy"]) == {"2N_LM"}
 
 

@@ -148,14 +148,14 @@ def test_depth_queries_in_any_unit(tiny_scene, tiny_map, tmp_path):
 def test_the_benchmark_path_is_the_same(tiny_scene, tiny_map, tmp_path):
     """The command's pose is rule fine_eval's (evaluate_solver on the whole map, the scene's priors)."""
     from flatlandia import proposals
-    from flatlandia.fine import evaluation
+    from flatlandia.benchmark import solver_runs
 
     ref, _, q = tiny_scene
     test = q[q["split"] == "test"]
     learned = solver.LearnedPriors.read(tiny_map.parents[2] / "solver/priors/whole.json")
     m = localize.load_map(tiny_map)
     for map_type in ("gt", "depth"):
-        e = evaluation.evaluate_solver(
+        e = solver_runs.evaluate_solver(
             ref,
             test,
             proposals.whole_map_proposals(ref, test),

@@ -21,7 +21,8 @@ from conftest import REPO, TINY_SCENE, smk_dry_run
 from snakemake_runner import smk
 
 from flatlandia import cli, config, geo, score
-from flatlandia.fine import evaluation, fine_table
+from flatlandia.benchmark import fine_rows, metrics
+from flatlandia.fine import fine_table
 from flatlandia.plumbing import files
 from flatlandia.plumbing.errors import InputError
 from flatlandia.report import figures, tables
@@ -317,9 +318,9 @@ def test_round_trip_the_solvers_own_poses_score_as_the_solver(tiny_results, tiny
             _write(poses, tmp_path / f"{proposal}.csv"), tiny_scenes, "mine", "depth", proposal, split="train"
         )
         assert not _round_trip_columns(run.errors, solver, FIT_COLUMNS | {"method"})
-        mine = fine_table.table_rows([run.summary])
+        mine = fine_rows.table_rows([run.summary])
         theirs = builtin[builtin["run"] == f"solver_depth_{proposal}"].reset_index(drop=True)
-        answers = set(evaluation.ANSWER_COLUMNS)  # the solver's answers: poses from outside carry none
+        answers = set(metrics.ANSWER_COLUMNS)  # the solver's answers: poses from outside carry none
         assert not _round_trip_columns(mine, theirs, {"run", "method", "method_label"} | answers)
         assert mine["trained_on"].iloc[0] == "" and mine["method_label"].iloc[0] == "mine"
 
@@ -511,7 +512,7 @@ def test_cli_writes_the_runs_and_scores_md(tiny_results, tiny_scenes, tmp_path, 
         )
         assert files.read_parquet_metadata(out / run / "errors.parquet")["run"] == run
         s = json.loads((out / run / "summary.json").read_text())
-        assert s["run"] == run and s["external"] and set(evaluation.RECALL_COLUMNS) <= set(s)
+        assert s["run"] == run and s["external"] and set(metrics.RECALL_COLUMNS) <= set(s)
     md = (out / "scores.md").read_text()
     assert "| mine (yours) |" in md and "| geometric solver |" in md
     assert md.count("recall 1 m") == 2 and "recall 5°" in md and "10 m & 20°" in md
@@ -543,7 +544,7 @@ def test_builtin_names_are_the_vocabularys_in_the_figures_and_the_fine_table():
     vocabulary's order (the schema's enums: tests/test_vocabulary.py)."""
     from flatlandia import vocabulary
 
-    assert tuple(figures.METHOD_COLOURS) == vocabulary.METHODS == tuple(fine_table.METHOD_LABELS)
+    assert tuple(figures.METHOD_COLOURS) == vocabulary.METHODS == tuple(fine_rows.METHOD_LABELS)
     with pytest.raises(InputError, match="built-in method"):
         score.check_name("mlp_att")
 
@@ -552,7 +553,7 @@ def test_the_fine_table_takes_an_external_row(tiny_results, tiny_scenes, tmp_pat
     poses = score.read_poses(_write(_noisy(_truth(tiny_scenes)), tmp_path / "p.csv"), tiny_scenes, "train")
     run = score.score_run(poses, tiny_scenes, "mine", "depth", "whole")
     builtin = pd.read_parquet(tiny_results / "tables" / "fine_localization.parquet")
-    df = pd.concat([builtin, fine_table.table_rows([run.summary])], ignore_index=True)
+    df = pd.concat([builtin, fine_rows.table_rows([run.summary])], ignore_index=True)
     tables.write_table(df, "fine_localization", tmp_path / "t.parquet", tmp_path / "t.md", tmp_path / "t.tex")
     row = df[df["method"] == "mine"].iloc[0]
     assert (row["method_label"], row["trained_on"], row["epochs"], row["strategy"]) == ("mine", "", 0, "whole map")
@@ -740,7 +741,7 @@ def test_workflow_scores_external_methods_into_the_table_and_figures(external_wo
     assert not _round_trip_columns(
         table.iloc[[1]].reset_index(drop=True),
         table.iloc[[0]].reset_index(drop=True),
-        {"run", "method", "method_label"} | set(evaluation.ANSWER_COLUMNS),
+        {"run", "method", "method_label"} | set(metrics.ANSWER_COLUMNS),
     )
     noisy = table[table["method"] == "noisy"]
     assert np.allclose(noisy["median_m"], 2 * math.sqrt(2), atol=1e-6)  # 2 m east and north

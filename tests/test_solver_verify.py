@@ -10,8 +10,8 @@ import pytest
 from conftest import published_scene
 
 from flatlandia import geo, proposals, solver
+from flatlandia.benchmark import solver_runs
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation
 from flatlandia.solver import bound, kernels, priors, scoring, verify, verify_fit
 
 
@@ -158,7 +158,7 @@ def test_verifier_learned_on_real_training_splits_places_more_test_queries(real_
         props = proposals.whole_map_proposals(ref, held)
         for use in counts:
             learned = solver.LearnedPriors(scale_prior, verifier if use else None)
-            e = evaluation.evaluate_solver(ref, held, props, "depth", priors=solver.scene_priors(ref, q, {}, learned))
+            e = solver_runs.evaluate_solver(ref, held, props, "depth", priors=solver.scene_priors(ref, q, {}, learned))
             counts[use] += _within(e)
         n += len(held)
     assert counts[True] > counts[False] and counts[True] >= 0.6 * n

@@ -15,8 +15,8 @@ import pandas as pd
 from conftest import TINY_ROOT, TINY_SCENE
 
 from flatlandia import config, score
+from flatlandia.benchmark import fine_rows, metrics, solver_runs
 from flatlandia.data import scene_inputs
-from flatlandia.fine import evaluation, fine_table
 from flatlandia.plumbing import files
 
 
@@ -44,7 +44,7 @@ def tiny_scene() -> scene_inputs.SceneInputs:
 
 def builtin_summary(errors: pd.DataFrame, method: str, map_type: str, proposal: str, label: str, ref) -> dict:
     """A built-in run's summary as rule fine_eval writes it (the solver's)."""
-    s = evaluation.summarise(errors)
+    s = metrics.summarise(errors)
     s.update(
         method=str(errors["method"].iloc[0]),
         method_slug=method,
@@ -52,7 +52,7 @@ def builtin_summary(errors: pd.DataFrame, method: str, map_type: str, proposal: 
         proposal=proposal,
         strategy=label,
         run=f"{method}_{map_type}_{proposal}",
-        ref_map_kb=evaluation.ref_map_kb(ref),
+        ref_map_kb=metrics.ref_map_kb(ref),
         train_s=0.0,
         epochs=0,
         trained_on="",
@@ -68,11 +68,11 @@ def build(root: Path) -> Path:
     files.write_parquet(pd.DataFrame({"scene": [TINY_SCENE]}), root / score.BENCHMARK_RECORD)
     summaries = []
     for proposal, label in (("whole", "whole map"), ("gtbb", "GT-BB")):
-        e = evaluation.solver_errors([(ref, q)], "depth", proposal, config.section_defaults("solver"), split="train")
+        e = solver_runs.solver_errors([(ref, q)], "depth", proposal, config.section_defaults("solver"), split="train")
         e["strategy"] = label
         folder = root / "fine" / f"solver_depth_{proposal}"
         files.write_parquet(e, folder / "errors.parquet")
         summaries.append(builtin_summary(e, "solver", "depth", proposal, label, ref))
-        files.write_json(evaluation.json_safe(summaries[-1]), folder / "summary.json")
-    files.write_parquet(fine_table.table_rows(summaries), root / "tables" / "fine_localization.parquet")
+        files.write_json(files.json_safe(summaries[-1]), folder / "summary.json")
+    files.write_parquet(fine_rows.table_rows(summaries), root / "tables" / "fine_localization.parquet")
     return root

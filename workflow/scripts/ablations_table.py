@@ -5,6 +5,7 @@ and fix protocol's scene rows with the camera prior on and off, the beyond table
 import json
 from pathlib import Path
 
+from flatlandia.benchmark import fine_rows
 from flatlandia.fine import fine_table
 from flatlandia.plumbing import files, rule_log
 from flatlandia.report import tables
@@ -17,7 +18,7 @@ def _below(markdown: str) -> str:
 
 
 def main(smk, log):
-    fine = fine_table.table_rows([json.loads(Path(p).read_text()) for p in smk.input.summaries])
+    fine = fine_rows.table_rows([json.loads(Path(p).read_text()) for p in smk.input.summaries])
     tables.write_table(fine, "fine_localization", smk.output.fine)
     rows = [r for p in smk.input.beyond for r in json.loads(Path(p).read_text())]
     beyond = sequence_table.table(rows)

@@ -9,8 +9,8 @@ import pandas as pd
 
 from flatlandia import solver
 from flatlandia.city.index import ViewIndex
-from flatlandia.fine.evaluation import json_safe
 from flatlandia.plumbing import files, rule_log
+from flatlandia.plumbing.files import json_safe
 from flatlandia.sequences import evaluation
 from flatlandia.solver.learned_priors import read_map_size
 

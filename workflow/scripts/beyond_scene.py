@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import solver
-from flatlandia.fine.evaluation import json_safe
 from flatlandia.plumbing import files, rule_log
+from flatlandia.plumbing.files import json_safe
 from flatlandia.sequences import evaluation
 
 

@@ -11,8 +11,8 @@ import pandas as pd
 
 from flatlandia import solver
 from flatlandia.city import evaluation, search
-from flatlandia.fine.evaluation import json_safe
 from flatlandia.plumbing import files, rule_log
+from flatlandia.plumbing.files import json_safe
 from flatlandia.solver.learned_priors import read_map_size
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import proposals, solver, vocabulary
+from flatlandia.benchmark import metrics, solver_runs
 from flatlandia.fine import evaluation
 from flatlandia.plumbing import files, rule_log
 
@@ -36,7 +37,7 @@ def main(smk, log):
         learned = solver.LearnedPriors.read(smk.input.solver_priors) if smk.input.get("solver_priors") else None
         log.info("learned priors: %s", learned)
         progress = lambda what: rule_log.progress(log, what)  # noqa: E731
-        errors = evaluation.solver_errors(scenes, mt, proposal, settings, learned, coarse, strategy, progress=progress)
+        errors = solver_runs.solver_errors(scenes, mt, proposal, settings, learned, coarse, strategy, progress=progress)
     else:  # torch only here: the solver's runs start faster without it (docs/measurements.md, "Start-up costs")
         import torch
 
@@ -60,7 +61,7 @@ def main(smk, log):
         "model_config": cfg.to_dict() if cfg else None,
     }
     files.write_parquet(errors, smk.output.errors, meta)
-    summary = evaluation.summarise(errors)
+    summary = metrics.summarise(errors)
     summary.update(
         method=str(errors["method"].iloc[0]),
         method_slug=method,
@@ -68,7 +69,7 @@ def main(smk, log):
         proposal=proposal,
         strategy=label,
         run=run,
-        ref_map_kb=float(np.mean([evaluation.ref_map_kb(ref) for ref, _ in scenes])) if scenes else float("nan"),
+        ref_map_kb=float(np.mean([metrics.ref_map_kb(ref) for ref, _ in scenes])) if scenes else float("nan"),
         train_s=0.0,
         epochs=0,
         trained_on=proposals.training_label(regime or "", crop_m or 0.0),
@@ -83,7 +84,7 @@ def main(smk, log):
             train_s=float(info.get("seconds") or 0.0),
             epochs=int(cfg.epochs),
         )
-    files.write_json(evaluation.json_safe(summary), smk.output.summary)
+    files.write_json(files.json_safe(summary), smk.output.summary)
     log.info("%s: %s", run, summary)
 
 

@@ -10,6 +10,7 @@ import json
 
 import pandas as pd
 
+from flatlandia.benchmark import fine_rows
 from flatlandia.fine import fine_table
 from flatlandia.plumbing import files, rule_log
 from flatlandia.report import tables
@@ -17,7 +18,7 @@ from flatlandia.report import tables
 
 def main(smk, log):
     summaries = [json.loads(open(p).read()) for p in smk.input.summaries]
-    df = fine_table.table_rows(summaries)
+    df = fine_rows.table_rows(summaries)
     note = (
         "Test split of every scene; errors in true metres (pu: the paper's convention, local-map units x 215). "
         "Learned models train on the train split (best-on-validation weights) with GT-BB proposals, or, for "

@@ -1,8 +1,8 @@
 """Errors of a city's queries under the two methods, and their summary row.
 
 ``solver``: today's geometric solver on the whole city map (every object a candidate, every view
-a prior), through ``fine.evaluation.evaluate_solver``. ``index``: the city search
-(:mod:`flatlandia.city.search`). Both rows share ``fine.evaluation.error_row``'s columns; the
+a prior), through ``benchmark.solver_runs.evaluate_solver``. ``index``: the city search
+(:mod:`flatlandia.city.search`). Both rows share ``benchmark.metrics.error_row``'s columns; the
 index adds whether the true place was among its regions (``region_hit``).
 """
 
@@ -14,15 +14,15 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from flatlandia import proposals, solver
+from flatlandia import geo, proposals, solver
+from flatlandia.benchmark import metrics, solver_runs
 from flatlandia.city import index, search, simulate
 from flatlandia.city.index import ViewIndex
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation
 
 #: a pose farther than this from the truth is in the wrong scene (scenes are < 300 m across and
 #: tiled 1 km apart)
-WRONG_SCENE_M = evaluation.WRONG_SCENE_M
+WRONG_SCENE_M = metrics.WRONG_SCENE_M
 
 
 def solver_errors(
@@ -30,7 +30,7 @@ def solver_errors(
 ) -> pd.DataFrame:
     """Today's solver on the whole map of one city: the ``split`` queries, priors from its training split."""
     test = queries[queries["split"] == split]
-    return evaluation.evaluate_solver(
+    return solver_runs.evaluate_solver(
         ref,
         test,
         proposals.whole_map_proposals(ref, test),
@@ -63,11 +63,11 @@ def index_errors(
             pose, errors, fit = (np.nan, np.nan, np.nan), (np.inf, 180.0), (0.0, 0, 0)
         else:
             pose = (sol.x, sol.y, sol.theta)
-            errors = evaluation.pose_errors(sol.x, sol.y, sol.theta, r.x_m, r.y_m, np.radians(r.theta_deg))
+            errors = geo.pose_errors(sol.x, sol.y, sol.theta, r.x_m, r.y_m, np.radians(r.theta_deg))
             truth = [int(o) for o in r.ref_idx]
             correct = sum(int(ix.obj_id[found.rows[c]]) == truth[k] for k, c in sol.inliers)
             fit = (sol.confidence, len(sol.inliers), correct)
-        row = evaluation.error_row(
+        row = metrics.error_row(
             r,
             method="index + solver",
             map_type="depth",
@@ -80,7 +80,7 @@ def index_errors(
             seconds=dt,
             cpu_seconds=dc,
             probability=sol.probability if sol is not None else 0.0,
-            answered=evaluation.answered(sol, solver_settings),
+            answered=metrics.answered(sol, solver_settings),
         )
         near = np.hypot(*(found.centres - [r.x_m, r.y_m]).T) if len(found.centres) else np.zeros(0)
         row["region_hit"] = bool(np.any(near <= cfg.nms_m))
@@ -89,10 +89,10 @@ def index_errors(
 
 
 def summary(errors: pd.DataFrame) -> dict:
-    """The table's figures of one method at one city size (``fine.evaluation.summarise`` plus the
+    """The table's figures of one method at one city size (``benchmark.metrics.summarise`` plus the
     city's own: within (5 m, 5 deg), wrong scene, CPU p90, region hits; the answers' figures,
-    ``fine.evaluation.answer_summary``)."""
-    s = evaluation.summarise(errors)
+    ``benchmark.metrics.answer_summary``)."""
+    s = metrics.summarise(errors)
     em, ed = errors["error_m"].to_numpy(float), errors["error_deg"].to_numpy(float)
     cpu = errors["cpu_seconds"].to_numpy(float)
     out = {
@@ -101,9 +101,9 @@ def summary(errors: pd.DataFrame) -> dict:
             "queries",
             "median_m",
             "median_deg",
-            *evaluation.RECALL_COLUMNS,
+            *metrics.RECALL_COLUMNS,
             "no_pose_pct",
-            *evaluation.ANSWER_COLUMNS,
+            *metrics.ANSWER_COLUMNS,
         ]
     }
     out.update(

@@ -9,93 +9,9 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import paper, vocabulary
-from flatlandia.fine import evaluation
+from flatlandia.benchmark import metrics
 from flatlandia.plumbing import escape
 from flatlandia.report import tables
-
-#: method slugs (rule wildcards) and their display names (vocabulary.METHOD_LABELS); an external
-#: method (config ``external``, ``flatlandia score``) is shown by its summary's ``method``, its name
-METHOD_LABELS = vocabulary.METHOD_LABELS
-
-
-def paper_row(label: str, map_type: str, strategy: str):
-    """(name, values) of the paper's row of the same method, map type and proposal: Table 4 by model
-    on GT-BB, Table 5 (its MLP on Sim+Trip 2N_LM) on those proposals; ("", NaN...) where the paper has
-    no such row (the solver, the whole map, the solver's boxes, another coarse proposal, an external
-    method). values = (4 threshold %, median "m", median deg, query ms)."""
-    nan = float("nan")
-    none = ("", (nan,) * 7)
-    if strategy == "GT-BB":
-        p = paper.TABLE4.get((label, map_type))
-        if p is None:
-            return none
-        qt = 1000 * paper.MLP_QUERY_S if label == "MLP" else nan
-        return f"Table 4 {label}", (*p, qt)
-    if label == "MLP" and strategy == "Sim+Trip 2N_LM":
-        p5 = paper.TABLE5.get(("MLP", "Sim+Trip", map_type))
-        if p5 is not None:
-            return "Table 5 MLP Sim+Trip 2N_LM", (nan, nan, nan, nan, p5[0], p5[1], 1000 * paper.MLP_QUERY_S)
-    return none
-
-
-def table_rows(summaries: list[dict]) -> pd.DataFrame:
-    """The ``fine_localization`` table (schema in tables.SCHEMAS): one row per run summary, the
-    paper's row beside it."""
-    nan = float("nan")
-    rows = []
-    for s in summaries:
-        run = s.get("run", "")
-        method = s.get("method_slug") or (run.rsplit("_", 2)[0] if run else "")
-        label = METHOD_LABELS.get(method, s.get("method", method))
-        strategy = s.get("strategy", "")
-        name, p = paper_row(label, s.get("map_type", ""), strategy)
-
-        def f(k, scale=1.0, s=s):
-            v = s.get(k)
-            return nan if v is None else float(v) * scale
-
-        row = {
-            "run": run,
-            "method": method,
-            "method_label": label,
-            "map_type": s.get("map_type", ""),
-            "proposal": s.get("proposal", run.rsplit("_", 1)[-1] if run else ""),
-            "strategy": strategy,
-            "queries": int(s.get("queries", 0)),
-            "median_m": f("median_m"),
-            "median_deg": f("median_deg"),
-        }
-        row.update({c: f(c) for c in evaluation.THRESHOLD_COLUMNS})
-        row.update({c: f(c) for c in evaluation.RECALL_COLUMNS})
-        row[evaluation.WITHIN_COLUMN] = f(evaluation.WITHIN_COLUMN)
-        row.update(
-            failure_pct=f("failure_pct"),
-            no_pose_pct=f("no_pose_pct"),
-            gross_pct=f("gross_pct"),
-            median_query_ms=f("median_query_s", 1000),
-            mean_query_ms=f("mean_query_s", 1000),
-            median_query_cpu_ms=f("median_query_cpu_s", 1000),
-            train_s=f("train_s") if s.get("train_s") is not None else 0.0,
-            epochs=int(s.get("epochs") or 0),
-            n_parameters=int(s.get("n_parameters") or 0),
-            model_mb=float(s.get("model_mb") or 0.0),
-            ref_map_kb=f("ref_map_kb"),
-            median_pu=f("median_pu"),
-            # a summary without the key is a learned model's of an older run (GT-BB); the solver's and an
-            # external method's are '' (not trained here)
-            trained_on=str(
-                s.get("trained_on") or (vocabulary.ORACLE_STRATEGY if method in vocabulary.LEARNED_METHODS else "")
-            ),
-        )
-        row.update({c: f(c) for c in evaluation.PAPER_UNIT_THRESHOLD_COLUMNS})
-        row["paper_row"] = name
-        row.update({f"paper_{c}": float(v) for c, v in zip(evaluation.THRESHOLD_COLUMNS, p[:4])})
-        row.update(paper_median_pu=float(p[4]), paper_median_deg=float(p[5]), paper_query_ms=float(p[6]))
-        row.update({c: f(c) for c in evaluation.ANSWER_COLUMNS})
-        rows.append(row)
-    cols = [c.name for c in tables.SCHEMAS["fine_localization"]]
-    return pd.DataFrame(rows, columns=cols)
-
 
 #: Tables 4-5: one number per cell, ours then the paper's row of the same method (its metres are
 #: local-map units x 215: compare them with our `pu` column)
@@ -103,13 +19,13 @@ ACCURACY_COLUMNS = [
     ("median m", "median_m", ".2f"),
     ("median pu", "median_pu", ".2f"),
     ("median °", "median_deg", ".1f"),
-    *[(f"% ({m:g} m, {d:g}°)", c, ".1f") for (m, d), c in zip(paper.THRESHOLDS, evaluation.THRESHOLD_COLUMNS)],
-    ("% (5 m, 5°)", evaluation.WITHIN_COLUMN, ".1f"),
+    *[(f"% ({m:g} m, {d:g}°)", c, ".1f") for (m, d), c in zip(paper.THRESHOLDS, metrics.THRESHOLD_COLUMNS)],
+    ("% (5 m, 5°)", metrics.WITHIN_COLUMN, ".1f"),
     ('paper median "m"', "paper_median_pu", "g"),
     ("paper median °", "paper_median_deg", "g"),
     *[
         (f"paper % ({m:g} m, {d:g}°)", f"paper_{c}", "g")
-        for (m, d), c in zip(paper.THRESHOLDS, evaluation.THRESHOLD_COLUMNS)
+        for (m, d), c in zip(paper.THRESHOLDS, metrics.THRESHOLD_COLUMNS)
     ],
 ]
 COST_COLUMNS = [
@@ -195,7 +111,7 @@ def render_markdown(df: pd.DataFrame, note: str = "") -> str:
 def recall_markdown(df: pd.DataFrame) -> list[str]:
     """Every run's recall at the field's thresholds, OrienterNet's published MGL row under them: a
     table of its own, so that Tables 4-5 keep the paper's layout. Lines of markdown."""
-    heads = [f"{m:g} m" for m in evaluation.RECALL_M] + [f"{d:g}°" for d in evaluation.RECALL_DEG]
+    heads = [f"{m:g} m" for m in metrics.RECALL_M] + [f"{d:g}°" for d in metrics.RECALL_DEG]
     out = [
         "## Recall at the field's thresholds",
         "",
@@ -211,12 +127,12 @@ def recall_markdown(df: pd.DataFrame) -> list[str]:
         "|---|---|---|" + "---|" * (len(heads) + 1),
     ]
     for r in _ordered(df).to_dict("records"):
-        cols = [*evaluation.RECALL_COLUMNS, evaluation.WITHIN_COLUMN]
+        cols = [*metrics.RECALL_COLUMNS, metrics.WITHIN_COLUMN]
         cells = ["–" if not np.isfinite(r.get(c, float("nan"))) else f"{r[c]:.1f}" for c in cols]
         labels = [escape.markdown(r[c]) for c in ("method_label", "strategy", "map_type")]
         out.append("| " + " | ".join(labels + cells) + " |")
-    theirs = [paper.ORIENTERNET_MGL_RECALL_M[m] for m in evaluation.RECALL_M] + [
-        paper.ORIENTERNET_MGL_RECALL_DEG[d] for d in evaluation.RECALL_DEG
+    theirs = [paper.ORIENTERNET_MGL_RECALL_M[m] for m in metrics.RECALL_M] + [
+        paper.ORIENTERNET_MGL_RECALL_DEG[d] for d in metrics.RECALL_DEG
     ]
     out.append(
         "| OrienterNet, MGL (another task) | OSM raster, 100-200 m prior | image | "
@@ -230,7 +146,7 @@ def recall_markdown(df: pd.DataFrame) -> list[str]:
 ANSWER_MARKDOWN = [
     ("% answered", "answered_pct", ".1f"),
     ("% within (5 m, 5°) of the answered", "within_answered_pct", ".1f"),
-    ("% within (5 m, 5°) of all", evaluation.WITHIN_COLUMN, ".1f"),
+    ("% within (5 m, 5°) of all", metrics.WITHIN_COLUMN, ".1f"),
     ("answerable at ≥ 95 % within, %", "answerable_95_pct", ".1f"),
     ("calibration error, points", "ece_points", ".1f"),
 ]
@@ -281,7 +197,7 @@ def per_scene_rows(df: pd.DataFrame, errors: dict[str, pd.DataFrame]) -> pd.Data
     for run in per_scene_runs(df):
         meta = df.set_index("run").loc[run]
         for scene, e in errors[run].groupby(errors[run]["scene"].astype(str), sort=False):
-            s = evaluation.summarise(e)
+            s = metrics.summarise(e)
             rows.append(
                 {
                     "scene": scene,
@@ -292,7 +208,7 @@ def per_scene_rows(df: pd.DataFrame, errors: dict[str, pd.DataFrame]) -> pd.Data
                     "queries": int(s["queries"]),
                     "median_m": s["median_m"],
                     "median_deg": s["median_deg"],
-                    "within_5m_5deg": s[evaluation.WITHIN_COLUMN],
+                    "within_5m_5deg": s[metrics.WITHIN_COLUMN],
                 }
             )
     cols = [c.name for c in tables.SCHEMAS["fine_per_scene"]]

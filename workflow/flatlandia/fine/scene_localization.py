@@ -14,6 +14,7 @@ from collections.abc import Callable
 import pandas as pd
 
 from flatlandia import proposals, vocabulary
+from flatlandia.benchmark import metrics, solver_runs
 from flatlandia.fine import evaluation
 from flatlandia.plumbing import escape
 
@@ -43,7 +44,7 @@ def scene_rows(
         make = proposals.gtbb_proposals if proposal == vocabulary.GTBB else proposals.whole_map_proposals
         props = make(ref, queries)
         for map_type in map_types:
-            errors = evaluation.evaluate_solver(
+            errors = solver_runs.evaluate_solver(
                 ref, queries, props, map_type, no_prior, method="geometric solver", progress=progress
             )
             rows.append(_row(scene, "geometric solver", "solver", map_type, proposal, label, errors))
@@ -62,7 +63,7 @@ def _row(scene, method, slug, map_type, proposal, label, errors: pd.DataFrame) -
         "map_type": map_type,
         "proposal": proposal,
         "strategy": label,
-        **evaluation.summarise(errors),
+        **metrics.summarise(errors),
     }
 
 
@@ -74,7 +75,7 @@ def render_markdown(rows: pd.DataFrame, scene: str) -> str:
     if rows.empty:
         return head + "No rows: the scene has no query (see results/summary.md for why).\n"
     cols = ["method", "map_type", "strategy", "queries", "median_m", "median_deg"]
-    cols += evaluation.THRESHOLD_COLUMNS + evaluation.RECALL_COLUMNS
+    cols += metrics.THRESHOLD_COLUMNS + metrics.RECALL_COLUMNS
     lines = ["| " + " | ".join(escape.markdown(c) for c in cols) + " |", "|" + "---|" * len(cols)]
     for r in rows[cols].to_dict("records"):
         cells = [f"{r[c]:.2f}" if isinstance(r[c], float) else escape.markdown(r[c]) for c in cols]

@@ -15,8 +15,8 @@ without a pose is a row left out, or one whose three pose cells are empty (CSV) 
 as ``poses_template.csv`` of the export comes.
 
 Why the same functions: a row of an external run must read against the solver's and the learned
-models' rows, so it is built by :func:`flatlandia.fine.evaluation.error_row` (errors by
-:func:`flatlandia.geo.pose_errors`) and summarised by :func:`flatlandia.fine.evaluation.summarise`;
+models' rows, so it is built by :func:`flatlandia.benchmark.metrics.error_row` (errors by
+:func:`flatlandia.geo.pose_errors`) and summarised by :func:`flatlandia.benchmark.metrics.summarise`;
 a query without a pose is a failure exactly as the solver's (no pose: infinite error, 180 deg).
 Every problem of a file is one :class:`flatlandia.plumbing.errors.InputError` naming the file; what looks
 like a convention mix-up (lon/lat swapped, radians for degrees) is a warning, not an error.

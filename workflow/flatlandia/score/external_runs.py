@@ -17,7 +17,7 @@ import pandas as pd
 
 from flatlandia import geo, paths, vocabulary
 from flatlandia import proposals as proposals_module
-from flatlandia.fine import evaluation
+from flatlandia.benchmark import metrics
 from flatlandia.plumbing import files, validate
 from flatlandia.plumbing.errors import InputError
 from flatlandia.score.plausibility import plausibility
@@ -69,7 +69,7 @@ def errors_table(
     coarse: pd.DataFrame | None = None,
     strategy: str | None = None,
 ) -> pd.DataFrame:
-    """One run's errors table (rule fine_eval's columns, :func:`evaluation.error_row`): a row per
+    """One run's errors table (rule fine_eval's columns, :func:`metrics.error_row`): a row per
     ``split`` query of every scene, in the solver's order; the file's pose of that query in this
     (map_type, proposal) setting, or a failure (no pose: infinite error, 180 deg) where it has none.
     The proposal gives the row's proposal size and solvability (F%), as for the built-in runs. A file
@@ -98,7 +98,7 @@ def errors_table(
                 errors = geo.pose_errors(x, y, pose[2], r.x_m, r.y_m, math.radians(r.theta_deg))
             answered, probability = answer_of(poses, given[4:] if given is not None else None)
             rows.append(
-                evaluation.error_row(
+                metrics.error_row(
                     r,
                     method=name,
                     map_type=map_type,
@@ -140,9 +140,9 @@ def run_summary(
     strategy: str | None,
     poses: Poses,
 ) -> dict:
-    """Rule fine_eval's summary of a run (:func:`evaluation.summarise` and the same keys), with
+    """Rule fine_eval's summary of a run (:func:`metrics.summarise` and the same keys), with
     how many queries the file gave a pose (``scored``) and how many it left out (``missing``)."""
-    out = evaluation.summarise(errors)
+    out = metrics.summarise(errors)
     scored = int(np.isfinite(errors["x"].to_numpy(float)).sum()) if len(errors) else 0
     out.update(
         method=name,
@@ -151,7 +151,7 @@ def run_summary(
         proposal=proposal,
         strategy=vocabulary.strategy_label(proposal, strategy),
         run=f"{name}_{map_type}_{proposal}",
-        ref_map_kb=float(np.mean([evaluation.ref_map_kb(b.ref) for b in scenes.values()])) if scenes else float("nan"),
+        ref_map_kb=float(np.mean([metrics.ref_map_kb(b.ref) for b in scenes.values()])) if scenes else float("nan"),
         train_s=0.0,
         epochs=0,
         trained_on="",
@@ -195,7 +195,7 @@ class Run:
 
     def write(self, errors_path: str | Path, summary_path: str | Path) -> None:
         files.write_parquet(self.errors, errors_path, self.metadata())
-        files.write_json(evaluation.json_safe(self.summary), summary_path)
+        files.write_json(files.json_safe(self.summary), summary_path)
 
     def describe(self) -> str:
         """One paragraph for the terminal: queries, scored, missing, medians, recalls."""
@@ -204,15 +204,15 @@ class Run:
         def f(v, spec):
             return "–" if v is None or not np.isfinite(v) else format(v, spec)
 
-        rm = " / ".join(f(s[c], ".1f") for c in evaluation.RECALL_COLUMNS[: len(evaluation.RECALL_M)])
-        rd = " / ".join(f(s[c], ".1f") for c in evaluation.RECALL_COLUMNS[len(evaluation.RECALL_M) :])
-        ms = " / ".join(f"{m:g}" for m in evaluation.RECALL_M)
-        ds = " / ".join(f"{d:g}" for d in evaluation.RECALL_DEG)
+        rm = " / ".join(f(s[c], ".1f") for c in metrics.RECALL_COLUMNS[: len(metrics.RECALL_M)])
+        rd = " / ".join(f(s[c], ".1f") for c in metrics.RECALL_COLUMNS[len(metrics.RECALL_M) :])
+        ms = " / ".join(f"{m:g}" for m in metrics.RECALL_M)
+        ds = " / ".join(f"{d:g}" for d in metrics.RECALL_DEG)
         return (
             f"{self.run} ({self.map_type} local maps, {s['strategy']} proposals): {s['queries']} {s['split']} queries, "
             f"{s['scored']} scored, {s['missing']} missing (failures); median {f(s['median_m'], '.2f')} m, "
             f"{f(s['median_deg'], '.2f')} deg; recall {ms} m: {rm} %; {ds} deg: {rd} %; "
-            f"{f(s[evaluation.WITHIN_COLUMN], '.1f')} % within ({evaluation.WITHIN[0]:g} m, {evaluation.WITHIN[1]:g} deg)"
+            f"{f(s[metrics.WITHIN_COLUMN], '.1f')} % within ({metrics.WITHIN[0]:g} m, {metrics.WITHIN[1]:g} deg)"
             + (self.answers() if s.get("has_status") else "")
         )
 
@@ -224,7 +224,7 @@ class Run:
         of_them = "none answered" if within is None or not np.isfinite(within) else f"{within:.1f} % of them within"
         return (
             f"; {s['answered_pct']:.1f} % answered (status {vocabulary.ANSWERED}), {of_them} "
-            f"({evaluation.WITHIN[0]:g} m, {evaluation.WITHIN[1]:g} deg)"
+            f"({metrics.WITHIN[0]:g} m, {metrics.WITHIN[1]:g} deg)"
         )
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import paper, vocabulary
-from flatlandia.fine import evaluation
+from flatlandia.benchmark import fine_rows, metrics
 from flatlandia.plumbing import escape, files
 from flatlandia.score.external_runs import Scores
 
@@ -18,10 +18,10 @@ from flatlandia.score.external_runs import Scores
 #: (the README's headline, % within (5 m, 5°), among the paper's thresholds in their order)
 SCORE_COLUMNS = (
     ["queries", "median_m", "median_deg"]
-    + evaluation.THRESHOLD_COLUMNS[:2]
-    + [evaluation.WITHIN_COLUMN]
-    + evaluation.THRESHOLD_COLUMNS[2:]
-    + evaluation.RECALL_COLUMNS
+    + metrics.THRESHOLD_COLUMNS[:2]
+    + [metrics.WITHIN_COLUMN]
+    + metrics.THRESHOLD_COLUMNS[2:]
+    + metrics.RECALL_COLUMNS
     + ["no_pose_pct", "failure_pct", "gross_pct"]
 )
 #: the columns scores.md adds for a poses file with answers (a status column): the fine table's
@@ -33,16 +33,15 @@ def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
     """scores.md: per setting, the method's row beside the built-in rows of the same map type
     and proposal (every threshold and recall column; for a file with answers, the answered share
     and the within (5 m, 5°) of the answered)."""
-    from flatlandia.fine import fine_table
 
     thresholds = [f"{m:g} m & {d:g}°" for m, d in paper.THRESHOLDS]
     heads = (
         ["queries", "median m", "median °"]
         + thresholds[:2]
-        + ["{:g} m & {:g}°".format(*evaluation.WITHIN)]
+        + ["{:g} m & {:g}°".format(*metrics.WITHIN)]
         + thresholds[2:]
-        + [f"recall {m:g} m" for m in evaluation.RECALL_M]
-        + [f"recall {d:g}°" for d in evaluation.RECALL_DEG]
+        + [f"recall {m:g} m" for m in metrics.RECALL_M]
+        + [f"recall {d:g}°" for d in metrics.RECALL_DEG]
         + ["no pose %", "F %", "gross %"]
     )
     out = [
@@ -63,8 +62,8 @@ def scores_markdown(scores: Scores, name: str, poses_path: str) -> str:
         columns, run_heads = SCORE_COLUMNS, heads
         if s.get("has_status"):
             columns = SCORE_COLUMNS + ANSWER_SCORE_COLUMNS
-            run_heads = heads + ["answered %", "{:g} m & {:g}° of the answered".format(*evaluation.WITHIN)]
-        mine = fine_table.table_rows([s])
+            run_heads = heads + ["answered %", "{:g} m & {:g}° of the answered".format(*metrics.WITHIN)]
+        mine = fine_rows.table_rows([s])
         rows = [mine]
         if scores.builtin is not None:
             same = scores.builtin[

@@ -19,17 +19,17 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import geo, solver
+from flatlandia.benchmark import metrics
 from flatlandia.city import index as city_index
 from flatlandia.city import search, simulate
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation
 from flatlandia.sequences import protocol
 from flatlandia.solver.sequence import SequenceConfig, true_match_poses
 
 #: a pose farther than this from the truth is in the wrong scene (flatlandia.city.evaluation)
-WRONG_SCENE_M = evaluation.WRONG_SCENE_M
+WRONG_SCENE_M = metrics.WRONG_SCENE_M
 #: (5 m, 5 deg): the share a user would call localized
-WITHIN_M, WITHIN_DEG = evaluation.WITHIN
+WITHIN_M, WITHIN_DEG = metrics.WITHIN
 
 
 @dataclass(frozen=True)
@@ -378,11 +378,11 @@ def warm_up_sequence() -> None:
 def summary(errors: pd.DataFrame) -> dict:
     """The table's figures of one setting (rows of one map, frames, sigma and camera prior)."""
     em, ed = errors["error_m"].to_numpy(float), errors["error_deg"].to_numpy(float)
-    s = evaluation.summarise(errors)
+    s = metrics.summarise(errors)
     used = errors["frames_used"].to_numpy(float)
     cpu = errors["cpu_seconds"].to_numpy(float)
     bm, bd = errors["bound_error_m"].to_numpy(float), errors["bound_error_deg"].to_numpy(float)
-    out = {k: s[k] for k in ["queries", "median_m", "median_deg", *evaluation.RECALL_COLUMNS]}
+    out = {k: s[k] for k in ["queries", "median_m", "median_deg", *metrics.RECALL_COLUMNS]}
     out.update(
         within_5m_5deg=float(100 * np.mean((em < WITHIN_M) & (ed < WITHIN_DEG))),
         within_5m_5deg_every_frame=float(100 * errors["frames_within"].sum() / max(used.sum(), 1)),
@@ -394,7 +394,7 @@ def summary(errors: pd.DataFrame) -> dict:
         bound_median_m=float(np.median(bm)),
         bound_within_5m_5deg=float(100 * np.mean((bm < WITHIN_M) & (bd < WITHIN_DEG))),
     )
-    out.update({k: s[k] for k in evaluation.ANSWER_COLUMNS})
+    out.update({k: s[k] for k in metrics.ANSWER_COLUMNS})
     return out
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatlandia.fine.evaluation import WITHIN, WRONG_SCENE_M
+from flatlandia.benchmark.metrics import WITHIN, WRONG_SCENE_M
 from flatlandia.plumbing import escape
 from flatlandia.report import figures
 from flatlandia.solver import calibration

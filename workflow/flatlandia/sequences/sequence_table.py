@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import paper
-from flatlandia.fine import evaluation
+from flatlandia.benchmark import metrics
 from flatlandia.plumbing import escape
 from flatlandia.report import tables
 
@@ -67,8 +67,8 @@ def markdown(df: pd.DataFrame, note: str) -> str:
     ]
     lines = ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for r in df.to_dict("records"):
-        rec_m = " / ".join(_cell(r[c]) for c in evaluation.RECALL_COLUMNS[:3])
-        rec_d = " / ".join(_cell(r[c]) for c in evaluation.RECALL_COLUMNS[3:])
+        rec_m = " / ".join(_cell(r[c]) for c in metrics.RECALL_COLUMNS[:3])
+        rec_d = " / ".join(_cell(r[c]) for c in metrics.RECALL_COLUMNS[3:])
         cells = [
             escape.markdown(str(r["map"])),
             str(int(r["frames"])) + (f" ({r['mean_frames']:.2f})" if r["mean_frames"] < r["frames"] - 0.005 else ""),
@@ -88,11 +88,11 @@ def markdown(df: pd.DataFrame, note: str) -> str:
             f"{_cell(r['answerable_95_pct'])} / {_cell(r['answerable_wrong_1pct'])}",
         ]
         lines.append("| " + " | ".join(cells) + " |")
-    single = [paper.ORIENTERNET_MGL_RECALL_M[m] for m in evaluation.RECALL_M] + [
-        paper.ORIENTERNET_MGL_RECALL_DEG[d] for d in evaluation.RECALL_DEG
+    single = [paper.ORIENTERNET_MGL_RECALL_M[m] for m in metrics.RECALL_M] + [
+        paper.ORIENTERNET_MGL_RECALL_DEG[d] for d in metrics.RECALL_DEG
     ]
-    seq = [paper.ORIENTERNET_MGL_SEQUENTIAL_RECALL_M[m] for m in evaluation.RECALL_M] + [
-        paper.ORIENTERNET_MGL_SEQUENTIAL_RECALL_DEG[d] for d in evaluation.RECALL_DEG
+    seq = [paper.ORIENTERNET_MGL_SEQUENTIAL_RECALL_M[m] for m in metrics.RECALL_M] + [
+        paper.ORIENTERNET_MGL_SEQUENTIAL_RECALL_DEG[d] for d in metrics.RECALL_DEG
     ]
     other = [
         "## OrienterNet, for scale: another task",

@@ -2,7 +2,7 @@
 calibration is fitted on (:mod:`flatlandia.solver.calibration_fit`, rule solver_priors).
 
 Why here, above the fine stage and the sequences: the answers are the fine stage's one-frame
-errors (:func:`flatlandia.fine.evaluation.solver_errors`) and the sequences' errors
+errors (:func:`flatlandia.benchmark.solver_runs.solver_errors`) and the sequences' errors
 (:func:`flatlandia.sequences.evaluation.scene_errors`) of the solver run without calibration.
 """
 
@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 
 from flatlandia import proposals, solver
+from flatlandia.benchmark import solver_runs
 from flatlandia.data import localmaps
-from flatlandia.fine import evaluation
 from flatlandia.sequences import evaluation as sequence_evaluation
 from flatlandia.solver import calibration_fit, learned_priors, nonsense
 from flatlandia.solver.calibration import RIGHT_DEG, RIGHT_M
@@ -37,7 +37,7 @@ def validation_answers(
     sequences. Columns ``frames`` (used), ``objects`` (the anchor's), ``pool_share``, ``agreement``
     (the share of a sequence's frames whose own answer is its place; 1 for one frame), ``right``."""
     raw = replace(learned, calibration=None)
-    one = evaluation.solver_errors(scenes, "depth", region, settings, raw, split=split)
+    one = solver_runs.solver_errors(scenes, "depth", region, settings, raw, split=split)
     parts = [calibration_fit.answers(one, np.ones(len(one), int))]
     if beyond is not None and region == "whole":
         grid = [sequence_evaluation.Setting(int(k)) for k in beyond["frames"] if int(k) > 1]
