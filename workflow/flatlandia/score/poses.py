@@ -230,18 +230,10 @@ def _unknown_tokens(unknown: list[int], scene: list, token: list, split_of: dict
     )
 
 
-def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str = "test") -> Poses:
-    """Read and check a poses file against the benchmark's ``scenes``; every problem is one
-    :class:`InputError` naming the file. Poses of the scenes' queries outside ``split`` are kept
-    out (counted in ``outside_split``). Geographic poses are turned into the scenes' metric frames
-    (theta = 90 - heading in the frame's grid: within a scene its north is true north to a few
-    thousandths of a degree).
-    """
-    path = Path(path)
-    raw, kind, blank = _read_table(path)
-    blank = {str(c).strip(): v for c, v in blank.items()}
-    raw = raw.rename(columns=lambda c: str(c).strip())
-    cols = list(raw.columns)
+def _pose_form(raw: pd.DataFrame, cols: list[str], path: Path) -> str:
+    """The file's pose form (``metric`` or ``geographic``: :data:`FORMS`), its key columns and the
+    form's columns checked: one InputError naming the file for a table without rows, a key column
+    missing, both forms, neither, or a form in part."""
     if not len(raw):
         raise InputError(path, "holds no poses (a header and no rows)")
     missing = [c for c in KEYS if c not in cols]
@@ -261,18 +253,14 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
     lacking = [c for c in FORMS[form] if c not in cols]
     if lacking:
         raise InputError(path, f"missing column(s) {', '.join(lacking)} of the pose form {', '.join(FORMS[form])}")
+    return form
 
+
+def _settings(raw: pd.DataFrame, cols: list[str], kind: str, path: Path) -> dict[str, list]:
+    """Per row its ``map_type`` and ``proposal`` (an absent column or an empty cell: the default),
+    each checked against the vocabulary's."""
+    setting: dict[str, list] = {}
     n = len(raw)
-    scene, token = _text(raw["scene"]), _text(raw["token"])
-    for name, values in (("scene", scene), ("token", token)):
-        empty = [i for i, v in enumerate(values) if v is None]
-        if empty:
-            raise InputError(path, f"empty {name} in {listing(_where(kind, i) for i in empty)}")
-
-    def label(i: int) -> str:
-        return f"{_where(kind, i)} (scene {shortened(scene[i])}, token {shortened(token[i])})"
-
-    setting = {}
     for name, known, default in (
         ("map_type", vocabulary.MAP_TYPES, DEFAULT_MAP_TYPE),
         ("proposal", tuple(vocabulary.PROPOSALS), DEFAULT_PROPOSAL),
@@ -290,7 +278,13 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
                 f"expected one of {', '.join(known)}",
             )
         setting[name] = values
+    return setting
 
+
+def _pose_numbers(raw: pd.DataFrame, form: str, blank: dict, path: Path, label) -> tuple[dict, np.ndarray]:
+    """(the form's three columns as numbers, per row whether its pose is left empty: a query without
+    a pose); a pose given in part, a cell that is not a finite number, or lon/lat out of range is one
+    InputError naming the rows (``label(i)``)."""
     # a row whose pose cells are all blank (a template row left empty) is a query without a pose,
     # as a row left out; a pose given in part is refused
     empty = np.column_stack([blank[c] for c in FORMS[form]])
@@ -326,6 +320,35 @@ def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str =
                     f"{c} out of range (|{c}| > {lim:g} degrees) in {listing(label(i) for i in bad)}"
                     + ("; are lon and lat swapped?" if c == "lat" else ""),
                 )
+    return numbers, no_pose
+
+
+def read_poses(path: str | Path, scenes: dict[str, BenchmarkScene], split: str = "test") -> Poses:
+    """Read and check a poses file against the benchmark's ``scenes``; every problem is one
+    :class:`InputError` naming the file. Poses of the scenes' queries outside ``split`` are kept
+    out (counted in ``outside_split``). Geographic poses are turned into the scenes' metric frames
+    (theta = 90 - heading in the frame's grid: within a scene its north is true north to a few
+    thousandths of a degree).
+    """
+    path = Path(path)
+    raw, kind, blank = _read_table(path)
+    blank = {str(c).strip(): v for c, v in blank.items()}
+    raw = raw.rename(columns=lambda c: str(c).strip())
+    cols = list(raw.columns)
+    form = _pose_form(raw, cols, path)
+
+    n = len(raw)
+    scene, token = _text(raw["scene"]), _text(raw["token"])
+    for name, values in (("scene", scene), ("token", token)):
+        empty = [i for i, v in enumerate(values) if v is None]
+        if empty:
+            raise InputError(path, f"empty {name} in {listing(_where(kind, i) for i in empty)}")
+
+    def label(i: int) -> str:
+        return f"{_where(kind, i)} (scene {shortened(scene[i])}, token {shortened(token[i])})"
+
+    setting = _settings(raw, cols, kind, path)
+    numbers, no_pose = _pose_numbers(raw, form, blank, path, label)
     seconds = np.full(n, np.nan)
     if "seconds" in cols:
         seconds, not_numbers = _numbers(list(raw["seconds"]))
