@@ -2,7 +2,8 @@
 ``flatlandia config`` checks or rewrites the files generated from the config schema;
 ``flatlandia debug RULE key=value ...`` runs one rule's script in this process (flatlandia.plumbing.debug);
 ``flatlandia localize --map MAP --query QUERY.json`` localizes your own query (flatlandia.localize; or
-``--sequence FRAMES.json`` several frames together; ``--gps LON,LAT --gps-sigma-m M`` a phone's fix;
+``--sequence FRAMES.json`` several frames together; ``--image PHOTO`` a photo, made into a query by the
+configured segmentation and depth backends; ``--gps LON,LAT --gps-sigma-m M`` a phone's fix;
 ``--plot FILE.png`` the answer drawn on its map; ``--batch RESULTS --out POSES.csv`` a whole split);
 ``flatlandia score POSES --name NAME --out DIR`` scores your own poses as the benchmark's methods (flatlandia.score)."""
 
@@ -371,10 +372,20 @@ def localize_batch(args) -> int:
     from flatlandia.localize import batch
 
     try:
-        if args.query or args.sequence or args.near or args.gps or args.compass or args.plot:
+        if (
+            args.query
+            or args.sequence
+            or args.image
+            or args.configfile
+            or args.near
+            or args.gps
+            or args.compass
+            or args.plot
+        ):
             raise InputError(
                 "--batch",
-                "localizes a whole split: give no --query, --sequence, --near, --gps, --compass or --plot "
+                "localizes a whole split: give no --query, --sequence, --image, --configfile, --near, --gps, --compass "
+                "or --plot "
                 "(a fix per query: --fixes FILE.csv; --plot draws one query's answer)",
             )
         if not args.out:
@@ -434,24 +445,32 @@ def localize_query(args) -> int:
         if alternatives < 0:
             raise InputError("--alternatives", f"{alternatives} is negative")
         gps, compass = _prior_args(args)
-        reads = [args.query, args.sequence, args.map, _priors_file(args.priors)]
+        reads = [args.query, args.sequence, args.image, args.configfile, args.map, _priors_file(args.priors)]
         if args.out:
             _refuse_overwriting(args.out, reads)
         drawn = _plot_query(args, reads)
+        photo = _photo_query(args, gps, compass)
+        if photo is not None and args.plot:
+            drawn = photo[0]
         learned = {"auto": "auto", "none": None}.get(args.priors, args.priors)
-        m = localize.load_map(args.map, learned=learned) if drawn is not None else args.map  # drawn on, too
-        result = localize.localize_file(
-            m,
-            args.query,
-            args.map_type,
-            near,
-            radius,
-            alternatives,
-            gps=gps,
-            compass=compass,
-            sequence_path=args.sequence,
-            learned=learned,
-        )
+        loaded = drawn is not None or photo is not None
+        m = localize.load_map(args.map, learned=learned) if loaded else args.map  # drawn on, too
+        if photo is not None:  # a photo's query is one depth query, localized as --query's
+            result = localize.localize(m, photo[0], "depth", near, radius, alternatives, gps, compass)
+            result["photo"] = photo[1]
+        else:
+            result = localize.localize_file(
+                m,
+                args.query,
+                args.map_type,
+                near,
+                radius,
+                alternatives,
+                gps=gps,
+                compass=compass,
+                sequence_path=args.sequence,
+                learned=learned,
+            )
     except InputError as e:
         _error(str(e))
         return 1
@@ -470,7 +489,8 @@ def localize_query(args) -> int:
 def _plot_query(args, reads: list):
     """The query whose answer --plot draws (a sequence's anchor frame), read and checked before the
     map loads, with the plot's file (PNG or SVG, matplotlib installed, a place the write door
-    allows); None without --plot. InputError for a file of several queries: a plot is one answer."""
+    allows); None without --plot, and for --image (its query is made next, :func:`_photo_query`).
+    InputError for a file of several queries: a plot is one answer."""
     if not args.plot:
         return None
     from flatlandia import localize
@@ -481,6 +501,8 @@ def _plot_query(args, reads: list):
         _refuse_overwriting(args.plot, [*reads, args.out])
     except InputError as e:
         raise InputError("--plot", e.problem) from None
+    if args.image:
+        return None
     if args.sequence:
         return localize.read_sequence(args.sequence).frames[0]
     if not args.query:
@@ -489,6 +511,34 @@ def _plot_query(args, reads: list):
     if len(queries) != 1:
         raise InputError("--plot", f"draws one answer: {args.query} holds {len(queries)} queries (give a file of one)")
     return queries[0]
+
+
+def _photo_query(args, gps, compass):
+    """--image: (the photo's depth query, the record of how it was made), by the segmentation and depth
+    backends of --configfile (read and checked as the workflow reads a config file; without it the
+    schema's defaults, whose segmentation labels no object: one ERROR line naming docs/backends.md);
+    None without --image. The other inputs are checked first: the models take seconds."""
+    from flatlandia import localize
+
+    if not args.image:
+        if args.configfile:
+            raise InputError("--configfile", "holds the settings of --image (segment, images.depth, images.photo)")
+        return None
+    if args.query or args.sequence:
+        raise InputError(
+            "--image", "give a query file (--query), a sequence (--sequence) or a photo (--image), one of them"
+        )
+    if args.map_type not in (None, "depth"):
+        raise InputError("--map-type", "a photo's query is a depth local map (its depths are up to scale): depth")
+    localize.check_prior(gps, compass)
+    settings = None
+    if args.configfile:
+        settings = validate.read_config(args.configfile)
+        try:
+            config.resolve(settings)
+        except config.ConfigError as e:
+            raise InputError(args.configfile, str(e)) from None
+    return localize.read_photo(args.image, settings)
 
 
 def _write_plot(args, m, query, result: dict, reads: list) -> None:
@@ -620,7 +670,8 @@ def main(argv: list[str] | None = None) -> int:
         "(flatlandia.localize). Optionally a phone's GPS fix (--gps, --gps-sigma-m) and compass (--compass, "
         '--compass-sigma-deg), or a sequence of depth frames ({"frames": [{"objects": [...]}, {"objects": [...], '
         '"pose": {"x": forward m, "y": left m, "theta_deg": turn}}, ...]}: each later frame\'s pose in the first '
-        "frame's camera frame, from odometry) localized together: the first frame's pose and every frame's.",
+        "frame's camera frame, from odometry) localized together: the first frame's pose and every frame's. Or a photo "
+        "(--image, with the segmentation and depth backends of --configfile: docs/backends.md), made into a query.",
     )
     lq.add_argument(
         "--map",
@@ -654,10 +705,23 @@ def main(argv: list[str] | None = None) -> int:
         help='instead of --query: frames localized together, {"frames": [...]} (depth local maps)',
     )
     lq.add_argument(
+        "--image",
+        metavar="PHOTO",
+        help="instead of --query: a photo (JPEG, PNG, TIFF), made into a depth query as the images branch sees "
+        "objects: the configured segmentation's object classes, the depth model's ranges, the EXIF camera's "
+        "bearings (learned backends with local weights: docs/backends.md)",
+    )
+    lq.add_argument(
+        "--configfile",
+        metavar="FILE",
+        help="with --image: a config file (YAML or JSON, as snakemake --configfile) whose segment, images.depth, "
+        "images.photo and device settings make the photo's query (default: the schema's defaults)",
+    )
+    lq.add_argument(
         "--map-type",
         default=None,
         help="gt: x/y in metres (the default for --query); depth: any unit, scale unknown (the default, and the "
-        "only type, for --sequence)",
+        "only type, for --sequence and --image)",
     )
     lq.add_argument("--near", metavar="LON,LAT", help="a prior position: search only the map objects near it")
     lq.add_argument("--radius-m", metavar="R", help="with --near: the radius searched, metres")

@@ -95,6 +95,17 @@ def unknown_keys(cfg, node: dict | None = None, prefix: str = "") -> list[str]:
     """Every key of ``cfg`` the schema does not know, as ``'a.b.c' (did you mean 'a.b.d'?)``, or
     for a section that moved (:data:`MOVED`) with its new name."""
     node = schema() if node is None else node
+    each = node.get("additionalProperties")
+    if isinstance(cfg, dict) and "properties" not in node and isinstance(each, dict):
+        # a mapping of named entries of one shape (fine.train_overrides: a model -> its settings)
+        names = node.get("propertyNames", {}).get("enum")
+        out = []
+        for key, value in cfg.items():
+            if names is not None and key not in names:
+                out.append(f"'{_join(prefix, key)}'{_closest(str(key), dict.fromkeys(names), prefix)}")
+            else:
+                out += unknown_keys(value, each, _join(prefix, key))
+        return out
     if not isinstance(cfg, dict) or "properties" not in node:
         return []
     props = node["properties"]
@@ -378,6 +389,13 @@ def _yaml_lines(node: dict, indent: int = 0) -> list[str]:
             )
             lines.append(f"{pad}{key}:")
             lines += _yaml_lines(child, indent + 2)
+        elif (
+            isinstance(child.get("default"), dict)
+            and child["default"]
+            and isinstance(child.get("additionalProperties"), dict)
+        ):
+            lines.append(f"{pad}{key}:")  # a mapping of named entries: one line each, in schema order
+            lines += [f"{pad}  {name}: {_yaml_value(entry)}" for name, entry in child["default"].items()]
         else:
             lines.append(f"{pad}{key}: {_yaml_value(child.get('default'))}")
     return lines

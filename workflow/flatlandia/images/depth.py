@@ -49,19 +49,26 @@ def scaled_depth(pred: np.ndarray, scale: float, inverse: bool) -> np.ndarray:
 
 def lift_box(view: View, box: list[float], depth_map: np.ndarray) -> np.ndarray | None:
     """World point of a detection: its centre pixel's ray at the box's median (scaled) depth."""
-    import torch
-    from kornia.geometry.camera import unproject_points
-
     h, w = depth_map.shape
     x0, y0, x1, y1 = (int(np.clip(round(v), 0, m)) for v, m in zip(box, (w, h, w, h)))
     patch = depth_map[y0 : max(y1, y0 + 1), x0 : max(x1, x0 + 1)]
     patch = patch[np.isfinite(patch) & (patch > 0)]
     if patch.size == 0:
         return None
-    centre = torch.tensor([[(box[0] + box[2]) / 2, (box[1] + box[3]) / 2]], dtype=torch.float64)
-    depth = torch.tensor([[float(np.median(patch))]], dtype=torch.float64)
-    cam = unproject_points(centre, depth, torch.from_numpy(np.asarray(view.K, float))[None])[0].numpy()
+    cam = unproject_centre(view.K, box, float(np.median(patch)))
     return view.R.T @ (cam - view.t)
+
+
+def unproject_centre(K: np.ndarray, box: list[float], depth: float) -> np.ndarray:
+    """Camera-frame point (x right, y down, z forward) of a box's centre pixel at ``depth`` (along
+    the optical axis), by kornia; apart from :func:`lift_box` because one photo's query
+    (:mod:`flatlandia.images.photo_query`) lifts its detections so too, without a pose."""
+    import torch
+    from kornia.geometry.camera import unproject_points
+
+    centre = torch.tensor([[(box[0] + box[2]) / 2, (box[1] + box[3]) / 2]], dtype=torch.float64)
+    d = torch.tensor([[float(depth)]], dtype=torch.float64)
+    return unproject_points(centre, d, torch.from_numpy(np.asarray(K, float))[None])[0].numpy()
 
 
 def upsample(pred, size: tuple[int, int]) -> np.ndarray:
@@ -103,11 +110,17 @@ class MonocularDepth:
 
     def predict(self, image_path: str | Path, size: tuple[int, int]) -> np.ndarray:
         """The model's (relative) depth of an image, at ``size`` (the camera's height, width)."""
-        import torch
         from PIL import Image
 
         with Image.open(image_path) as im:
             rgb = im.convert("RGB")
+        return self.predict_rgb(rgb, size)
+
+    def predict_rgb(self, rgb, size: tuple[int, int]) -> np.ndarray:
+        """:meth:`predict` of an image already read (an RGB PIL image: one photo's query reads it
+        through the images' door, :func:`flatlandia.images.segment.read_rgb`)."""
+        import torch
+
         with torch.no_grad():
             pred = self.model(**self.processor(images=rgb, return_tensors="pt").to(self.device)).predicted_depth
         return upsample(pred[0], size)

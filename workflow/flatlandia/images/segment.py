@@ -348,7 +348,10 @@ class TransformersBackend(Backend):
             raise InputError(self.weights, "the checkpoint's classes are not Mapillary Vistas labels")
 
     def labels(self, path: Path) -> tuple[np.ndarray, list[str]]:
-        rgb = read_rgb(path)
+        return self.labels_of(read_rgb(path))
+
+    def labels_of(self, rgb: Image.Image) -> tuple[np.ndarray, list[str]]:
+        """:meth:`labels` of an RGB image already read (one photo's query turns it upright first)."""
         with self.torch.no_grad():
             out = self.model(**self.processor(images=rgb, return_tensors="pt").to(self.device))
         scores = semantic_scores(out.class_queries_logits[0], out.masks_queries_logits[0])

@@ -25,6 +25,11 @@ A **query** is JSON, ``{"objects": [{"class": "<Vistas label>", "x": <forward>, 
 ``{"queries": [{"id": ..., "objects": [...]}, ...]}``. Map type ``gt``: x/y in metres; ``depth``: x/y
 in any unit (the scale is unknown and solved for; bearings must be true).
 
+A **photo** (:func:`read_photo`, ``flatlandia localize --image``) becomes a depth query as the images
+branch sees objects: the configured segmentation's object classes (one object per connected region),
+the configured monocular depth model's ranges, the bearings of the photo's EXIF camera
+(:mod:`flatlandia.images.photo_query`; learned backends only: docs/backends.md).
+
 A **prior** (optional): a phone's GPS fix ``gps=(lon, lat, sigma_m)`` and a compass heading
 ``compass=(heading_deg clockwise from north, sigma_deg)``, weighed as Gaussian likelihoods by the
 solver (poses within 4 sigma of the fix are kept; on a city the fix's region replaces the index's).
@@ -62,6 +67,7 @@ from flatlandia.localize.query_files import (
     parse_query,
     parse_sequence,
     query_json,
+    read_photo,
     read_queries,
     read_sequence,
 )
@@ -90,6 +96,7 @@ __all__ = [
     "place",
     "prior_warnings",
     "query_json",
+    "read_photo",
     "read_queries",
     "read_sequence",
     "scene_cities",

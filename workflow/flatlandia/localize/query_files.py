@@ -1,5 +1,6 @@
 """A user's queries and sequences as JSON: read and checked at the door (:func:`parse_query`,
-:func:`read_queries`, :func:`parse_sequence`, :func:`read_sequence`) and written (:func:`query_json`).
+:func:`read_queries`, :func:`parse_sequence`, :func:`read_sequence`) and written (:func:`query_json`);
+a photo made into a query by the configured backends (:func:`read_photo`).
 
 Bad input raises :class:`~flatlandia.plumbing.errors.InputError`, one line naming the file and the
 problem (an unknown class with the closest label, fewer than 3 objects, a coordinate that is not a
@@ -193,3 +194,20 @@ def parse_sequence(obj: Any, source: str | Path = "<sequence>") -> Sequence:
 def read_sequence(path: str | Path) -> Sequence:
     """The sequence of a JSON file (:func:`parse_sequence`)."""
     return parse_sequence(validate.read_json(path, validate.MAX_QUERY_JSON_BYTES, "MAX_QUERY_JSON_BYTES"), path)
+
+
+def read_photo(path: str | Path, settings: dict | None = None) -> tuple[Query, dict]:
+    """(the depth query of one photo, the record of how it was made: the answer's ``photo``), by
+    :func:`flatlandia.images.photo_query.photo_query` under ``settings`` (the config or any of its
+    sections; None: the schema's defaults), then through :func:`parse_query`'s door as any query."""
+    try:
+        from flatlandia.images import photo_query  # pillow, torch and the backends: only for a photo
+
+        made = photo_query.photo_query(path, settings)
+    except ImportError as e:  # the localizer installed alone (docs/usage.md)
+        raise InputError(
+            path,
+            f"a photo's query needs {e.name or e} (pillow, torch, transformers and kornia: the extra workflow, "
+            "pip install 'flatlandia[workflow]')",
+        ) from None
+    return parse_query(query_json(made.xy, made.cls, made.name), path), made.record()
