@@ -163,3 +163,58 @@ def test_no_rule_script_shadows_a_module_it_imports():
         bound |= {n.arg for n in ast.walk(tree) if isinstance(n, ast.arg)}
         shadowed += [f"{path.name}: {name}" for name in sorted(imported & bound)]
     assert shadowed == []
+
+
+LOCALIZE = PACKAGE / "localize"
+#: the module that reads a map and picks its kind (``flatlandia.localize.maps.load_map``, ``KINDS``):
+#: the one place of localize/ a map's kind is chosen
+MAP_READER = LOCALIZE / "maps.py"
+
+
+def _map_kinds() -> tuple[set[str], set[str]]:
+    """(the kinds' names, the kinds' classes): each class of localize/ that sets ``kind = "..."``."""
+    names, classes = set(), set()
+    for path in LOCALIZE.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.ClassDef):
+                continue
+            for stmt in node.body:
+                if (
+                    isinstance(stmt, ast.Assign)
+                    and [getattr(t, "id", None) for t in stmt.targets] == ["kind"]
+                    and isinstance(stmt.value, ast.Constant)
+                    and isinstance(stmt.value.value, str)
+                ):
+                    names.add(stmt.value.value)
+                    classes.add(node.name)
+    return names, classes
+
+
+def _strings(node: ast.AST) -> set[str]:
+    """The string constants of an operand (a literal, or a tuple, list or set of them)."""
+    items = node.elts if isinstance(node, (ast.Tuple, ast.List, ast.Set)) else [node]
+    return {n.value for n in items if isinstance(n, ast.Constant) and isinstance(n.value, str)}
+
+
+def test_no_module_of_localize_branches_on_a_maps_kind():
+    """A map's kind is its class (issue 46): behaviour comes from the class's methods, chosen once
+    in the reader (localize/maps.py). Elsewhere in localize/ no comparison of a ``kind`` with a
+    kind's name (``m.kind == "city"``) and no ``isinstance`` of a kind's class: adding a kind is its
+    class and its line in the reader's ``KINDS``, not a hunt through the localizer."""
+    names, classes = _map_kinds()
+    assert {"scene", "city"} <= names and {"SceneMap", "CityMap"} <= classes
+    branches = []
+    for path in sorted(LOCALIZE.glob("*.py")):
+        if path == MAP_READER:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                operands = [node.left, *node.comparators]
+                kind = any(getattr(o, "attr", getattr(o, "id", None)) == "kind" for o in operands)
+                if kind and set().union(*map(_strings, operands)) & names:
+                    branches.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
+            elif isinstance(node, ast.Call) and getattr(node.func, "id", None) == "isinstance" and len(node.args) == 2:
+                kinds = node.args[1].elts if isinstance(node.args[1], ast.Tuple) else [node.args[1]]
+                if {getattr(k, "attr", getattr(k, "id", None)) for k in kinds} & classes:
+                    branches.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
+    assert branches == [], f"branches on a map's kind outside the reader (give the kinds' classes a method): {branches}"

@@ -283,8 +283,9 @@ def test_a_command_piped_into_head_ends_without_a_traceback(tmp_path):
 
     code = (
         "from flatlandia import cli\n"
+        "from flatlandia.commands import config_command\n"
         "def gone(args):\n    raise BrokenPipeError(32, 'Broken pipe')\n"
-        "cli.config_files = gone\n"
+        "config_command.config_files = gone\n"
         "raise SystemExit(cli.main(['config']))\n"
     )
     env = os.environ | {"PYTHONPATH": os.pathsep.join(sys.path)}

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from flatlandia.classes import CLASSES
-from flatlandia.localize.maps import ObjectMap
+from flatlandia.localize.object_map import ObjectMap
 from flatlandia.localize.query_files import Query
 from flatlandia.plumbing import escape
 from flatlandia.plumbing.errors import InputError
@@ -133,9 +133,7 @@ def _views(m: ObjectMap, answer: dict, laid: np.ndarray) -> list[tuple[np.ndarra
     if answer["found"]:
         others = [*answer["alternatives"], *answer.get("frames", [])]
         pts = np.vstack([pts, np.array([[p["x_m"], p["y_m"]] for p in others], float).reshape(-1, 2)])
-    if m.kind != "city" or not len(pts):
-        pts = np.vstack([pts, m.xy])
-    whole = _box(pts)
+    whole = _box(m.framed(pts))
     if close is not None and float((whole[1] - whole[0]).max()) > CLOSE_UP_M:
         return [_box(close), whole]
     return [whole]
@@ -177,9 +175,8 @@ def _draw(ax, m: ObjectMap, query: Query, answer: dict, laid: np.ndarray, view, 
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
-    geographic = m.to_lonlat is not None or m.kind == "city"
-    ax.set_xlabel("x east (m)" if geographic else "x (the map's frame)")
-    ax.set_ylabel("y north (m)" if geographic else "y (the map's frame)")
+    ax.set_xlabel("x east (m)" if m.geographic else "x (the map's frame)")
+    ax.set_ylabel("y north (m)" if m.geographic else "y (the map's frame)")
     ax.grid(alpha=0.3)
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from flatlandia.classes import CLASSES
 from flatlandia.localize.gps_fixes import far
-from flatlandia.localize.maps import ObjectMap, lonlat_of, metres_to_map, place
+from flatlandia.localize.object_map import ObjectMap, metres_to_map
 from flatlandia.localize.query_files import MIN_OBJECTS, Query
 from flatlandia.vocabulary import AMBIGUOUS, ANSWERED, NO_POSE
 
@@ -21,7 +21,7 @@ from flatlandia.vocabulary import AMBIGUOUS, ANSWERED, NO_POSE
 def answer_pose(m: ObjectMap, sol, unit: float, rows: np.ndarray, q: Query) -> dict:
     """A solution's pose and matches as JSON values (``rows``: the map rows it searched)."""
     theta = math.degrees(math.atan2(math.sin(sol.theta), math.cos(sol.theta)))
-    lon, lat = lonlat_of(m, np.array([sol.x, sol.y]))
+    lon, lat = m.lonlat_of(np.array([sol.x, sol.y]))
     matches = []
     for k, c in sol.inliers:
         row = int(rows[c])
@@ -32,8 +32,7 @@ def answer_pose(m: ObjectMap, sol, unit: float, rows: np.ndarray, q: Query) -> d
             "lon": float(m.lonlat[row, 0]) if m.lonlat is not None else None,
             "lat": float(m.lonlat[row, 1]) if m.lonlat is not None else None,
         }
-        if m.obj_scene is not None:
-            match.update(scene=str(m.obj_scene[row]), scene_obj_idx=int(m.obj_scene_idx[row]))
+        match.update(m.object_place(row))
         matches.append(match)
     return {
         "lon": lon,
@@ -43,7 +42,7 @@ def answer_pose(m: ObjectMap, sol, unit: float, rows: np.ndarray, q: Query) -> d
         "heading_deg": float((90.0 - theta) % 360.0) if lon is not None else None,  # north: the frame's +y
         "theta_deg": float(theta),
         "scale": float(sol.scale) / unit,
-        **place(m, sol.x, sol.y),
+        **m.place(sol.x, sol.y),
         "matches": matches,
     }
 

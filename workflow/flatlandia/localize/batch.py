@@ -106,7 +106,7 @@ class Source:
             out.setdefault(t, []).append(int(o))
         return out, strategy
 
-    def scene_map(self, scene: str, learned, settings=None, proposal: str = PROPOSAL) -> maps.ObjectMap:
+    def scene_map(self, scene: str, learned, settings=None, proposal: str = PROPOSAL) -> maps.SceneMap:
         """The scene's map with what the source gives the solver: a run's reference_map.parquet with
         its training cameras and learned priors (``learned`` "auto": those rule fine_eval reads for
         ``proposal``, paths.proposal_priors); an export's reference_map.geojson with the cameras of its
@@ -395,7 +395,7 @@ def localize_batch(
         shown = ", ".join(f"scene {s} token {t}" for s, t in unknown[:3])
         raise InputError("--fixes", f"{len(unknown)} fix(es) of queries not in the {split} split: {shown}")
     cmap = maps.load_map(city, settings, learned) if city is not None else None
-    if cmap is not None and cmap.kind != "city":
+    if cmap is not None and not cmap.tiled:
         raise InputError(city, "--city takes a city index (results/city/{n}/index), not a scene map")
     regions = {s: src.proposals(s, split, map_type, proposal) for s, _ in work} if proposal != PROPOSAL else {}
     notes = [f"source: {src.kind} folder {src.root}, {sum(len(q) for _, q in work)} {split} queries ({map_type})"]
@@ -477,7 +477,7 @@ def _row(m: maps.ObjectMap, scene: str, token: str, map_type: str, answer: dict,
 def _scene_pose(m: maps.ObjectMap, scene: str, pose: dict) -> tuple:
     """(x_m, y_m, theta_deg) of an answer's pose (or an alternative's) in ``scene``'s own frame;
     Nones where the city has no tile of that scene."""
-    xy = maps.scene_xy(m, scene, pose["x_m"], pose["y_m"])
+    xy = m.scene_xy(scene, pose["x_m"], pose["y_m"])
     return (None, None, None) if xy is None else (*xy, pose["theta_deg"])
 
 

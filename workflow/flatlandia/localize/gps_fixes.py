@@ -8,9 +8,7 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from flatlandia.localize.maps import ObjectMap, metres_to_map, near_rows
+from flatlandia.localize.object_map import ObjectMap, metres_to_map
 from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
 
@@ -88,7 +86,8 @@ def check_prior(gps, compass) -> None:
 
 
 def fixes(m: ObjectMap, gps, compass=None) -> list:
-    """The prior as the solver's :class:`~flatlandia.solver.Fix` in the map's metres: one on a scene
+    """The prior as the solver's :class:`~flatlandia.solver.Fix` in the map's metres, one per
+    position :meth:`~flatlandia.localize.object_map.ObjectMap.near_rows` gives it: one on a scene
     map; on a city, one per tile whose objects lie near the fix (each tile keeps its scene's
     lon/lat). ``gps``: (lon, lat, sigma_m); ``compass``: (heading_deg clockwise from north, sigma_deg)."""
     from flatlandia import solver
@@ -99,12 +98,7 @@ def fixes(m: ObjectMap, gps, compass=None) -> list:
     if compass is not None:  # compass: clockwise from north; the solver's theta: counter-clockwise from east
         theta, hsig = math.radians(90.0 - float(compass[0])), float(compass[1])
     probe = solver.Fix(0.0, 0.0, sigma)
-    if m.kind == "scene":
-        if m.to_xy is None:
-            raise InputError(m.path, "--gps needs a map with lon/lat; this one has a local frame")
-        centres = np.array([m.to_xy.transform(lon, lat)], float)
-    else:
-        centres = near_rows(m, (lon, lat), probe.crop_m)[1]
+    centres = m.near_rows((lon, lat), probe.crop_m, "--gps")[1]
     return [solver.Fix(float(c[0]), float(c[1]), sigma, theta, hsig) for c in centres]
 
 

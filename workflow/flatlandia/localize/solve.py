@@ -1,8 +1,9 @@
 """Localizing on a loaded map: one query (:func:`localize`), a sequence (:func:`localize_sequence`),
 the files of ``flatlandia localize`` (:func:`localize_file`).
 
-The pose is :func:`flatlandia.solver.locate`'s on a scene map (the function rule fine_eval
-calls) and :func:`flatlandia.city.search.search_city`'s on a city index.
+The pose is the map's (:meth:`~flatlandia.localize.object_map.ObjectMap.locate`):
+:func:`flatlandia.solver.locate`'s on a scene map (the function rule fine_eval calls) and
+:func:`flatlandia.city.search.search_city`'s on a city index; nothing here asks which kind a map is.
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import numpy as np
 
 from flatlandia.localize.answers import answer_pose, answer_status, no_pose_reason, probability_of
 from flatlandia.localize.gps_fixes import check_prior, fixes, gps_used, prior_warnings
-from flatlandia.localize.maps import MAP_TYPES, ObjectMap, load_map, lonlat_of, near_rows, place
+from flatlandia.localize.maps import MAP_TYPES, load_map
+from flatlandia.localize.object_map import ObjectMap
 from flatlandia.localize.query_files import Query, Sequence, parse_query, parse_sequence, read_queries, read_sequence
 from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
@@ -58,8 +60,6 @@ def localize(
     ``compass`` (heading_deg clockwise from north, sigma_deg): a phone's fix, weighed as a likelihood
     (:func:`fixes`; not with ``near``). ``rows``: search only these rows of a scene map, in this order
     (a proposal: the objects a coarse stage, or the oracle box, proposes; as rule fine_eval does)."""
-    from flatlandia.city import search as city_search
-
     if map_type not in MAP_TYPES:
         raise InputError("--map-type", f"{map_type!r} is not one of {', '.join(MAP_TYPES)}")
     q = query if isinstance(query, Query) else parse_query(query)
@@ -74,29 +74,16 @@ def localize(
     check_prior(gps, compass)
     if gps is not None and near is not None:
         raise InputError("--gps", "give either a GPS fix (--gps) or a search radius (--near), not both")
-    if rows is not None and (m.kind != "scene" or near is not None or gps is not None):
+    if rows is not None and (not m.takes_rows or near is not None or gps is not None):
         raise InputError("--proposal", "a proposal (map rows) is searched on a scene map, without --near or --gps")
     xy, unit = _solver_units(q.xy, map_type)
-    metric = map_type == "gt"
     priors_used = m.priors_used(map_type)
     t0 = time.perf_counter()
     if gps is not None:
-        best, alts, rows = _localize_with_fix(m, xy, q.cls, metric, alternatives, fixes(m, gps, compass), map_type)
+        best, alts, rows = _localize_with_fix(m, xy, q.cls, alternatives, fixes(m, gps, compass), map_type)
         priors_used["gps"] = gps_used(gps, compass)
-    elif m.kind == "city":
-        centres = None
-        if near is not None:
-            rows, centres = near_rows(m, near, radius_m)
-        search = m.search if near is None else _replace(m.search, region_radius_m=float(radius_m))
-        found = city_search.search_city(
-            m.index, xy, q.cls, search, m.settings, m.learned, metric, alternatives, centres=centres
-        )
-        best, alts, rows = found.solution, found.alternatives, found.rows
     else:
-        if rows is None:
-            rows = np.arange(len(m.xy)) if near is None else near_rows(m, near, radius_m)[0]
-        found = _solve_rows(m, xy, q.cls, rows, metric, map_type, alternatives)
-        best, alts = found.best, found.alternatives
+        best, alts, rows = m.locate(xy, q.cls, map_type, alternatives, rows=rows, near=near, radius_m=radius_m)
     seconds = time.perf_counter() - t0
     if near is not None:
         priors_used["near"] = {"lon": float(near[0]), "lat": float(near[1]), "radius_m": float(radius_m)}
@@ -122,12 +109,6 @@ def localize(
     return out
 
 
-def _replace(cfg, **changes):
-    import dataclasses
-
-    return dataclasses.replace(cfg, **changes)
-
-
 def _solver_units(xy: np.ndarray, map_type: str) -> tuple[np.ndarray, float]:
     """A local map in the solver's units and the unit: depth maps at a median object range of 1 (the
     scale prior's unit), GT maps as given."""
@@ -138,48 +119,15 @@ def _solver_units(xy: np.ndarray, map_type: str) -> tuple[np.ndarray, float]:
     return xy, 1.0
 
 
-def _solve_rows(m: ObjectMap, xy, cls, rows: np.ndarray, metric: bool, map_type: str, alternatives: int, fix=None):
-    """The solver on the scene map's ``rows`` with the map's priors over them (none found when fewer
-    than 2 objects are searched): one query, with or without a fix."""
-    from flatlandia import solver
-
-    if len(rows) < 2:
-        return solver.Localization(None)
-    priors = m.priors[map_type]
-    return solver.locate(
-        xy,
-        cls,
-        m.xy[rows],
-        m.cls[rows],
-        metric=metric,
-        config=m.settings,
-        priors=priors.rows(rows) if priors is not None else None,
-        alternatives=alternatives,
-        fix=fix,
-    )
-
-
-def _localize_with_fix(m: ObjectMap, xy, cls, metric: bool, alternatives: int, fx: list, map_type: str):
-    """(best, alternatives, rows searched) of one query with a fix: the map objects within the fix's
-    reach, the fix as the solver's likelihood; on a city, each tile the fix falls in, the cheapest
-    answer kept."""
-    from flatlandia.city import search as city_search
-
-    answers = []
-    for fix in fx:
-        if m.kind == "city":
-            found = city_search.search_city(
-                m.index, xy, cls, m.search, m.settings, m.learned, metric, alternatives, fix=fix
-            )
-            answers.append((found.solution, found.alternatives, found.rows))
-            continue
-        rows = np.flatnonzero(np.hypot(*(m.xy - fix.xy).T) <= fix.crop_m)
-        found = _solve_rows(m, xy, cls, rows, metric, map_type, alternatives, fix)
-        answers.append((found.best, found.alternatives, rows))
-    found = [a for a in answers if a[0] is not None]
+def _localize_with_fix(m: ObjectMap, xy, cls, alternatives: int, fx: list, map_type: str):
+    """(best, alternatives, rows searched) of one query with a fix: the map searched within each
+    fix's reach (on a city, one fix per tile the fix falls in), the fix as the solver's likelihood,
+    the cheapest answer kept."""
+    answers = [m.locate(xy, cls, map_type, alternatives, fix=fix) for fix in fx]
+    found = [a for a in answers if a.best is not None]
     if not found:
-        return None, [], answers[0][2] if answers else np.zeros(0, np.int64)
-    return min(found, key=lambda a: a[0].cost)
+        return None, [], answers[0].rows if answers else np.zeros(0, np.int64)
+    return min(found, key=lambda a: a.best.cost)
 
 
 def localize_sequence(
@@ -198,7 +146,6 @@ def localize_sequence(
     anchor first. ``settings``: the sequence solver's (config section ``beyond.sequence``; None:
     the schema's defaults)."""
     from flatlandia import solver
-    from flatlandia.city import search as city_search
 
     seq = sequence if isinstance(sequence, Sequence) else parse_sequence(sequence)
     check_prior(gps, compass)
@@ -207,35 +154,12 @@ def localize_sequence(
     priors_used = m.priors_used("depth")
     fx = fixes(m, gps, compass) if gps is not None else [None]
     t0 = time.perf_counter()
-    answers = []
-    for fix in fx:
-        if m.kind == "city":
-            found, located = city_search.search_city_sequence(
-                m.index, frames, seq.rel, m.search, m.settings, settings, m.learned, seq.sigma, fix, None, alternatives
-            )
-            rows = located.rows
-        else:
-            rows = np.arange(len(m.xy)) if fix is None else np.flatnonzero(np.hypot(*(m.xy - fix.xy).T) <= fix.crop_m)
-            priors = m.priors["depth"]
-            found = (
-                solver.locate_sequence(
-                    frames,
-                    seq.rel,
-                    m.xy[rows],
-                    m.cls[rows],
-                    m.settings,
-                    priors.rows(rows) if priors is not None else None,
-                    settings,
-                    seq.sigma,
-                    fix,
-                    alternatives,
-                )
-                if len(rows) >= 2
-                else solver.SequenceLocalization(None)
-            )
-        answers.append((found, rows))
+    answers = [m.locate_sequence(frames, seq.rel, seq.sigma, settings, alternatives, fix) for fix in fx]
     good = [a for a in answers if a[0].best is not None]
-    found, rows = min(good, key=lambda a: a[0].best.cost) if good else answers[0]
+    if good:
+        found, rows = min(good, key=lambda a: a[0].best.cost)
+    else:  # no pose; a fix near no tile of a city gives no region to search
+        found, rows = answers[0] if answers else (solver.SequenceLocalization(None), np.zeros(0, np.int64))
     seconds = time.perf_counter() - t0
     if gps is not None:
         priors_used["gps"] = gps_used(gps, compass)
@@ -265,7 +189,7 @@ def localize_sequence(
         out["frames"] = []
         for f, (p, (_, unit)) in enumerate(zip(found.frames, units)):
             theta = math.degrees(math.atan2(math.sin(p.theta), math.cos(p.theta)))
-            lon, lat = lonlat_of(m, np.array([p.x, p.y]))
+            lon, lat = m.lonlat_of(np.array([p.x, p.y]))
             out["frames"].append(
                 {
                     "id": seq.frames[f].id,
@@ -276,7 +200,7 @@ def localize_sequence(
                     "heading_deg": float((90.0 - theta) % 360.0) if lon is not None else None,
                     "theta_deg": float(theta),
                     "scale": float(p.scale) / unit,
-                    **place(m, p.x, p.y),
+                    **m.place(p.x, p.y),
                 }
             )
     out.update(answer_status(found.best, m.settings.answer_probability))
