@@ -218,3 +218,18 @@ def test_no_module_of_localize_branches_on_a_maps_kind():
                 if {getattr(k, "attr", getattr(k, "id", None)) for k in kinds} & classes:
                     branches.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
     assert branches == [], f"branches on a map's kind outside the reader (give the kinds' classes a method): {branches}"
+
+
+#: a function longer than this says why in its docstring ("Over 100 lines: ...")
+MAX_FUNCTION_LINES = 100
+
+
+def test_no_function_over_100_lines_without_a_reason_in_its_docstring():
+    long = []
+    for m, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES and "Over 100 lines:" not in (ast.get_docstring(node) or ""):
+                    long.append(f"{m}.{node.name}: {lines} lines")
+    assert long == [], long
