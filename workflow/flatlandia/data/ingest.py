@@ -121,7 +121,9 @@ def ingest_scene(root: str | Path, scene: str, verify_hash: bool = True) -> dict
     n_queries = len(published.read_local_maps(root / "local_maps.json", scene))
     return {
         "scene": scene,
-        "root": str(root),
+        # the folder resolved: the record does not depend on where the run folder sits (the rule is
+        # given it relative to the run folder where the user wrote a relative path)
+        "root": str(root.resolve()),
         "files": records,
         "n_queries": n_queries,
         "available": {r["key"]: bool(r["present"] and not r["problem"]) for r in records},
