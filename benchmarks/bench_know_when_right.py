@@ -1,14 +1,15 @@
 """Issue 43's figures on a finished run: how often nonsense is `ok`, the sequences' probability at
 two odometry noise levels, and the headline figures with their bootstrap intervals.
 
-    python benchmarks/bench_know_when_right.py --root results nonsense [--split test]
+    python benchmarks/bench_know_when_right.py --root results nonsense [--split test] [--map-type gt]
     python benchmarks/bench_know_when_right.py --root results noise [--levels 1 3] [--frames 1 5]
     python benchmarks/bench_know_when_right.py --root results intervals
 
 ``nonsense``: one nonsense query of each kind (flatlandia.solver.nonsense: real classes at random
 places, the map's classes at random places, another scene's query) per query of the split, solved
-on the whole map with the run's priors (results/solver/priors/whole.json) as rule fine_eval does;
-prints the % answered `ok`, `ambiguous`, `no pose` per kind. ``noise``: the sequence rows of rule
+on the whole map with the run's priors (results/solver/priors/whole.json; GT maps: whole.gt.json,
+nonsense in metres) as rule fine_eval does; prints the % answered `ok`, `ambiguous`, `no pose` per
+kind and for the real queries, and how many real `ok` answers are right. ``noise``: the sequence rows of rule
 beyond_scene (scene maps, no fix) at each multiple of the protocol's odometry noise; % within
 (5 m, 5 deg), the answerable share at >= 95 % within and the ECE. ``intervals``: each headline
 figure of the run's tables (the solver's depth whole-map row, the sequence and city rows where they
@@ -46,40 +47,58 @@ def load(root: Path):
     return out
 
 
-def run_nonsense(root: Path, split: str, seed: int) -> None:
+def run_nonsense(root: Path, split: str, seed: int, map_type: str = "depth") -> None:
     scenes = load(root)
-    learned = solver.LearnedPriors.read(root / "solver/priors/whole.json")
+    metric = map_type == "gt"
+    learned = solver.LearnedPriors.read(
+        root / ("solver/priors/whole.gt.json" if metric else "solver/priors/whole.json")
+    )
     cfg = solver.SolverConfig.from_dict(None)
     threshold = config.section_defaults("solver")["answer_probability"]
     solver.warm_up()
     priors = [solver.scene_priors(ref, q, None, learned) for ref, q in scenes]
     from flatlandia.data import localmaps
 
-    real = [
-        [(localmaps.local_map(r, "depth"), np.asarray(r["classes"])) for _, r in q[q["split"] == split].iterrows()]
-        for _, q in scenes
-    ]
-    counts: dict[str, dict[str, int]] = {}
-    cpu = []
-    for n in nonsense.draw(real, [ref["class_id"].to_numpy() for ref, _ in scenes], seed + 1):
-        ref = scenes[n.scene][0]
-        c0 = time.process_time()
-        best = solver.locate(
-            n.xy, n.classes, ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy(), False, cfg, priors[n.scene]
+    records = [list(q[q["split"] == split].iterrows()) for _, q in scenes]
+    real = [[(localmaps.local_map(r, map_type), np.asarray(r["classes"])) for _, r in rs] for rs in records]
+
+    def solve(i, xy, cls):
+        ref = scenes[i][0]
+        return solver.locate(
+            xy, cls, ref[["x_m", "y_m"]].to_numpy(), ref["class_id"].to_numpy(), metric, cfg, priors[i]
         ).best
+
+    def status(best):
+        return "no pose" if best is None else localize.answer_status(best, threshold)["status"]
+
+    counts: dict[str, dict[str, int]] = {}
+    right_ok = 0
+    for i, rs in enumerate(records):
+        for (xy, cls), (_, r) in zip(real[i], rs):
+            best = solve(i, xy, cls)
+            st = status(best)
+            counts.setdefault("real", {}).setdefault(st, 0)
+            counts["real"][st] += 1
+            right_ok += int(st == "ok" and validation._right(best, r))
+    cpu = []
+    for n in nonsense.draw(real, [ref["class_id"].to_numpy() for ref, _ in scenes], seed + 1, metric=metric):
+        c0 = time.process_time()
+        best = solve(n.scene, n.xy, n.classes)
         cpu.append(time.process_time() - c0)
-        status = "no pose" if best is None else localize.answer_status(best, threshold)["status"]
-        counts.setdefault(n.kind, {}).setdefault(status, 0)
-        counts[n.kind][status] = counts[n.kind].get(status, 0) + 1
+        counts.setdefault(n.kind, {}).setdefault(status(best), 0)
+        counts[n.kind][status(best)] += 1
     total = {"ok": 0, "n": 0}
     for kind, c in counts.items():
         n = sum(c.values())
-        total["n"] += n
-        total["ok"] += c.get("ok", 0)
+        if kind != "real":
+            total["n"] += n
+            total["ok"] += c.get("ok", 0)
         shares = ", ".join(f"{k} {100 * v / n:.1f} %" for k, v in sorted(c.items()))
-        print(f"{kind}: {n} queries: {shares}")
-    print(f"all kinds: {total['n']} queries, {100 * total['ok'] / max(total['n'], 1):.2f} % ok")
-    print(f"CPU per query: median {1000 * np.median(cpu):.1f} ms")
+        print(f"{kind} ({map_type}): {n} queries: {shares}")
+    ok = counts.get("real", {}).get("ok", 0)
+    print(f"real queries answered ok and right (5 m, 5 deg): {right_ok} of {ok}")
+    print(f"nonsense, all kinds: {total['n']} queries, {100 * total['ok'] / max(total['n'], 1):.2f} % ok")
+    print(f"CPU per nonsense query: median {1000 * np.median(cpu):.1f} ms")
 
 
 def run_noise(root: Path, levels, frames, split: str, seed: int) -> None:
@@ -149,6 +168,7 @@ def main(argv=None) -> int:
     ap.add_argument("--root", type=Path, default=Path("results"))
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--split", default="test")
+    ap.add_argument("--map-type", choices=("depth", "gt"), default="depth", help="nonsense: the local maps asked")
     ap.add_argument("what", choices=("nonsense", "noise", "intervals"))
     ap.add_argument("--levels", type=float, nargs="+", default=[1.0, 3.0])
     ap.add_argument("--frames", type=int, nargs="+", default=[1, 5])
@@ -157,7 +177,7 @@ def main(argv=None) -> int:
         args.seed if args.seed is not None else int(yaml.safe_load((REPO / "config/config.yaml").read_text())["seed"])
     )
     if args.what == "nonsense":
-        run_nonsense(args.root, args.split, seed)
+        run_nonsense(args.root, args.split, seed, args.map_type)
     elif args.what == "noise":
         run_noise(args.root, args.levels, args.frames, args.split, seed)
     else:

@@ -134,6 +134,12 @@ def solver_priors(region="{region}") -> str:
     return _r("solver", "priors", f"{region}.json")
 
 
+def solver_priors_gt(region="{region}") -> str:
+    """The priors of GT local maps for ``region``: their answers' calibration alone, with its null
+    hypothesis (rule solver_calibration_gt; GT maps learn nothing else)."""
+    return _r("solver", "priors", f"{region}.gt.json")
+
+
 def solver_fit(region="{region}") -> str:
     """The priors fitted on the training split for ``region``, before the calibration (rule
     solver_priors)."""

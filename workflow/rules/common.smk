@@ -410,6 +410,7 @@ def benchmark_products():
     selected images scenes localized by the benchmark's methods."""
     return (
         BENCHMARK_TABLES
+        + [paths.solver_priors_gt(vocabulary.WHOLE)]
         + beyond_products()
         + ([paths.table("reference_map_reproduction")] if class_cloud_scenes(benchmark_scenes()) else [])
         + [paths.scene_localization(s) for s in localization_scenes()]

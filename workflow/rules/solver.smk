@@ -54,3 +54,28 @@ rule solver_calibration:
         **config_keys("solver", "beyond", "seed", exclude=BEYOND_CITIES),
     script:
         "../scripts/solver_calibration.py"
+
+
+# GT local maps (metres) learn nothing from the training split; their answers' probability is
+# calibrated on the validation split's GT maps and nonsense queries in metres, with a null hypothesis
+rule solver_calibration_gt:
+    input:
+        reference_maps=per_scene(paths.reference_map(), benchmark_scenes()),
+        queries=per_scene(paths.queries(), benchmark_scenes()),
+    output:
+        priors=paths.solver_priors_gt(),
+    log:
+        "logs/solver_calibration_gt/{region}.log",
+    benchmark:
+        "logs/benchmarks/solver_calibration_gt/{region}.tsv"
+    wildcard_constraints:
+        region=vocabulary.WHOLE,
+    conda:
+        "../envs/flatlandia.yaml"
+    threads: rule_threads("solver_calibration_gt")
+    resources:
+        **rule_resources("solver_calibration_gt"),
+    params:
+        **config_keys("solver", "seed"),
+    script:
+        "../scripts/solver_calibration_gt.py"

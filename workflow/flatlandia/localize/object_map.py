@@ -52,8 +52,10 @@ class ObjectMap(abc.ABC):
     lonlat: np.ndarray | None  # (N, 2) degrees, None without a geographic frame
     settings: solver.SolverConfig
     frame: str  # what the metric frame is, in words
-    learned: solver.LearnedPriors | None = None
+    learned: solver.LearnedPriors | None = None  # depth maps'
     learned_path: Path | None = None
+    learned_gt: solver.LearnedPriors | None = None  # GT maps' (their answers' calibration)
+    learned_gt_path: Path | None = None
     queries_path: Path | None = None  # where the training cameras came from
     cameras: int = 0  # training cameras among the priors
     cities: dict = field(default_factory=dict)  # scene -> its city's name, where the results folder says
@@ -104,11 +106,13 @@ class ObjectMap(abc.ABC):
 
     def priors_used(self, map_type: str) -> dict:
         """What the solver knew beyond the query and the map, for one map type."""
-        lp = self.learned if map_type == "depth" else None
+        lp, lp_path = (
+            (self.learned, self.learned_path) if map_type == "depth" else (self.learned_gt, self.learned_gt_path)
+        )
         return {
             "training_cameras": int(self.cameras),
             "cameras_from": str(self.queries_path) if self.queries_path and self.cameras else None,
-            "learned_from": str(self.learned_path) if lp is not None and self.learned_path else None,
+            "learned_from": str(lp_path) if lp is not None and lp_path else None,
             "scale_prior": bool(lp is not None and lp.scale is not None),
             "verifier": bool(lp is not None and lp.verifier is not None and self.cameras > 0),
         }

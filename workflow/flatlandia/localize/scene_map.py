@@ -192,6 +192,10 @@ def _read(path: Path, settings, learned) -> SceneMap:
     )
     m.learned_path = learned_auto if learned == "auto" else (Path(learned) if learned else None)
     m.learned = solver.LearnedPriors.read(m.learned_path) if m.learned_path else None
+    if learned == "auto" and learned_auto is not None and results is not None:  # GT maps' calibration beside it
+        gt = paths.within(results, paths.solver_priors_gt(vocabulary.WHOLE))
+        m.learned_gt_path = gt if gt.is_file() else None
+        m.learned_gt = solver.LearnedPriors.read(gt) if m.learned_gt_path else None
     training = read_training(queries_path, obj) if queries_path is not None else None
     set_training_priors(m, training, queries_path)
     if scene is not None:
@@ -227,12 +231,12 @@ def set_training_priors(m: SceneMap, training: pd.DataFrame | None, source: Path
     """A scene map's priors per map type, as rule fine_eval gives them: the cameras of ``training``'s
     train split and what they saw (columns ``split``, ``x_m``, ``y_m``, ``theta_deg``, ``ref_idx``:
     the workflow's queries.parquet, or an export's ground_truth.csv read so), for depth maps with
-    the map's learned priors; None: the learned scale prior alone. ``source``: where they came from."""
+    the map's learned priors, for GT maps with their calibration; None: the learned priors alone. ``source``: where they came from."""
     from flatlandia import solver
 
     ref = pd_frame(m.obj_idx, m.scene)  # the scene names its depth maps' bearing correction
     for map_type in vocabulary.MAP_TYPES:  # as rule fine_eval: cameras and co-visibility; depth maps the learned priors
-        lp = m.learned if map_type == "depth" else None
+        lp = m.learned if map_type == "depth" else m.learned_gt
         if training is not None:
             m.priors[map_type] = solver.scene_priors(ref, training, m.settings, lp)
         else:

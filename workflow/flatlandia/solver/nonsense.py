@@ -10,7 +10,8 @@ a real query of the split so that its size and its classes look real:
 - ``other_scene``: the query itself, asked of another scene's map.
 
 Places in view: bearings uniform within the field of view, ranges log-uniform over a factor of
-e either side of 1, normalised to a median range of 1 (a depth local map's units).
+e either side of 1, normalised to a median range of 1 (a depth local map's units), or, for GT local
+maps (metres), to the median range of the real query it is drawn from.
 """
 
 from __future__ import annotations
@@ -48,22 +49,26 @@ def draw(
     map_classes: list[np.ndarray],
     seed: int,
     kinds: tuple[str, ...] = KINDS,
+    metric: bool = False,
 ) -> list[Nonsense]:
     """One nonsense query per real query and kind: ``queries[i]`` are scene ``i``'s real queries as
-    (depth local map, classes), ``map_classes[i]`` the class of each object of scene ``i``'s map;
-    ``other_scene`` asks scene ``i``'s queries of scene ``i + 1``'s map (needs two scenes). Seeded."""
+        (depth local map, classes), ``map_classes[i]`` the class of each object of scene ``i``'s map;
+        ``other_scene`` asks scene ``i``'s queries of scene ``i + 1``'s map (needs two scenes); ``metric``:
+    the queries are GT local maps (metres), and the random places take each real query's median range.
+    Seeded."""
     rng = np.random.default_rng(seed)
     out = []
     n_scenes = len(map_classes)
     for i, scene_queries in enumerate(queries):
         for xy, cls in scene_queries:
             cls = np.asarray(cls, int)
+            unit = float(np.median(np.hypot(*np.asarray(xy, float).T))) if metric else 1.0
             for kind in kinds:
                 if kind == "random_places":
-                    out.append(Nonsense(i, kind, random_layout(rng, len(cls)), rng.permutation(cls)))
+                    out.append(Nonsense(i, kind, unit * random_layout(rng, len(cls)), rng.permutation(cls)))
                 elif kind == "random_classes" and len(map_classes[i]):
                     n = int(rng.integers(3, 7))
-                    out.append(Nonsense(i, kind, random_layout(rng, n), rng.choice(map_classes[i], n)))
+                    out.append(Nonsense(i, kind, unit * random_layout(rng, n), rng.choice(map_classes[i], n)))
                 elif kind == "other_scene" and n_scenes > 1:
                     out.append(Nonsense((i + 1) % n_scenes, kind, np.asarray(xy, float), cls))
     return out
