@@ -34,6 +34,9 @@ from flatlandia.plumbing import provenance
 
 #: where a run folder records the folder it last ran in and the workflow it ran
 HOME = Path(".snakemake/flatlandia_home.json")
+#: where the rules' ``benchmark:`` files lie: Snakemake takes a job's oldest output *or benchmark
+#: file* as the time its inputs must not be newer than, so they are re-timed after every output
+BENCHMARKS = Path("logs/benchmarks")
 #: the workflow's own files: outputs are made newer than every one of them
 WORKFLOW_FILES = ("scripts", "rules", "Snakefile", "flatlandia", "schemas")
 
@@ -169,6 +172,19 @@ def retime(records: list[dict], start: float) -> int:
     return n
 
 
+def retime_benchmarks(t: float) -> int:
+    """Give every benchmark file (:data:`BENCHMARKS`) the time ``t``, after every re-timed output:
+    a benchmark file older than a job's re-timed inputs would plan the job again (``Updated input
+    files``), and a later one changes nothing (Snakemake takes the oldest of outputs and benchmark).
+    The number of files."""
+    n = 0
+    for q in BENCHMARKS.rglob("*") if BENCHMARKS.is_dir() else []:
+        if q.is_file() and not q.is_symlink():
+            os.utime(q, (t, t))
+            n += 1
+    return n
+
+
 def settle(workflow_dir: str | None, log: Callable[[str], None] = print) -> str | None:
     """Where this run folder was last run elsewhere (:data:`HOME`), give the outputs of every job
     whose record checks out (:func:`checked_records`) new times in the order they were built; one
@@ -185,6 +201,7 @@ def settle(workflow_dir: str | None, log: Callable[[str], None] = print) -> str 
     good, why = checked_records(str(workflow_dir), records)
     start = max(time.time(), newest_workflow_file(str(workflow_dir))) + 1.0
     n = retime(in_order(good), start)
+    retime_benchmarks(start + len(good) * 1e-3 + 1e-3)
     _write_home(now)
     came = f"from {old['run_folder']}" if old and old.get("run_folder") else "from elsewhere (no record of where)"
     others = "; ".join(f"{v} {k}" for k, v in sorted(why.items())) or "none"
