@@ -2,7 +2,8 @@
 the same commit, with or without its times, plans nothing; a copy whose content changed reruns the
 jobs that changed, and the run's start says so in one line.
 
-Slow lane: it runs the tiny scene's `maps` for real (seconds) in a clone of the checkout.
+Slow lane: it runs the tiny scene's `maps` for real (seconds) in a clone of the checkout, and the
+Lund photos' (about 80 s: folder outputs, masks and the SfM model).
 """
 
 from __future__ import annotations
@@ -78,3 +79,36 @@ def test_a_copy_into_a_clone_of_other_code_reruns(finished, tmp_path):
     said = [ln for ln in res.stderr.splitlines() if "this run folder was last run from" in ln]
     assert len(said) == 1 and "built by other code" in said[0], res.stderr[-3000:]
     assert job_stats(res.stdout)["total"] > 0
+
+
+@pytest.fixture(scope="module")
+def finished_lund(tmp_path_factory, flat_root, lund) -> tuple[Path, tuple[str, ...]]:
+    """A clone of the checkout with the Lund photos' maps built in it (rules with folder outputs)."""
+    import pandas as pd
+
+    first = tagged_repository(tmp_path_factory.mktemp("travel_lund") / "first")
+    sheet = pd.read_csv(first / "config/scenes.tsv", sep="\t", dtype=str, keep_default_na=False)
+    sheet.loc[sheet["scene"] == "lund", "path"] = str(lund)
+    sheet.to_csv(first / "results_sheet.tsv", sep="\t", index=False)
+    args = (
+        "maps",
+        "--config",
+        "select=[lund]",
+        f"flatlandia_root={flat_root}",
+        f"scenes={first / 'results_sheet.tsv'}",
+    )
+    res = smk(first, first, "--cores", "2", *args)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    return first, args
+
+
+def test_a_run_with_folder_outputs_copied_into_another_clone_plans_nothing(finished_lund, tmp_path):
+    """The masks and the SfM model are folder outputs; each job's benchmark file is re-timed after the
+    outputs (Snakemake weighs a job's oldest output or benchmark file against its inputs: an old
+    benchmark file planned SfM and the 11 jobs after it again)."""
+    first, args = finished_lund
+    second = _second_clone_with_the_run(first, tmp_path / "second", keep_times=True)
+    res = smk(second, second, "-n", *args)
+    said = [ln for ln in res.stderr.splitlines() if "this run folder was last run from" in ln]
+    assert len(said) == 1 and "not re-timed: none" in said[0], res.stderr[-3000:]
+    assert "Nothing to be done" in res.stdout + res.stderr, res.stdout[-3000:]
