@@ -57,6 +57,16 @@ def test_reference_map_with_nan(tmp_path):
         published.read_reference_map(p)
 
 
+@pytest.mark.parametrize(
+    "entry", [5, [[2.0], 1], [["east", 48.0], 1], [[2.0, 48.0]], [[2.0, 48.0], 1.5], [[2.0, 48.0], True]]
+)
+def test_a_malformed_reference_map_entry_is_named_by_its_index(tmp_path, entry):
+    p = tmp_path / "map_0.json"
+    p.write_text(json.dumps([[[2.0, 48.0], 1], entry]))
+    with pytest.raises(InputError, match=r"map_0.json: object 1 is .*, not \[\[lon, lat\], class_id\]"):
+        published.read_reference_map(p)
+
+
 def test_reference_map_with_bad_class(tmp_path):
     p = tmp_path / "map_0.json"
     p.write_text(json.dumps([[[2.0, 48.0], 1], [[2.1, 48.0], 99]]))

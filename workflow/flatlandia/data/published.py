@@ -53,11 +53,17 @@ def read_reference_map(path: str | Path, n_classes: int | None = None) -> tuple[
     data = read_json(path)
     if not isinstance(data, list) or not data:
         raise InputError(path, "expected a non-empty list of [[lon, lat], class_id]")
-    try:
-        lonlat = np.array([[float(o[0][0]), float(o[0][1])] for o in data])
-        classes = np.array([int(o[1]) for o in data])
-    except (TypeError, ValueError, IndexError) as e:
-        raise InputError(path, f"malformed object entry: {e}") from e
+    lonlat, classes = np.empty((len(data), 2)), np.empty(len(data), np.int64)
+    for i, o in enumerate(data):
+        try:
+            lonlat[i] = float(o[0][0]), float(o[0][1])
+            if isinstance(o[1], bool) or int(o[1]) != o[1]:
+                raise ValueError("a class id is a whole number")
+            classes[i] = int(o[1])
+        except (TypeError, ValueError, IndexError, OverflowError, KeyError):
+            shown = repr(o)
+            shown = shown if len(shown) <= 60 else shown[:57] + "..."
+            raise InputError(path, f"object {i} is {shown}, not [[lon, lat], class_id]") from None
     bad = ~np.isfinite(lonlat).all(axis=1)
     if bad.any():
         raise InputError(
