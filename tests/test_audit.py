@@ -87,6 +87,14 @@ def test_audit_check_names_a_file_edited_after_the_run(tiny_run):
         target.write_bytes(original.replace(b"Feature", b"Featur3", 1))
         res = smk_cli(tiny_run, "audit", "--check")
         assert res.returncode == 1 and "results/0/maps/reference_map.geojson" in res.stdout
+        one = smk_cli(tiny_run, "audit", "results/0/maps/reference_map.geojson", "--check")
+        assert one.returncode == 1 and "results/0/maps/reference_map.geojson" in one.stdout
+        other = smk_cli(tiny_run, "audit", "results/0/queries/queries.parquet", "--check")  # only that one
+        assert other.returncode == 0 and other.stdout.strip() == "results/0/queries/queries.parquet matches its record"
+        unknown = smk_cli(tiny_run, "audit", "results/0/nothing.parquet", "--check")
+        assert unknown.returncode == 1 and unknown.stderr.startswith(
+            "ERROR: results/0/nothing.parquet: no audit record"
+        )
     finally:
         target.write_bytes(original)
 

@@ -47,7 +47,11 @@ def _audit_options(sub) -> None:
     a = sub.add_parser("audit", help="print which rule, inputs, settings and commit produced each artifact")
     a.add_argument("artifact", nargs="?", help="one artifact: its rule, settings by value, inputs and their rules")
     a.add_argument("--tree", action="store_true", help="with PATH: follow the inputs back to the source files")
-    a.add_argument("--check", action="store_true", help="re-hash every recorded artifact and name those changed")
+    a.add_argument(
+        "--check",
+        action="store_true",
+        help="re-hash every recorded artifact (with PATH: that one; with --scene: that scene's) and name those changed",
+    )
     a.add_argument("--scene", help="only this scene's artifacts")
     a.add_argument("--manifest", default="results/manifest.parquet")
     a.add_argument("--provenance", default=str(provenance.PROVENANCE_DIR))

@@ -29,13 +29,8 @@ def audit(args) -> int:
         )
         return 1
     made_by = dict(zip(df["artifact"], df["rule"]))  # every recorded artifact, before --scene narrows df
-    if args.check:  # every recorded artifact re-hashed
-        bad = provenance.check(df)
-        if bad.empty:
-            print(f"all {len(df)} recorded artifacts match their records")
-            return 0
-        print(audit_report.changed_report(df, bad))
-        return 1
+    if args.check:  # every recorded artifact re-hashed, or the one named, or one scene's
+        return _check(df, args)
     if args.artifact:
         return _audit_one(df, args)
     if args.scene:
@@ -49,6 +44,36 @@ def audit(args) -> int:
     print(audit_report.artifact_table(df))
     print("\nflatlandia audit PATH shows one artifact's settings and inputs (--tree: back to the sources)")
     return 0
+
+
+def _check(df: pd.DataFrame, args) -> int:
+    """``--check``: re-hash the recorded artifacts (only ``PATH``'s, or ``--scene``'s, when given)
+    and list those changed; 1 when one changed or nothing recorded matches what was named."""
+    what = "recorded artifacts"
+    if args.artifact:
+        df = df[df["artifact"] == audit_report.run_relative(args.artifact)]
+        what = f"recorded artifacts named {args.artifact}"
+        if df.empty:
+            error(
+                f"{args.artifact}: no audit record (not an output of this run's rules, or built before records existed)"
+            )
+            return 1
+    elif args.scene:
+        df = df[df["scene"] == args.scene]
+        what = f"recorded artifacts of scene {args.scene}"
+        if df.empty:
+            error(f"no audit records for scene {args.scene!r}")
+            return 1
+    bad = provenance.check(df)
+    if bad.empty:
+        print(
+            f"{args.artifact} matches its record"
+            if len(df) == 1 and args.artifact
+            else f"all {len(df)} {what} match their records"
+        )
+        return 0
+    print(audit_report.changed_report(df, bad))
+    return 1
 
 
 def _audit_one(df: pd.DataFrame, args) -> int:
