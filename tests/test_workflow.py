@@ -326,7 +326,7 @@ def test_bad_reference_map_stops_the_rule_without_output(repo, flat_root, tmp_pa
     res = smk(repo, wd, "--cores", "1", "results/12/maps/reference_map.parquet", "--config", f"flatlandia_root={data}")
     assert res.returncode != 0
     log = (wd / "logs/ingest/12.log").read_text()
-    assert "map_12.json" in log and "malformed object entry" in log
+    assert "map_12.json" in log and "object 3 is [[None," in log and "not [[lon, lat], class_id]" in log
     assert not (wd / "results/12/maps/reference_map.parquet").exists()
     assert not (wd / "results/12/ingest/ingest.json").exists()
 

@@ -430,7 +430,7 @@ Files given with `--configfile` are merged key by key, at every depth, over `con
 `--config seed=1`; a nested key is given as a YAML mapping of its section, which is merged the
 same way (the section's other keys keep their values):
 
-    snakemake --cores 2 all --config 'images={missing_gps: stop}' 'fine={geo: {top_k: 12}}'
+    snakemake --cores 2 all --config 'images={missing_gps: stop}' 'solver={top_k: 12}'
 
 (Snakemake itself does not accept dotted keys such as `images.missing_gps=stop`.) A key the schema
 does not know, or a value of the wrong type, stops the run before any job with one line naming
