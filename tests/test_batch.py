@@ -15,11 +15,11 @@ import numpy as np
 import pandas as pd
 import pytest
 from conftest import TINY_SCENE
+from one_tile_city import write_one_tile_city
 from tiny_results import builtin_summary, tiny_scene
 
 from flatlandia import cli, config, geo, paths, score
 from flatlandia.benchmark import fine_rows, metrics, solver_runs
-from flatlandia.city import index, tiling
 from flatlandia.data import export, reference_map
 from flatlandia.localize import batch
 from flatlandia.plumbing import files
@@ -234,10 +234,7 @@ def test_a_city_index_gives_poses_in_each_querys_scene_frame(tiny_run, tmp_path)
     ref = pd.read_parquet(tiny_run / TINY_SCENE / "maps" / "reference_map.parquet")
     q = pd.read_parquet(tiny_run / TINY_SCENE / "queries" / "queries.parquet")
     city = tiny_run / "city" / "1"
-    cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
-    (city / "index").mkdir(parents=True, exist_ok=True)
-    files.write_parquet(cref.drop(columns=["geometry"], errors="ignore").assign(city=0), city / "map.parquet")
-    index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
+    write_one_tile_city(ref, q, city)
     on_city = batch.localize_batch(tiny_run, SPLIT, "gt", city=city / "index", progress=False).poses
     on_scene = batch.localize_batch(tiny_run, SPLIT, "gt", progress=False).poses
     assert on_city["found"].all() and (on_city["located_scene"] == TINY_SCENE).all()

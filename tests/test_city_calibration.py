@@ -14,11 +14,12 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from one_tile_city import write_one_tile_city
 from test_city import CORNER, mirrored_city
 from test_localize import query_file, run_cli, tiny_scene  # noqa: F401
 
 from flatlandia import solver
-from flatlandia.city import index, search, tiling
+from flatlandia.city import index, search
 from flatlandia.plumbing import files
 from flatlandia.plumbing.errors import InputError
 from flatlandia.solver import calibration, learned_priors
@@ -126,10 +127,7 @@ def test_localize_reads_the_record_beside_the_city_folders(tiny_scene, tmp_path,
     ref, _, q = tiny_scene
     results = tmp_path / "results"
     city = results / "city" / "1"
-    cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
-    (city / "index").mkdir(parents=True)
-    files.write_parquet(cref.assign(city=0), city / "map.parquet")
-    index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
+    cref, cq = write_one_tile_city(ref, q, city)
     _priors(None).write(results / "solver" / "priors" / "whole.json")
     query = query_file(tmp_path / "q.json", cq[cq["split"] == "test"].iloc[0], "depth")
     args = ["--map", city / "index", "--query", query, "--map-type", "depth"]

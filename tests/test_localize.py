@@ -17,6 +17,7 @@ import pandas as pd
 import pytest
 import tiny_results
 from conftest import TINY_SCENE, published_scene
+from one_tile_city import write_one_tile_city
 
 from flatlandia import cli, config, localize, solver
 from flatlandia.city import index, tiling
@@ -212,10 +213,7 @@ def test_a_city_index_places_queries_and_their_lon_lat(tiny_scene, tmp_path):
     lon/lat come from the tile's frame (the city's map.parquet beside the index)."""
     ref, _, q = tiny_scene
     city = tmp_path / "results" / "city" / "1"
-    cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
-    (city / "index").mkdir(parents=True)
-    files.write_parquet(cref.assign(city=0), city / "map.parquet")
-    index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
+    cref, cq = write_one_tile_city(ref, q, city)
     m = localize.load_map(city / "index")
     assert m.kind == "city" and m.lonlat is not None
     for r in cq[cq["split"] == "test"].itertuples(index=False):

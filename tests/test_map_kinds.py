@@ -14,14 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from one_tile_city import write_one_tile_city
 from test_localize import query_file, run_cli, tiny_scene  # noqa: F401
 
 from flatlandia import localize, solver
-from flatlandia.city import index, tiling
 from flatlandia.data import localmaps, reference_map
 from flatlandia.localize import maps
 from flatlandia.localize.object_map import Found, ObjectMap
-from flatlandia.plumbing import files
 from flatlandia.plumbing.errors import InputError
 
 
@@ -130,10 +129,7 @@ def test_a_sequence_whose_fix_falls_in_no_tile_of_a_city_has_no_pose(tiny_scene,
     single query's answer; it was an IndexError)."""
     ref, _, q = tiny_scene
     city = tmp_path / "results" / "city" / "1"
-    cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
-    (city / "index").mkdir(parents=True)
-    files.write_parquet(cref.assign(city=0), city / "map.parquet")
-    index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
+    _, cq = write_one_tile_city(ref, q, city)
     m = localize.load_map(city / "index")
     r = cq[cq["split"] == "test"].iloc[0]
     seq = {"frames": [localize.query_json(localmaps.local_map(r, "depth"), r.classes)]}

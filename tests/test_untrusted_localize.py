@@ -19,13 +19,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from one_tile_city import write_one_tile_city
 from tiny_results import tiny_scene
 
 from flatlandia import cli, localize, solver
 from flatlandia.city import index
 from flatlandia.classes import CLASSES
 from flatlandia.data import localmaps, reference_map
-from flatlandia.plumbing import files, validate
+from flatlandia.plumbing import validate
 from flatlandia.plumbing.errors import InputError
 
 
@@ -163,16 +164,14 @@ def test_an_index_that_unpacks_past_its_bound_is_refused_before_anything_is_infl
 
 def test_a_city_map_beside_the_index_with_nan_lon_lat_is_refused(tiny, tmp_path, capsys):
     """The city's map.parquet gives each tile its lon/lat: NaN there would reach pyproj."""
-    from flatlandia.city import tiling
-
     ref, q = tiny["ref"], tiny["queries"]
     city = tmp_path / "results" / "city" / "1"
-    cref, cq = tiling.place([ref], [q], np.array([[3000.0, -2000.0]]))
-    (city / "index").mkdir(parents=True)
-    cref = cref.assign(city=0)
-    cref.loc[cref.index[0], "lon"] = np.nan
-    files.write_parquet(cref, city / "map.parquet")
-    index.build(cref, cq[cq["split"] == "train"]).save(city / "index" / "0.npz")
+
+    def no_lon(cref):
+        cref.loc[cref.index[0], "lon"] = np.nan
+        return cref
+
+    cref, cq = write_one_tile_city(ref, q, city, no_lon)
     one_error(
         *run(capsys, "--map", city / "index", "--query", tiny["dir"] / "q.json"), "map.parquet", "lon/lat holds NaN"
     )
